@@ -1,0 +1,121 @@
+//! Plain data mirroring unitree_hg `LowCmd_` / `LowState_` field for field (see
+//! `../shared/facts/g1_low_level.md`); the byte layout lives in `sensor_io`.
+use crate::NUM_MOTORS;
+
+/// `MotorCmd_.mode`: 0 disables the motor (the SDK default, a known trap), 1 enables it.
+pub const MOTOR_MODE_DISABLED: u8 = 0;
+pub const MOTOR_MODE_ENABLED: u8 = 1;
+
+/// One motor slot of `LowCmd_`. The motor driver applies
+/// `tau_out = tau + kp (q − q_meas) + kd (dq − dq_meas)`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MotorCommand {
+    pub mode: u8,
+    pub q: f32,
+    pub dq: f32,
+    pub tau: f32,
+    pub kp: f32,
+    pub kd: f32,
+    pub reserve: u32,
+}
+
+impl MotorCommand {
+    /// Passive damping: no stiffness, only velocity damping (Unitree's recommended safe state).
+    pub const fn damping(kd: f32) -> Self {
+        Self { mode: MOTOR_MODE_ENABLED, q: 0.0, dq: 0.0, tau: 0.0, kp: 0.0, kd, reserve: 0 }
+    }
+}
+
+/// `LowCmd_`: one command for all 35 slots.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LowCommand {
+    /// 0 = PR (serial pitch/roll ankle), 1 = AB (parallel).
+    pub mode_pr: u8,
+    /// Must echo `LowState::mode_machine`.
+    pub mode_machine: u8,
+    pub motors: [MotorCommand; NUM_MOTORS],
+    pub reserve: [u32; 4],
+}
+
+impl Default for LowCommand {
+    fn default() -> Self {
+        Self { mode_pr: 0, mode_machine: 0, motors: [MotorCommand::default(); NUM_MOTORS], reserve: [0; 4] }
+    }
+}
+
+/// `IMUState_` of the pelvis IMU.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ImuState {
+    /// Orientation, w x y z.
+    pub quaternion: [f32; 4],
+    /// Body-frame angular velocity, rad/s.
+    pub gyroscope: [f32; 3],
+    /// Body-frame specific force, m/s².
+    pub accelerometer: [f32; 3],
+    /// Roll, pitch, yaw, rad.
+    pub rpy: [f32; 3],
+    pub temperature: i16,
+}
+
+impl Default for ImuState {
+    fn default() -> Self {
+        Self { quaternion: [1.0, 0.0, 0.0, 0.0], gyroscope: [0.0; 3], accelerometer: [0.0; 3], rpy: [0.0; 3], temperature: 0 }
+    }
+}
+
+/// `MotorState_` of one slot.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MotorState {
+    pub mode: u8,
+    pub q: f32,
+    pub dq: f32,
+    pub ddq: f32,
+    pub tau_est: f32,
+    /// Casing and winding temperature, °C.
+    pub temperature: [i16; 2],
+    pub voltage: f32,
+    pub sensor: [u32; 2],
+    /// Error code reported by the driver (0 = ok).
+    pub motor_state: u32,
+    pub reserve: [u32; 4],
+}
+
+/// `LowState_`: everything the low level reports in one frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LowState {
+    pub version: [u32; 2],
+    pub mode_pr: u8,
+    pub mode_machine: u8,
+    /// The robot's own millisecond-ish counter (the simulator's step counter in simulation).
+    pub tick: u32,
+    pub imu: ImuState,
+    pub motors: [MotorState; NUM_MOTORS],
+    pub wireless_remote: [u8; 40],
+    pub reserve: [u32; 4],
+}
+
+impl Default for LowState {
+    fn default() -> Self {
+        Self {
+            version: [0; 2],
+            mode_pr: 0,
+            mode_machine: 0,
+            tick: 0,
+            imu: ImuState::default(),
+            motors: [MotorState::default(); NUM_MOTORS],
+            wireless_remote: [0; 40],
+            reserve: [0; 4],
+        }
+    }
+}
+
+/// `mode_machine` values reported by the robot.
+pub mod mode_machine {
+    pub const G1_23DOF: u8 = 1;
+    pub const G1_29DOF: u8 = 2;
+    pub const LOCK_WAIST: u8 = 3;
+    pub const G1_23DOF_REV_1_0: u8 = 4;
+    pub const G1_29DOF_REV_1_0: u8 = 5;
+    pub const LOCK_WAIST_REV_1_0: u8 = 6;
+    pub const DUAL_ARM: u8 = 9;
+}

@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# Installs everything the project needs on a fresh Debian machine (idempotent):
+#   apt packages, a Python venv with the test-side tools, MuJoCo 3.17.0 (library + headers from the
+#   pinned PyPI wheel) and the 29-dof G1 MJCF + meshes from the pinned mjlab wheel, both sha256-checked.
+# Everything lands in .deps/ and .venv/ inside the checkout; nothing is copied from ../shared.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+deps="$root/.deps"
+mkdir -p "$deps"
+
+say() { printf '[install] %s\n' "$*" >&2; }
+
+# --- apt -----------------------------------------------------------------------------------------
+apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates)
+missing=()
+for p in "${apt_pkgs[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
+if ((${#missing[@]})); then
+  say "apt: installing ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+
+# --- Rust ----------------------------------------------------------------------------------------
+if ! command -v cargo >/dev/null 2>&1; then
+  echo "error: cargo not found. Install Rust stable (>= 1.95, e.g. with rustup) and re-run $0." >&2
+  exit 1
+fi
+
+# --- Python venv (test-side tools only; the firmware never needs Python) --------------------------
+py="$root/.venv/bin/python"
+if [ ! -x "$py" ]; then
+  say "python: creating .venv"
+  /usr/bin/env python3 -m venv "$root/.venv"
+fi
+if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime' 2>/dev/null; then
+  say "python: installing test tools into .venv"
+  "$py" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
+fi
+
+# --- pinned wheels ------------------------------------------------------------------------------
+fetch_wheel() { # name==version sha256 python-tag platform
+  local spec="$1" sha="$2" dir="$deps/wheels"
+  mkdir -p "$dir"
+  local f
+  f=$(ls "$dir"/"${spec%%==*}"-"${spec##*==}"-*.whl 2>/dev/null | head -n1 || true)
+  if [ -z "$f" ]; then
+    say "downloading $spec"
+    "$py" -m pip download -q --disable-pip-version-check --no-deps --only-binary=:all: "${@:3}" -d "$dir" "$spec"
+    f=$(ls "$dir"/"${spec%%==*}"-"${spec##*==}"-*.whl | head -n1)
+  fi
+  local got
+  got=$(sha256sum "$f" | cut -d' ' -f1)
+  if [ "$got" != "$sha" ]; then
+    echo "error: $f has sha256 $got, expected $sha; delete it and re-run." >&2
+    exit 1
+  fi
+  echo "$f"
+}
+
+mj_whl=$(fetch_wheel mujoco==3.17.0 d66928d86a2d1b601bbaa4dc11db50214d17d5301bb8afd84721313b67ff0874 \
+  --python-version 3.11 --implementation cp --abi cp311 --platform manylinux_2_28_x86_64)
+if [ ! -f "$deps/mujoco/lib/libmujoco.so.3.17.0" ]; then
+  say "unpacking MuJoCo 3.17.0 library and headers"
+  rm -rf "$deps/mujoco" "$deps/tmp" && mkdir -p "$deps/mujoco/lib" "$deps/tmp"
+  unzip -q -o "$mj_whl" 'mujoco/libmujoco.so.3.17.0' 'mujoco/include/*' -d "$deps/tmp"
+  mv "$deps/tmp/mujoco/libmujoco.so.3.17.0" "$deps/mujoco/lib/"
+  mv "$deps/tmp/mujoco/include" "$deps/mujoco/include"
+  ln -sf libmujoco.so.3.17.0 "$deps/mujoco/lib/libmujoco.so"
+  rm -rf "$deps/tmp"
+fi
+
+mjlab_whl=$(fetch_wheel mjlab==1.6.0 03d003854e2f44c48330c6dcf4c2253ff7641bb569747846825a21b9efa8540b)
+if [ ! -f "$deps/g1_29dof/g1.xml" ]; then
+  say "extracting the 29-dof G1 MJCF and meshes from mjlab 1.6.0"
+  rm -rf "$deps/g1_29dof" "$deps/tmp" && mkdir -p "$deps/tmp"
+  unzip -q -o "$mjlab_whl" 'mjlab/asset_zoo/robots/unitree_g1/xmls/*' -d "$deps/tmp"
+  mv "$deps/tmp/mjlab/asset_zoo/robots/unitree_g1/xmls" "$deps/g1_29dof"
+  rm -rf "$deps/tmp"
+fi
+say "dependencies ready in .deps/ and .venv/"

@@ -1,0 +1,213 @@
+//! unitree_hg `LowCmd_` (1004 bytes) and `LowState_` (2092 bytes): little-endian, packed with explicit
+//! zero padding, CRC32 in the last word. Encoders always zero the padding (dirty padding changes the
+//! CRC and makes the robot drop commands silently). Decoders check length, then CRC, then that every
+//! float is finite, and report the first problem by field name.
+mod crc;
+
+pub use crc::crc32_words;
+use hal::{ImuState, LowCommand, LowState, MotorCommand, MotorState, NUM_MOTORS};
+
+pub const LOW_CMD_LEN: usize = 1004;
+pub const LOW_STATE_LEN: usize = 2092;
+const MOTOR_CMD_LEN: usize = 28;
+const MOTOR_STATE_LEN: usize = 56;
+const LOW_CMD_MOTORS_AT: usize = 4;
+const LOW_STATE_IMU_AT: usize = 16;
+const LOW_STATE_MOTORS_AT: usize = 72;
+const LOW_STATE_REMOTE_AT: usize = LOW_STATE_MOTORS_AT + NUM_MOTORS * MOTOR_STATE_LEN;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DecodeError {
+    #[error("{message}: frame is {got} bytes, expected {expected}")]
+    Length { message: &'static str, expected: usize, got: usize },
+    #[error("{message}: CRC mismatch (frame says {stored:#010x}, contents give {computed:#010x})")]
+    Crc { message: &'static str, stored: u32, computed: u32 },
+    #[error("{message}: non-finite value in {field}[{index}]")]
+    NonFinite { message: &'static str, field: &'static str, index: usize },
+}
+
+struct Writer<'a> {
+    buf: &'a mut [u8],
+}
+
+impl Writer<'_> {
+    fn u8(&mut self, at: usize, v: u8) {
+        self.buf[at] = v;
+    }
+    fn u32(&mut self, at: usize, v: u32) {
+        self.buf[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    }
+    fn i16(&mut self, at: usize, v: i16) {
+        self.buf[at..at + 2].copy_from_slice(&v.to_le_bytes());
+    }
+    fn f32(&mut self, at: usize, v: f32) {
+        self.buf[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    }
+    fn f32s(&mut self, at: usize, v: &[f32]) {
+        for (i, x) in v.iter().enumerate() {
+            self.f32(at + 4 * i, *x);
+        }
+    }
+}
+
+fn rd_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+fn rd_i16(b: &[u8], at: usize) -> i16 {
+    i16::from_le_bytes([b[at], b[at + 1]])
+}
+fn rd_f32(b: &[u8], at: usize) -> f32 {
+    f32::from_bits(rd_u32(b, at))
+}
+fn rd_f32s<const N: usize>(b: &[u8], at: usize) -> [f32; N] {
+    core::array::from_fn(|i| rd_f32(b, at + 4 * i))
+}
+
+fn seal(buf: &mut [u8]) {
+    let n = buf.len();
+    let crc = crc32_words(&buf[..n - 4]);
+    buf[n - 4..].copy_from_slice(&crc.to_le_bytes());
+}
+
+fn check(message: &'static str, buf: &[u8], expected: usize) -> Result<(), DecodeError> {
+    if buf.len() != expected {
+        return Err(DecodeError::Length { message, expected, got: buf.len() });
+    }
+    let stored = rd_u32(buf, expected - 4);
+    let computed = crc32_words(&buf[..expected - 4]);
+    if stored != computed {
+        return Err(DecodeError::Crc { message, stored, computed });
+    }
+    Ok(())
+}
+
+fn finite(message: &'static str, field: &'static str, values: &[f32]) -> Result<(), DecodeError> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(DecodeError::NonFinite { message, field, index }),
+        None => Ok(()),
+    }
+}
+
+/// Encodes `cmd` into `out` with zeroed padding and a fresh CRC.
+pub fn encode_low_cmd(cmd: &LowCommand, out: &mut [u8; LOW_CMD_LEN]) {
+    out.fill(0);
+    let mut w = Writer { buf: out };
+    w.u8(0, cmd.mode_pr);
+    w.u8(1, cmd.mode_machine);
+    for (i, m) in cmd.motors.iter().enumerate() {
+        let at = LOW_CMD_MOTORS_AT + i * MOTOR_CMD_LEN;
+        w.u8(at, m.mode);
+        w.f32s(at + 4, &[m.q, m.dq, m.tau, m.kp, m.kd]);
+        w.u32(at + 24, m.reserve);
+    }
+    for (i, r) in cmd.reserve.iter().enumerate() {
+        w.u32(LOW_CMD_MOTORS_AT + NUM_MOTORS * MOTOR_CMD_LEN + 4 * i, *r);
+    }
+    seal(out);
+}
+
+/// Decodes and validates a `LowCmd_` frame (the simulator's and the CAN emulator's side).
+pub fn decode_low_cmd(buf: &[u8], out: &mut LowCommand) -> Result<(), DecodeError> {
+    const M: &str = "LowCmd_";
+    check(M, buf, LOW_CMD_LEN)?;
+    let mut cmd = LowCommand { mode_pr: buf[0], mode_machine: buf[1], ..LowCommand::default() };
+    for (i, m) in cmd.motors.iter_mut().enumerate() {
+        let at = LOW_CMD_MOTORS_AT + i * MOTOR_CMD_LEN;
+        let [q, dq, tau, kp, kd] = rd_f32s::<5>(buf, at + 4);
+        finite(M, "motor_cmd", &[q, dq, tau, kp, kd]).map_err(|_| DecodeError::NonFinite { message: M, field: "motor_cmd", index: i })?;
+        *m = MotorCommand { mode: buf[at], q, dq, tau, kp, kd, reserve: rd_u32(buf, at + 24) };
+    }
+    for (i, r) in cmd.reserve.iter_mut().enumerate() {
+        *r = rd_u32(buf, LOW_CMD_MOTORS_AT + NUM_MOTORS * MOTOR_CMD_LEN + 4 * i);
+    }
+    *out = cmd;
+    Ok(())
+}
+
+/// Encodes `state` into `out` with zeroed padding and a fresh CRC (the simulator's side).
+pub fn encode_low_state(state: &LowState, out: &mut [u8; LOW_STATE_LEN]) {
+    out.fill(0);
+    let mut w = Writer { buf: out };
+    w.u32(0, state.version[0]);
+    w.u32(4, state.version[1]);
+    w.u8(8, state.mode_pr);
+    w.u8(9, state.mode_machine);
+    w.u32(12, state.tick);
+    let imu = &state.imu;
+    let at = LOW_STATE_IMU_AT;
+    w.f32s(at, &imu.quaternion);
+    w.f32s(at + 16, &imu.gyroscope);
+    w.f32s(at + 28, &imu.accelerometer);
+    w.f32s(at + 40, &imu.rpy);
+    w.i16(at + 52, imu.temperature);
+    for (i, m) in state.motors.iter().enumerate() {
+        let at = LOW_STATE_MOTORS_AT + i * MOTOR_STATE_LEN;
+        w.u8(at, m.mode);
+        w.f32s(at + 4, &[m.q, m.dq, m.ddq, m.tau_est]);
+        w.i16(at + 20, m.temperature[0]);
+        w.i16(at + 22, m.temperature[1]);
+        w.f32(at + 24, m.voltage);
+        w.u32(at + 28, m.sensor[0]);
+        w.u32(at + 32, m.sensor[1]);
+        w.u32(at + 36, m.motor_state);
+        for (k, r) in m.reserve.iter().enumerate() {
+            w.u32(at + 40 + 4 * k, *r);
+        }
+    }
+    w.buf[LOW_STATE_REMOTE_AT..LOW_STATE_REMOTE_AT + 40].copy_from_slice(&state.wireless_remote);
+    for (i, r) in state.reserve.iter().enumerate() {
+        w.u32(LOW_STATE_REMOTE_AT + 40 + 4 * i, *r);
+    }
+    seal(out);
+}
+
+/// Decodes and validates a `LowState_` frame (the firmware's side).
+pub fn decode_low_state(buf: &[u8], out: &mut LowState) -> Result<(), DecodeError> {
+    const M: &str = "LowState_";
+    check(M, buf, LOW_STATE_LEN)?;
+    let at = LOW_STATE_IMU_AT;
+    let imu = ImuState {
+        quaternion: rd_f32s(buf, at),
+        gyroscope: rd_f32s(buf, at + 16),
+        accelerometer: rd_f32s(buf, at + 28),
+        rpy: rd_f32s(buf, at + 40),
+        temperature: rd_i16(buf, at + 52),
+    };
+    finite(M, "imu_state.quaternion", &imu.quaternion)?;
+    finite(M, "imu_state.gyroscope", &imu.gyroscope)?;
+    finite(M, "imu_state.accelerometer", &imu.accelerometer)?;
+    finite(M, "imu_state.rpy", &imu.rpy)?;
+    let mut motors = [MotorState::default(); NUM_MOTORS];
+    for (i, m) in motors.iter_mut().enumerate() {
+        let at = LOW_STATE_MOTORS_AT + i * MOTOR_STATE_LEN;
+        let [q, dq, ddq, tau_est] = rd_f32s::<4>(buf, at + 4);
+        let voltage = rd_f32(buf, at + 24);
+        if !(q.is_finite() && dq.is_finite() && ddq.is_finite() && tau_est.is_finite() && voltage.is_finite()) {
+            return Err(DecodeError::NonFinite { message: M, field: "motor_state", index: i });
+        }
+        *m = MotorState {
+            mode: buf[at],
+            q,
+            dq,
+            ddq,
+            tau_est,
+            temperature: [rd_i16(buf, at + 20), rd_i16(buf, at + 22)],
+            voltage,
+            sensor: [rd_u32(buf, at + 28), rd_u32(buf, at + 32)],
+            motor_state: rd_u32(buf, at + 36),
+            reserve: core::array::from_fn(|k| rd_u32(buf, at + 40 + 4 * k)),
+        };
+    }
+    out.version = [rd_u32(buf, 0), rd_u32(buf, 4)];
+    out.mode_pr = buf[8];
+    out.mode_machine = buf[9];
+    out.tick = rd_u32(buf, 12);
+    out.imu = imu;
+    out.motors = motors;
+    out.wireless_remote.copy_from_slice(&buf[LOW_STATE_REMOTE_AT..LOW_STATE_REMOTE_AT + 40]);
+    out.reserve = core::array::from_fn(|k| rd_u32(buf, LOW_STATE_REMOTE_AT + 40 + 4 * k));
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests;

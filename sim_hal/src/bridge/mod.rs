@@ -1,0 +1,9 @@
+//! Lock-stepped simulator bridge: the firmware sends one unitree_hg `LowCmd_` per control tick, the
+//! simulator advances exactly one control tick and answers with a `LowState_`, so simulation time
+//! is the firmware's time base. Privileged ground truth travels on its own message kind and is only
+//! ever read by evaluation code.
+pub mod client;
+pub mod protocol;
+
+pub use client::{BridgeError, BridgeHal};
+pub use protocol::*;

@@ -1,0 +1,241 @@
+//! Wire protocol between the firmware (client) and the simulator (server).
+//!
+//! Every message is an 8-byte header — magic `b"G1"`, kind (u8), flags (u8), payload length (u32 LE)
+//! — followed by the payload. Sequence:
+//! 1. client → `Hello` (payload: protocol version u32, want_truth u8, 3 zero bytes)
+//! 2. server → `Welcome` ([`Welcome`]), then `LowState` (initial state) and, if asked, `Truth`
+//! 3. per tick: client → `LowCmd` (1004 B unitree_hg frame); server steps one control tick →
+//!    `LowState` (2092 B) and, if asked, `Truth` ([`Truth`])
+//! 4. client → `Bye`; or server → `Error` (UTF-8 text) before closing.
+use std::io::{self, Read, Write};
+
+pub const MAGIC: [u8; 2] = *b"G1";
+pub const PROTOCOL_VERSION: u32 = 1;
+pub const HEADER_LEN: usize = 8;
+/// Largest payload either side accepts (guards against a corrupted length field).
+pub const MAX_PAYLOAD: usize = 1 << 20;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Kind {
+    Hello = 1,
+    Welcome = 2,
+    LowCmd = 3,
+    LowState = 4,
+    Truth = 5,
+    Bye = 6,
+    Error = 7,
+}
+
+impl Kind {
+    pub fn from_u8(v: u8) -> Option<Kind> {
+        Some(match v {
+            1 => Kind::Hello,
+            2 => Kind::Welcome,
+            3 => Kind::LowCmd,
+            4 => Kind::LowState,
+            5 => Kind::Truth,
+            6 => Kind::Bye,
+            7 => Kind::Error,
+            _ => return None,
+        })
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProtocolError {
+    #[error("connection closed by peer")]
+    Closed,
+    #[error("i/o: {0}")]
+    Io(#[from] io::Error),
+    #[error("bad magic {0:?} (not a G1 bridge peer, or the stream lost sync)")]
+    BadMagic([u8; 2]),
+    #[error("unknown message kind {0}")]
+    UnknownKind(u8),
+    #[error("payload of {0} bytes exceeds the {MAX_PAYLOAD}-byte limit")]
+    TooLong(usize),
+    #[error("expected {expected:?}, got {got:?}")]
+    Unexpected { expected: Kind, got: Kind },
+    #[error("{kind:?} payload is {got} bytes, expected {expected}")]
+    BadLength { kind: Kind, expected: usize, got: usize },
+    #[error("simulator reported: {0}")]
+    Remote(String),
+}
+
+/// Writes one message. `scratch` avoids an allocation per message: header and payload go out in one
+/// write so a message is never split across two syscalls on the lock-stepped path.
+pub fn write_msg<W: Write>(w: &mut W, kind: Kind, payload: &[u8], scratch: &mut Vec<u8>) -> Result<(), ProtocolError> {
+    scratch.clear();
+    scratch.extend_from_slice(&MAGIC);
+    scratch.push(kind as u8);
+    scratch.push(0);
+    scratch.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    scratch.extend_from_slice(payload);
+    w.write_all(scratch)?;
+    Ok(())
+}
+
+/// Reads one message into `payload` (resized, capacity reused). Returns its kind.
+pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, ProtocolError> {
+    let mut h = [0u8; HEADER_LEN];
+    if let Err(e) = r.read_exact(&mut h) {
+        return Err(if e.kind() == io::ErrorKind::UnexpectedEof { ProtocolError::Closed } else { e.into() });
+    }
+    if h[0..2] != MAGIC {
+        return Err(ProtocolError::BadMagic([h[0], h[1]]));
+    }
+    let kind = Kind::from_u8(h[2]).ok_or(ProtocolError::UnknownKind(h[2]))?;
+    let len = u32::from_le_bytes([h[4], h[5], h[6], h[7]]) as usize;
+    if len > MAX_PAYLOAD {
+        return Err(ProtocolError::TooLong(len));
+    }
+    payload.resize(len, 0);
+    if let Err(e) = r.read_exact(payload) {
+        return Err(if e.kind() == io::ErrorKind::UnexpectedEof { ProtocolError::Closed } else { e.into() });
+    }
+    if kind == Kind::Error {
+        return Err(ProtocolError::Remote(String::from_utf8_lossy(payload).into_owned()));
+    }
+    Ok(kind)
+}
+
+/// What the simulator tells the client once, after `Hello`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Welcome {
+    pub protocol_version: u32,
+    /// Bit i set: motor slot i maps to a joint of the loaded model.
+    pub motor_slots_present: u64,
+    /// `mode_machine` the simulated robot reports.
+    pub mode_machine: u8,
+    pub physics_dt_ns: u64,
+    pub control_dt_ns: u64,
+}
+
+impl Welcome {
+    pub const LEN: usize = 4 + 8 + 1 + 8 + 8;
+    pub fn encode(&self) -> [u8; Self::LEN] {
+        let mut b = [0u8; Self::LEN];
+        b[0..4].copy_from_slice(&self.protocol_version.to_le_bytes());
+        b[4..12].copy_from_slice(&self.motor_slots_present.to_le_bytes());
+        b[12] = self.mode_machine;
+        b[13..21].copy_from_slice(&self.physics_dt_ns.to_le_bytes());
+        b[21..29].copy_from_slice(&self.control_dt_ns.to_le_bytes());
+        b
+    }
+    pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
+        if b.len() != Self::LEN {
+            return Err(ProtocolError::BadLength { kind: Kind::Welcome, expected: Self::LEN, got: b.len() });
+        }
+        let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().expect("8 bytes"));
+        Ok(Self {
+            protocol_version: u32::from_le_bytes(b[0..4].try_into().expect("4 bytes")),
+            motor_slots_present: u64_at(4),
+            mode_machine: b[12],
+            physics_dt_ns: u64_at(13),
+            control_dt_ns: u64_at(21),
+        })
+    }
+}
+
+/// Privileged ground truth of one tick, for evaluation only (never on the control path).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Truth {
+    pub sim_time_s: f64,
+    /// Base (pelvis) position in the world, m.
+    pub base_pos: [f64; 3],
+    /// Base orientation, w x y z.
+    pub base_quat: [f64; 4],
+    /// Base linear velocity, world frame, m/s.
+    pub base_lin_vel_world: [f64; 3],
+    /// Base linear velocity, body frame, m/s.
+    pub base_lin_vel_body: [f64; 3],
+    /// Base angular velocity, body frame, rad/s.
+    pub base_ang_vel_body: [f64; 3],
+    /// Left and right foot touching anything other than the robot.
+    pub foot_contact: [bool; 2],
+}
+
+impl Truth {
+    pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
+    pub fn encode(&self) -> [u8; Self::LEN] {
+        let mut b = [0u8; Self::LEN];
+        let vals = [self.sim_time_s]
+            .iter()
+            .chain(&self.base_pos)
+            .chain(&self.base_quat)
+            .chain(&self.base_lin_vel_world)
+            .chain(&self.base_lin_vel_body)
+            .chain(&self.base_ang_vel_body)
+            .copied()
+            .enumerate()
+            .collect::<Vec<_>>();
+        for (i, v) in vals {
+            b[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
+        }
+        b[Self::LEN - 2] = self.foot_contact[0] as u8;
+        b[Self::LEN - 1] = self.foot_contact[1] as u8;
+        b
+    }
+    pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
+        if b.len() != Self::LEN {
+            return Err(ProtocolError::BadLength { kind: Kind::Truth, expected: Self::LEN, got: b.len() });
+        }
+        let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+        let a3 = |i: usize| [f(i), f(i + 1), f(i + 2)];
+        Ok(Self {
+            sim_time_s: f(0),
+            base_pos: a3(1),
+            base_quat: [f(4), f(5), f(6), f(7)],
+            base_lin_vel_world: a3(8),
+            base_lin_vel_body: a3(11),
+            base_ang_vel_body: a3(14),
+            foot_contact: [b[Self::LEN - 2] != 0, b[Self::LEN - 1] != 0],
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn message_round_trip_and_bad_input() {
+        let mut wire = Vec::new();
+        let mut scratch = Vec::new();
+        write_msg(&mut wire, Kind::Bye, &[1, 2, 3], &mut scratch).unwrap();
+        let mut p = Vec::new();
+        assert_eq!(read_msg(&mut wire.as_slice(), &mut p).unwrap(), Kind::Bye);
+        assert_eq!(p, [1, 2, 3]);
+        // Truncated payload → Closed, not a panic.
+        assert!(matches!(read_msg(&mut &wire[..9], &mut p), Err(ProtocolError::Closed)));
+        let mut bad = wire.clone();
+        bad[0] = b'X';
+        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::BadMagic(_))));
+        let mut bad = wire.clone();
+        bad[2] = 99;
+        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::UnknownKind(99))));
+        let mut bad = wire.clone();
+        bad[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::TooLong(_))));
+        let mut err = Vec::new();
+        write_msg(&mut err, Kind::Error, b"model not found", &mut scratch).unwrap();
+        assert!(matches!(read_msg(&mut err.as_slice(), &mut p), Err(ProtocolError::Remote(m)) if m == "model not found"));
+    }
+
+    #[test]
+    fn welcome_and_truth_round_trip() {
+        let w = Welcome { protocol_version: 1, motor_slots_present: 0xFFF, mode_machine: 5, physics_dt_ns: 2_000_000, control_dt_ns: 2_000_000 };
+        assert_eq!(Welcome::decode(&w.encode()).unwrap(), w);
+        let t = Truth {
+            sim_time_s: 1.5,
+            base_pos: [1.0, 2.0, 0.78],
+            base_quat: [1.0, 0.0, 0.0, 0.0],
+            base_lin_vel_world: [0.5, 0.0, 0.0],
+            base_lin_vel_body: [0.4, 0.1, 0.0],
+            base_ang_vel_body: [0.0, 0.0, 0.2],
+            foot_contact: [true, false],
+        };
+        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
+        assert!(Truth::decode(&[0u8; 3]).is_err());
+    }
+}

@@ -1,0 +1,1 @@
+//! Shared helpers for the integration tests (paths to ../shared and built binaries).
