@@ -119,3 +119,49 @@ pub mod mode_machine {
     pub const LOCK_WAIST_REV_1_0: u8 = 6;
     pub const DUAL_ARM: u8 = 9;
 }
+
+/// The G1's motor slots in SDK order (index = slot in `LowCmd_`/`LowState_`); the MJCF joint of a
+/// slot is this name plus `_joint`. Slots 29–34 are unused on the 29-dof G1.
+pub const G1_MOTOR_NAMES: [&str; crate::NUM_MOTORS] = [
+    "left_hip_pitch",
+    "left_hip_roll",
+    "left_hip_yaw",
+    "left_knee",
+    "left_ankle_pitch",
+    "left_ankle_roll",
+    "right_hip_pitch",
+    "right_hip_roll",
+    "right_hip_yaw",
+    "right_knee",
+    "right_ankle_pitch",
+    "right_ankle_roll",
+    "waist_yaw",
+    "waist_roll",
+    "waist_pitch",
+    "left_shoulder_pitch",
+    "left_shoulder_roll",
+    "left_shoulder_yaw",
+    "left_elbow",
+    "left_wrist_roll",
+    "left_wrist_pitch",
+    "left_wrist_yaw",
+    "right_shoulder_pitch",
+    "right_shoulder_roll",
+    "right_shoulder_yaw",
+    "right_elbow",
+    "right_wrist_roll",
+    "right_wrist_pitch",
+    "right_wrist_yaw",
+    "unused_29",
+    "unused_30",
+    "unused_31",
+    "unused_32",
+    "unused_33",
+    "unused_34",
+];
+
+/// Index of the slot whose joint is `name` (with or without the `_joint` suffix).
+pub fn g1_motor_slot(name: &str) -> Option<usize> {
+    let base = name.strip_suffix("_joint").unwrap_or(name);
+    G1_MOTOR_NAMES.iter().position(|n| *n == base)
+}
