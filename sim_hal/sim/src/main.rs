@@ -1,1 +1,181 @@
-fn main() {}
+//! `g1-sim`: MuJoCo G1 simulator serving one lock-stepped bridge client (see `g1_sim`).
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use g1_sim::server::{self, ServeOptions, SessionEnd};
+use g1_sim::{ModelChoice, SimConfig, Simulator};
+use hal::LowState;
+
+/// MuJoCo simulator of the Unitree G1 for the lock-stepped firmware bridge.
+///
+/// Serves exactly one client (Hello → Welcome; per LowCmd one control tick → LowState), then
+/// exits 0 on Bye or disconnect. Exit status 3: the client sent a malformed LowCmd (bad CRC,
+/// length or non-finite value); 2: another protocol error; 1: setup failure. An Error message
+/// with the reason is sent to the client before exiting on an error.
+#[derive(Parser, Debug)]
+#[command(name = "g1-sim", version)]
+struct Cli {
+    /// Unix-domain socket to listen on (the default transport). A stale socket file is replaced;
+    /// the file is removed on exit.
+    #[arg(
+        long,
+        value_name = "PATH",
+        default_value = "/tmp/g1-sim.sock",
+        conflicts_with = "tcp"
+    )]
+    socket: PathBuf,
+
+    /// Listen on TCP instead, e.g. 127.0.0.1:7000 (port 0 picks a free one). Loopback only:
+    /// any other address is refused, since the bridge is unauthenticated.
+    #[arg(long, value_name = "ADDR")]
+    tcp: Option<String>,
+
+    /// Model: `g1-29dof` (mjlab 29-dof G1 from .deps, home pose; $G1_DEPS_DIR overrides .deps),
+    /// `g1-12dof` (unitree_rl_gym legs-only G1 from ../shared, at qpos0; $G1_SHARED_DIR
+    /// overrides ../shared), or a path to any MJCF with G1 joint names.
+    #[arg(long, value_name = "M", default_value = "g1-29dof")]
+    model: ModelChoice,
+
+    /// MuJoCo timestep in seconds. The motor PD law runs at every physics step.
+    #[arg(long, value_name = "S", default_value_t = 0.002)]
+    physics_dt: f64,
+
+    /// Control tick in seconds (one LowCmd / LowState exchange); a whole multiple of
+    /// --physics-dt. Default: equal to --physics-dt.
+    #[arg(long, value_name = "S")]
+    control_dt: Option<f64>,
+
+    /// Seed of the IMU noise generator. Same seed and same commands give bit-identical states.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    seed: u64,
+
+    /// White noise on the IMU: `GYRO_STD` (rad/s, also used for the accelerometer in m/s²) or
+    /// `GYRO_STD,ACC_STD`. Off by default (output is exactly the model's).
+    #[arg(long, value_name = "STD[,ACC_STD]", value_parser = parse_noise)]
+    imu_noise: Option<(f64, f64)>,
+
+    /// Microseconds a socket read spins before blocking (lower latency when the client answers
+    /// quickly; 0 = always block).
+    #[arg(long, value_name = "US", default_value_t = 20)]
+    spin_us: u64,
+
+    /// Do not print progress to stderr.
+    #[arg(long)]
+    quiet: bool,
+
+    /// Benchmark instead of serving: simulate SECONDS of simulated time with the same model and
+    /// PD law holding the initial pose, no sockets or codecs, and print one JSON line
+    /// {"sim_seconds_per_wall_second": X, "steps": N}.
+    #[arg(long, value_name = "SECONDS")]
+    bench_bare: Option<f64>,
+}
+
+fn parse_noise(s: &str) -> Result<(f64, f64), String> {
+    let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
+    let (g, a) = match s.split_once(',') {
+        Some((g, a)) => (parse(g)?, parse(a)?),
+        None => {
+            let g = parse(s)?;
+            (g, g)
+        }
+    };
+    if !(g >= 0.0 && a >= 0.0 && g.is_finite() && a.is_finite()) {
+        return Err("noise standard deviations must be finite and >= 0".into());
+    }
+    Ok((g, a))
+}
+
+fn bench_bare(sim: &mut Simulator, seconds: f64) -> Result<()> {
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("--bench-bare needs a positive number of seconds, got {seconds}");
+    }
+    let ticks = (seconds / sim.config().control_dt).round().max(1.0) as u64;
+    let cmd = sim.hold_initial_pose_command();
+    sim.apply_command(&cmd)?;
+    // Read the state every tick like a controller would; only sockets and codecs are left out.
+    let mut state = LowState::default();
+    let t0 = Instant::now();
+    for _ in 0..ticks {
+        sim.step_control_tick();
+        sim.low_state(&mut state);
+    }
+    let wall = t0.elapsed().as_secs_f64();
+    std::hint::black_box(&state);
+    println!(
+        "{{\"sim_seconds_per_wall_second\": {:.3}, \"steps\": {}}}",
+        sim.time() / wall,
+        sim.steps()
+    );
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<ExitCode> {
+    let config = SimConfig {
+        physics_dt: cli.physics_dt,
+        control_dt: cli.control_dt.unwrap_or(cli.physics_dt),
+        seed: cli.seed,
+        imu_noise: cli.imu_noise,
+    };
+    let model_name = cli.model.to_string();
+    let mut sim = Simulator::load(cli.model, config)
+        .with_context(|| format!("loading model {model_name}"))?;
+    if let Some(seconds) = cli.bench_bare {
+        bench_bare(&mut sim, seconds)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let opts = ServeOptions {
+        spin: Duration::from_micros(cli.spin_us),
+        quiet: cli.quiet,
+    };
+    let quiet = cli.quiet;
+    let info = format!(
+        "model {model_name}, {} motor slots, physics dt {} s, {} step(s) per tick",
+        sim.motor_slots_present().count_ones(),
+        config.physics_dt,
+        sim.substeps()
+    );
+    let result = match &cli.tcp {
+        Some(addr) => server::serve_tcp(addr, &mut sim, &opts, |a| {
+            if !quiet {
+                eprintln!("g1-sim: {info}; listening on tcp {a}");
+            }
+        }),
+        None => server::serve_unix(&cli.socket, &mut sim, &opts, || {
+            if !quiet {
+                eprintln!("g1-sim: {info}; listening on {}", cli.socket.display());
+            }
+        }),
+    };
+    match result {
+        Ok(s) => {
+            if !quiet {
+                let how = match s.end {
+                    SessionEnd::Bye => "client said Bye",
+                    SessionEnd::Disconnected => "client disconnected",
+                };
+                eprintln!(
+                    "g1-sim: {how} after {} ticks ({:.3} s simulated)",
+                    s.ticks, s.sim_time_s
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => {
+            eprintln!("g1-sim: error: {e}");
+            Ok(ExitCode::from(e.exit_code()))
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("g1-sim: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,478 @@
+//! `g1_sim`: the MuJoCo side of the lock-stepped firmware bridge.
+//!
+//! - [`model`] loads a G1 MJCF (the 29-dof mjlab model by default, the 12-dof unitree_rl_gym model,
+//!   or any file) and makes it drivable: floor, armature, one torque motor per unitree_hg slot,
+//!   pelvis IMU.
+//! - [`Simulator`] runs the robot's motor drivers: at **every physics step** each enabled slot
+//!   gets `tau = tau_ff + kp (q_des − q) + kd (dq_des − dq)` from the state of that very step,
+//!   clamped to the joint's effort limit and written to the slot's motor actuator `ctrl` (gear 1,
+//!   so `ctrl` is the joint torque and shows up in `actuator_force`). It fills unitree_hg
+//!   [`LowState`]s and privileged [`Truth`].
+//! - [`server`] serves one bridge client over a Unix or loopback TCP socket with the protocol in
+//!   `sim_hal::bridge::protocol`; the `g1-sim` binary wraps it.
+//!
+//! The per-tick path (`apply_command` → `step_control_tick` → `low_state`, and the server's
+//! message loop) does not allocate. Runs are deterministic: same model, config and commands give
+//! bit-identical states (optional IMU noise comes from a seeded PRNG).
+pub mod model;
+pub mod server;
+pub mod slots;
+
+use std::path::PathBuf;
+
+use hal::{ImuState, LowCommand, LowState, MotorState, MOTOR_MODE_ENABLED, NUM_MOTORS};
+pub use model::ModelChoice;
+use model::SlotMap;
+use mujoco_rs::prelude::*;
+pub use sim_hal::bridge::Truth;
+
+/// Errors of the simulator library.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("model file {path} not found: {hint}")]
+    ModelMissing { path: PathBuf, hint: &'static str },
+    #[error("model: {0}")]
+    Model(String),
+    #[error("config: {0}")]
+    Config(String),
+    #[error("command: non-finite {field} in motor slot {slot}")]
+    NonFinite { field: &'static str, slot: usize },
+}
+
+/// Timing and noise settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SimConfig {
+    /// MuJoCo timestep, s.
+    pub physics_dt: f64,
+    /// Control tick, s; an integer multiple of `physics_dt`.
+    pub control_dt: f64,
+    /// Seeds the IMU noise generator (the only randomness).
+    pub seed: u64,
+    /// Standard deviations of white noise added to the gyroscope (rad/s) and accelerometer
+    /// (m/s²). `None` (the default) keeps the output exactly the model's.
+    pub imu_noise: Option<(f64, f64)>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            physics_dt: 0.002,
+            control_dt: 0.002,
+            seed: 0,
+            imu_noise: None,
+        }
+    }
+}
+
+impl SimConfig {
+    /// Physics steps per control tick.
+    pub fn substeps(&self) -> Result<u32, SimError> {
+        if !(self.physics_dt.is_finite() && self.physics_dt > 0.0) {
+            return Err(SimError::Config(format!(
+                "physics dt {} must be > 0",
+                self.physics_dt
+            )));
+        }
+        let r = self.control_dt / self.physics_dt;
+        let n = r.round();
+        if !(n >= 1.0 && (r - n).abs() < 1e-6 && n < 1e6) {
+            return Err(SimError::Config(format!(
+                "control dt {} must be a whole multiple (>= 1) of physics dt {}",
+                self.control_dt, self.physics_dt
+            )));
+        }
+        Ok(n as u32)
+    }
+}
+
+/// One motor slot's command, widened to f64 once per control tick.
+#[derive(Clone, Copy, Debug, Default)]
+struct SlotCmd {
+    enabled: bool,
+    q: f64,
+    dq: f64,
+    tau: f64,
+    kp: f64,
+    kd: f64,
+}
+
+/// SplitMix64 + Box–Muller: tiny, seedable, allocation-free, and no dependency.
+#[derive(Clone, Debug)]
+struct Rng(u64);
+
+impl Rng {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in (0, 1].
+    fn uniform(&mut self) -> f64 {
+        ((self.next_u64() >> 11) as f64 + 1.0) * (1.0 / (1u64 << 53) as f64)
+    }
+    fn gaussian(&mut self) -> f64 {
+        let (u1, u2) = (self.uniform(), self.uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+}
+
+/// The simulated G1 with its motor drivers.
+pub struct Simulator {
+    data: MjData<Box<MjModel>>,
+    slots: Vec<SlotMap>,
+    present: u64,
+    cmd: [SlotCmd; NUM_MOTORS],
+    /// Torque applied at the last physics step, per slot.
+    tau_applied: [f64; NUM_MOTORS],
+    initial_qpos: Vec<f64>,
+    config: SimConfig,
+    substeps: u32,
+    steps: u64,
+    mode_machine: u8,
+    pelvis_body: usize,
+    root_qpos_adr: Option<usize>,
+    root_dof_adr: Option<usize>,
+    gyro_adr: usize,
+    acc_adr: usize,
+    foot_side: Vec<u8>,
+    robot_root: i32,
+    rng: Rng,
+    /// Noise sample for the current tick: gyro xyz, accelerometer xyz.
+    imu_noise_now: [f64; 6],
+}
+
+impl Simulator {
+    /// Loads and prepares `choice` and puts it in its initial state.
+    pub fn load(choice: ModelChoice, config: SimConfig) -> Result<Self, SimError> {
+        let substeps = config.substeps()?;
+        if let Some((g, a)) = config.imu_noise {
+            if !(g >= 0.0 && a >= 0.0 && g.is_finite() && a.is_finite()) {
+                return Err(SimError::Config(format!(
+                    "IMU noise ({g}, {a}) must be finite and >= 0"
+                )));
+            }
+        }
+        let l = model::load(&choice, config.physics_dt)?;
+        let robot_root = l.model.body_rootid()[l.pelvis_body];
+        let data = MjData::new(Box::new(l.model));
+        let mut sim = Self {
+            data,
+            slots: l.slots,
+            present: l.present,
+            cmd: [SlotCmd::default(); NUM_MOTORS],
+            tau_applied: [0.0; NUM_MOTORS],
+            initial_qpos: l.initial_qpos,
+            config,
+            substeps,
+            steps: 0,
+            mode_machine: l.mode_machine,
+            pelvis_body: l.pelvis_body,
+            root_qpos_adr: l.root_qpos_adr,
+            root_dof_adr: l.root_dof_adr,
+            gyro_adr: l.gyro_adr,
+            acc_adr: l.acc_adr,
+            foot_side: l.foot_side,
+            robot_root,
+            rng: Rng(config.seed),
+            imu_noise_now: [0.0; 6],
+        };
+        sim.reset();
+        Ok(sim)
+    }
+
+    /// Back to the initial state: all motors disabled, step counter 0, noise generator reseeded.
+    pub fn reset(&mut self) {
+        self.data.reset();
+        self.data.qpos_mut().copy_from_slice(&self.initial_qpos);
+        // Positions, velocities and sensors of the initial state, so the first LowState is real.
+        self.data.forward();
+        self.cmd = [SlotCmd::default(); NUM_MOTORS];
+        self.tau_applied = [0.0; NUM_MOTORS];
+        self.steps = 0;
+        self.rng = Rng(self.config.seed);
+        self.draw_noise();
+    }
+
+    /// Latches a command; it acts at every physics step until the next one. Rejects non-finite
+    /// fields (the decoder already does for wire frames) so NaN never reaches the physics.
+    pub fn apply_command(&mut self, cmd: &LowCommand) -> Result<(), SimError> {
+        for (slot, m) in cmd.motors.iter().enumerate() {
+            for (field, v) in [
+                ("q", m.q),
+                ("dq", m.dq),
+                ("tau", m.tau),
+                ("kp", m.kp),
+                ("kd", m.kd),
+            ] {
+                if !v.is_finite() {
+                    return Err(SimError::NonFinite { field, slot });
+                }
+            }
+        }
+        for (c, m) in self.cmd.iter_mut().zip(&cmd.motors) {
+            *c = SlotCmd {
+                enabled: m.mode == MOTOR_MODE_ENABLED,
+                q: m.q as f64,
+                dq: m.dq as f64,
+                tau: m.tau as f64,
+                kp: m.kp as f64,
+                kd: m.kd as f64,
+            };
+        }
+        Ok(())
+    }
+
+    /// One physics step: the motor law from the current state, then `mj_step`.
+    fn physics_step(&mut self) {
+        let mut tau = [0.0f64; NUM_MOTORS];
+        {
+            let (qpos, qvel) = (self.data.qpos(), self.data.qvel());
+            for (t, s) in tau.iter_mut().zip(&self.slots) {
+                let c = &self.cmd[s.slot];
+                if c.enabled {
+                    let raw =
+                        c.tau + c.kp * (c.q - qpos[s.qpos_adr]) + c.kd * (c.dq - qvel[s.dof_adr]);
+                    *t = raw.clamp(s.tau_lo, s.tau_hi);
+                }
+            }
+        }
+        let ctrl = self.data.ctrl_mut();
+        for (t, s) in tau.iter().zip(&self.slots) {
+            ctrl[s.actuator] = *t;
+            self.tau_applied[s.slot] = *t;
+        }
+        self.data.step();
+        self.steps += 1;
+    }
+
+    /// Advances one control tick (`control_dt / physics_dt` physics steps).
+    pub fn step_control_tick(&mut self) {
+        for _ in 0..self.substeps {
+            self.physics_step();
+        }
+        self.draw_noise();
+    }
+
+    fn draw_noise(&mut self) {
+        if let Some((g, a)) = self.config.imu_noise {
+            for (i, n) in self.imu_noise_now.iter_mut().enumerate() {
+                *n = self.rng.gaussian() * if i < 3 { g } else { a };
+            }
+        }
+    }
+
+    /// Pelvis orientation (w, x, y, z): the free joint's quaternion, or the body's world
+    /// orientation for a model without one.
+    fn base_quat(&self) -> [f64; 4] {
+        match self.root_qpos_adr {
+            Some(a) => {
+                let q = &self.data.qpos()[a + 3..a + 7];
+                [q[0], q[1], q[2], q[3]]
+            }
+            None => self.data.xquat()[self.pelvis_body],
+        }
+    }
+
+    /// Fills `out` with what the robot would report now. Absent slots read as all zeros.
+    ///
+    /// The IMU rates come from MuJoCo's gyro / accelerometer on `imu_in_pelvis`, which `mj_step`
+    /// evaluates before integrating: they are one physics step older than `q` / `dq` (as with
+    /// unitree_mujoco's bridge). `ddq` is the joint acceleration of that last step.
+    pub fn low_state(&self, out: &mut LowState) {
+        out.version = [1, 0];
+        out.mode_pr = 0;
+        out.mode_machine = self.mode_machine;
+        out.tick = self.steps as u32; // wraps like the robot's counter
+        let quat = self.base_quat();
+        let sd = self.data.sensordata();
+        let n = &self.imu_noise_now;
+        let gyro = [
+            sd[self.gyro_adr] + n[0],
+            sd[self.gyro_adr + 1] + n[1],
+            sd[self.gyro_adr + 2] + n[2],
+        ];
+        let acc = [
+            sd[self.acc_adr] + n[3],
+            sd[self.acc_adr + 1] + n[4],
+            sd[self.acc_adr + 2] + n[5],
+        ];
+        let rpy = quat_to_rpy(quat);
+        out.imu = ImuState {
+            quaternion: quat.map(|v| v as f32),
+            gyroscope: gyro.map(|v| v as f32),
+            accelerometer: acc.map(|v| v as f32),
+            rpy: rpy.map(|v| v as f32),
+            temperature: 40,
+        };
+        out.motors = [MotorState::default(); NUM_MOTORS];
+        let (qpos, qvel, qacc) = (self.data.qpos(), self.data.qvel(), self.data.qacc());
+        for s in &self.slots {
+            out.motors[s.slot] = MotorState {
+                mode: MOTOR_MODE_ENABLED,
+                q: qpos[s.qpos_adr] as f32,
+                dq: qvel[s.dof_adr] as f32,
+                ddq: qacc[s.dof_adr] as f32,
+                tau_est: self.tau_applied[s.slot] as f32,
+                temperature: [35, 40],
+                voltage: 48.0,
+                ..MotorState::default()
+            };
+        }
+        out.wireless_remote = [0; 40];
+        out.reserve = [0; 4];
+    }
+
+    /// Privileged ground truth of the current state.
+    pub fn truth(&self) -> Truth {
+        let d = &self.data;
+        let m = d.model();
+        let quat = self.base_quat();
+        let (pos, v_world, w_body) = match (self.root_qpos_adr, self.root_dof_adr) {
+            (Some(qa), Some(da)) => {
+                let (q, v) = (d.qpos(), d.qvel());
+                // Free joint: qvel[0..3] is the world-frame linear velocity, qvel[3..6] the
+                // body-frame angular velocity.
+                (
+                    [q[qa], q[qa + 1], q[qa + 2]],
+                    [v[da], v[da + 1], v[da + 2]],
+                    [v[da + 3], v[da + 4], v[da + 5]],
+                )
+            }
+            _ => {
+                // cvel is [angular, linear] at the subtree com, world-oriented: good enough for a
+                // base that has no free joint (normally fixed, so zero).
+                let c = d.cvel()[self.pelvis_body];
+                let r = d.xmat()[self.pelvis_body];
+                let w_world = [c[0], c[1], c[2]];
+                (
+                    d.xpos()[self.pelvis_body],
+                    [c[3], c[4], c[5]],
+                    mat_t_vec(&r, &w_world),
+                )
+            }
+        };
+        let r = quat_to_mat(quat);
+        let v_body = mat_t_vec(&r, &v_world);
+
+        let mut foot_contact = [false; 2];
+        let (gb, rootid) = (m.geom_bodyid(), m.body_rootid());
+        for c in d.contact() {
+            let (g1, g2) = (c.geom[0], c.geom[1]);
+            if g1 < 0 || g2 < 0 {
+                continue; // flex contact
+            }
+            let (b1, b2) = (gb[g1 as usize] as usize, gb[g2 as usize] as usize);
+            for (foot, other) in [(b1, b2), (b2, b1)] {
+                let side = self.foot_side[foot];
+                if side != 0 && rootid[other] != self.robot_root {
+                    foot_contact[side as usize - 1] = true;
+                }
+            }
+        }
+        Truth {
+            sim_time_s: d.time(),
+            base_pos: pos,
+            base_quat: quat,
+            base_lin_vel_world: v_world,
+            base_lin_vel_body: v_body,
+            base_ang_vel_body: w_body,
+            foot_contact,
+        }
+    }
+
+    /// Bit `i` set: slot `i` drives a joint of this model.
+    pub fn motor_slots_present(&self) -> u64 {
+        self.present
+    }
+    /// `mode_machine` this robot reports (5 for the 29-dof, 4 for the 12-dof).
+    pub fn mode_machine(&self) -> u8 {
+        self.mode_machine
+    }
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+    /// Physics steps per control tick.
+    pub fn substeps(&self) -> u32 {
+        self.substeps
+    }
+    /// Physics steps taken since load / reset.
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+    /// Simulated time, s.
+    pub fn time(&self) -> f64 {
+        self.data.time()
+    }
+    /// The initial `qpos` (home pose for the 29-dof, `qpos0` for the 12-dof).
+    pub fn initial_qpos(&self) -> &[f64] {
+        &self.initial_qpos
+    }
+    /// Torque applied to slot `i` at the last physics step, N·m.
+    pub fn applied_torque(&self, slot: usize) -> f64 {
+        self.tau_applied[slot]
+    }
+    /// `(lo, hi)` torque clamp of slot `i`, if present.
+    pub fn effort_limit(&self, slot: usize) -> Option<(f64, f64)> {
+        self.slots
+            .iter()
+            .find(|s| s.slot == slot)
+            .map(|s| (s.tau_lo, s.tau_hi))
+    }
+    /// The underlying MuJoCo data (and, through it, the model), for inspection.
+    pub fn data(&self) -> &MjData<Box<MjModel>> {
+        &self.data
+    }
+
+    /// A command holding the initial pose with [`slots::hold_gains`] on every present slot.
+    pub fn hold_initial_pose_command(&self) -> LowCommand {
+        let mut cmd = LowCommand {
+            mode_machine: self.mode_machine,
+            ..LowCommand::default()
+        };
+        for s in &self.slots {
+            let (kp, kd) = slots::hold_gains(s.slot);
+            let m = &mut cmd.motors[s.slot];
+            m.mode = MOTOR_MODE_ENABLED;
+            m.q = self.initial_qpos[s.qpos_adr] as f32;
+            m.kp = kp;
+            m.kd = kd;
+        }
+        cmd
+    }
+}
+
+/// Roll, pitch, yaw (ZYX) of a unit quaternion (w, x, y, z).
+pub fn quat_to_rpy(q: [f64; 4]) -> [f64; 3] {
+    let [w, x, y, z] = q;
+    let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
+    let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
+    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+    [roll, pitch, yaw]
+}
+
+/// Row-major rotation matrix of a unit quaternion (w, x, y, z).
+fn quat_to_mat(q: [f64; 4]) -> [f64; 9] {
+    let [w, x, y, z] = q;
+    [
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - w * z),
+        2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y),
+        2.0 * (y * z + w * x),
+        1.0 - 2.0 * (x * x + y * y),
+    ]
+}
+
+/// `Rᵀ v` for a row-major 3×3 `R`: world vector into the body frame.
+fn mat_t_vec(r: &[f64; 9], v: &[f64; 3]) -> [f64; 3] {
+    [
+        r[0] * v[0] + r[3] * v[1] + r[6] * v[2],
+        r[1] * v[0] + r[4] * v[1] + r[7] * v[2],
+        r[2] * v[0] + r[5] * v[1] + r[8] * v[2],
+    ]
+}

@@ -1,0 +1,416 @@
+//! Which MJCF to load, and the edits that make it a G1 the bridge can drive.
+//!
+//! Edits (through MuJoCo's `MjSpec`, before compiling), each applied only where the model lacks it,
+//! so the 12-dof model keeps its own armature and motors and its `qpos0` bit for bit:
+//! - a floor plane on the world body, if the world has no plane geom;
+//! - joint armature from the G1 table, for slot joints whose armature is zero (the 29-dof MJCF
+//!   ships none, and is unstable under explicit PD without it);
+//! - one `motor` actuator (gear 1, ctrlrange = effort limit) per slot joint that has no direct
+//!   torque actuator (gear 1, fixed gain 1, no bias, no dynamics);
+//! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it.
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use hal::NUM_MOTORS;
+use mujoco_rs::mujoco_c::{
+    _mjtGeomBase, _mjtObjBase, mjtBias, mjtDyn, mjtGain, mjtJoint, mjtLimited, mjtSensor, mjtTrn,
+};
+use mujoco_rs::prelude::*;
+
+use crate::slots;
+use crate::SimError;
+
+/// Name of the pelvis IMU site (the one the 29-dof MJCF ships).
+pub const IMU_SITE: &str = "imu_in_pelvis";
+/// Its position in the pelvis frame (G1 hardware).
+pub const IMU_SITE_POS: [f64; 3] = [0.04525, 0.0, -0.08339];
+/// Body carrying the IMU and the free joint.
+pub const PELVIS: &str = "pelvis";
+
+/// The model to simulate.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ModelChoice {
+    /// The 29-dof G1 from mjlab 1.6.0 (`.deps/g1_29dof/g1.xml`), started in mjlab's home pose.
+    G1_29Dof,
+    /// The 12-dof legs-only G1 from unitree_rl_gym (`../shared/assets/unitree_g1_12dof/scene.xml`),
+    /// started at its `qpos0`.
+    G1_12Dof,
+    /// Any MJCF file; started at its keyframe `home` if it has one, else at `qpos0`.
+    Path(PathBuf),
+}
+
+impl FromStr for ModelChoice {
+    type Err = std::convert::Infallible;
+    /// `g1-29dof`, `g1-12dof`, or anything else as a path.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Ok(match s {
+            "g1-29dof" => ModelChoice::G1_29Dof,
+            "g1-12dof" => ModelChoice::G1_12Dof,
+            p => ModelChoice::Path(PathBuf::from(p)),
+        })
+    }
+}
+
+impl std::fmt::Display for ModelChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ModelChoice::G1_29Dof => f.write_str("g1-29dof"),
+            ModelChoice::G1_12Dof => f.write_str("g1-12dof"),
+            ModelChoice::Path(p) => write!(f, "{}", p.display()),
+        }
+    }
+}
+
+/// `.deps` of this checkout (from `scripts/install.sh`), or `$G1_DEPS_DIR`.
+pub fn deps_dir() -> PathBuf {
+    match std::env::var_os("G1_DEPS_DIR") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../.deps")),
+    }
+}
+
+/// The read-only `shared` directory next to the checkout, or `$G1_SHARED_DIR`.
+pub fn shared_dir() -> PathBuf {
+    match std::env::var_os("G1_SHARED_DIR") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared")),
+    }
+}
+
+impl ModelChoice {
+    /// The MJCF file this choice loads.
+    pub fn path(&self) -> PathBuf {
+        match self {
+            ModelChoice::G1_29Dof => deps_dir().join("g1_29dof/g1.xml"),
+            ModelChoice::G1_12Dof => shared_dir().join("assets/unitree_g1_12dof/scene.xml"),
+            ModelChoice::Path(p) => p.clone(),
+        }
+    }
+
+    /// What to tell the user when the file is missing.
+    fn missing_hint(&self) -> &'static str {
+        match self {
+            ModelChoice::G1_29Dof => {
+                "run scripts/install.sh (or point G1_DEPS_DIR at a directory holding g1_29dof/g1.xml)"
+            }
+            ModelChoice::G1_12Dof => "point G1_SHARED_DIR at the shared directory holding assets/unitree_g1_12dof",
+            ModelChoice::Path(_) => "check the --model path",
+        }
+    }
+}
+
+/// How the simulator drives one present motor slot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlotMap {
+    pub slot: usize,
+    pub joint: usize,
+    pub qpos_adr: usize,
+    pub dof_adr: usize,
+    /// Actuator whose `ctrl` is the joint torque (gear 1, gain 1).
+    pub actuator: usize,
+    /// Torque clamp, N·m (`lo < 0 < hi` for the G1).
+    pub tau_lo: f64,
+    pub tau_hi: f64,
+}
+
+/// A compiled model plus everything the simulator looks up once.
+pub struct Loaded {
+    pub model: MjModel,
+    pub slots: Vec<SlotMap>,
+    /// Bit `i`: slot `i` is present.
+    pub present: u64,
+    pub initial_qpos: Vec<f64>,
+    pub mode_machine: u8,
+    pub pelvis_body: usize,
+    /// `qpos` address of the pelvis free joint, if it has one.
+    pub root_qpos_adr: Option<usize>,
+    pub root_dof_adr: Option<usize>,
+    pub gyro_adr: usize,
+    pub acc_adr: usize,
+    /// Per body: 0 not a foot, 1 left foot, 2 right foot.
+    pub foot_side: Vec<u8>,
+}
+
+fn edit_err(what: &str, e: impl std::fmt::Display) -> SimError {
+    SimError::Model(format!("{what}: {e}"))
+}
+
+/// A joint-transmission torque actuator the PD law can drive directly.
+fn is_direct_motor(
+    trn: mjtTrn,
+    gain: mjtGain,
+    gainprm0: f64,
+    bias: mjtBias,
+    dyn_: mjtDyn,
+    gear: &[f64],
+) -> bool {
+    trn == mjtTrn::mjTRN_JOINT
+        && gain == mjtGain::mjGAIN_FIXED
+        && gainprm0 == 1.0
+        && bias == mjtBias::mjBIAS_NONE
+        && dyn_ == mjtDyn::mjDYN_NONE
+        && gear[0] == 1.0
+}
+
+/// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map.
+pub fn load(choice: &ModelChoice, physics_dt: f64) -> Result<Loaded, SimError> {
+    let path = choice.path();
+    if !path.exists() {
+        return Err(SimError::ModelMissing {
+            path: path.clone(),
+            hint: choice.missing_hint(),
+        });
+    }
+    let mut spec =
+        MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
+    spec.option_mut().timestep = physics_dt;
+
+    add_floor_if_missing(&mut spec)?;
+    let limits = prepare_slot_joints(&mut spec)?;
+    add_imu_if_missing(&mut spec)?;
+
+    let model = spec
+        .compile()
+        .map_err(|e| edit_err(&format!("compiling {}", path.display()), e))?;
+    resolve(choice, model, &limits, &path)
+}
+
+fn add_floor_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
+    let has_plane = spec
+        .world_body()
+        .geom_iter(false)
+        .any(|g| g.type_() == _mjtGeomBase::mjGEOM_PLANE);
+    if !has_plane {
+        let g = spec.world_body_mut().add_geom();
+        g.set_type(_mjtGeomBase::mjGEOM_PLANE);
+        *g.size_mut() = [0.0, 0.0, 0.05];
+        g.set_name("floor")
+            .map_err(|e| edit_err("naming the floor", e))?;
+    }
+    Ok(())
+}
+
+/// Armature and motors for every slot joint present. Returns each slot's torque clamp.
+fn prepare_slot_joints(spec: &mut MjSpec) -> Result<[Option<(f64, f64)>; NUM_MOTORS], SimError> {
+    // Joints that already have a direct torque actuator.
+    let mut has_motor: Vec<String> = Vec::new();
+    for a in spec.actuator_iter() {
+        if is_direct_motor(
+            a.trntype(),
+            a.gaintype(),
+            a.gainprm()[0],
+            a.biastype(),
+            a.dyntype(),
+            a.gear(),
+        ) {
+            has_motor.push(a.target().to_owned());
+        }
+    }
+    let mut limits = [None; NUM_MOTORS];
+    for (slot, lim) in limits.iter_mut().enumerate() {
+        let (Some(sname), Some(jname)) = (slots::SLOT_NAMES[slot], slots::joint_name(slot)) else {
+            continue;
+        };
+        let Some(j) = spec.joint_mut(&jname) else {
+            continue;
+        };
+        if j.type_() != mjtJoint::mjJNT_HINGE {
+            return Err(SimError::Model(format!("joint {jname} is not a hinge")));
+        }
+        if j.armature() == 0.0 {
+            j.set_armature(slots::armature(sname).unwrap_or(0.0));
+        }
+        // The joint's own actuatorfrcrange wins over the table (the 12-dof model sets it).
+        let r = *j.actfrcrange();
+        let e = slots::effort_limit(sname).unwrap_or(f64::INFINITY);
+        let (lo, hi) = if j.actfrclimited() != mjtLimited::mjLIMITED_FALSE && r[0] < r[1] {
+            (r[0], r[1])
+        } else {
+            (-e, e)
+        };
+        *lim = Some((lo, hi));
+        if !has_motor.iter().any(|t| *t == jname) {
+            let a = spec.add_actuator();
+            a.set_to_motor();
+            a.set_trntype(mjtTrn::mjTRN_JOINT);
+            a.set_target(&jname);
+            a.gear_mut()[0] = 1.0;
+            *a.ctrlrange_mut() = [lo, hi];
+            a.set_ctrllimited(mjtLimited::mjLIMITED_TRUE);
+            a.set_name(&format!("g1sim_{sname}"))
+                .map_err(|e| edit_err("naming an actuator", e))?;
+        }
+    }
+    Ok(limits)
+}
+
+fn add_imu_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
+    if spec.site(IMU_SITE).is_none() {
+        let pelvis = spec
+            .body_mut(PELVIS)
+            .ok_or_else(|| SimError::Model(format!("model has no body named {PELVIS:?}")))?;
+        let s = pelvis.add_site();
+        *s.pos_mut() = IMU_SITE_POS;
+        s.set_name(IMU_SITE)
+            .map_err(|e| edit_err("naming the IMU site", e))?;
+    }
+    let on_site = |t: mjtSensor| {
+        spec.sensor_iter().any(|s| {
+            s.type_() == t && s.objtype() == _mjtObjBase::mjOBJ_SITE && s.objname() == IMU_SITE
+        })
+    };
+    let want = [
+        (
+            mjtSensor::mjSENS_GYRO,
+            !on_site(mjtSensor::mjSENS_GYRO),
+            "g1sim_imu_gyro",
+        ),
+        (
+            mjtSensor::mjSENS_ACCELEROMETER,
+            !on_site(mjtSensor::mjSENS_ACCELEROMETER),
+            "g1sim_imu_acc",
+        ),
+    ];
+    for (t, missing, name) in want {
+        if missing {
+            let s = spec.add_sensor();
+            s.set_type(t);
+            s.set_objtype(_mjtObjBase::mjOBJ_SITE);
+            s.set_objname(IMU_SITE);
+            s.set_name(name)
+                .map_err(|e| edit_err("naming an IMU sensor", e))?;
+        }
+    }
+    Ok(())
+}
+
+fn resolve(
+    choice: &ModelChoice,
+    model: MjModel,
+    limits: &[Option<(f64, f64)>; NUM_MOTORS],
+    path: &Path,
+) -> Result<Loaded, SimError> {
+    let id = |t: _mjtObjBase, n: &str| model.name_to_id(t, n);
+    let mut slots_v = Vec::new();
+    let mut present = 0u64;
+    for (slot, lim) in limits.iter().enumerate() {
+        let (Some(jname), Some((lo, hi))) = (slots::joint_name(slot), lim) else {
+            continue;
+        };
+        let Some(joint) = id(_mjtObjBase::mjOBJ_JOINT, &jname) else {
+            continue;
+        };
+        let actuator = (0..model.nu() as usize)
+            .find(|&a| {
+                model.actuator_trnid()[a][0] == joint as i32
+                    && is_direct_motor(
+                        model.actuator_trntype()[a],
+                        model.actuator_gaintype()[a],
+                        model.actuator_gainprm()[a][0],
+                        model.actuator_biastype()[a],
+                        model.actuator_dyntype()[a],
+                        &model.actuator_gear()[a],
+                    )
+            })
+            .ok_or_else(|| {
+                SimError::Model(format!("no torque actuator for {jname} after editing"))
+            })?;
+        slots_v.push(SlotMap {
+            slot,
+            joint,
+            qpos_adr: model.jnt_qposadr()[joint] as usize,
+            dof_adr: model.jnt_dofadr()[joint] as usize,
+            actuator,
+            tau_lo: *lo,
+            tau_hi: *hi,
+        });
+        present |= 1 << slot;
+    }
+
+    let pelvis_body = id(_mjtObjBase::mjOBJ_BODY, PELVIS)
+        .ok_or_else(|| SimError::Model(format!("model has no body named {PELVIS:?}")))?;
+    let (root_qpos_adr, root_dof_adr) = {
+        let n = model.body_jntnum()[pelvis_body];
+        let j = model.body_jntadr()[pelvis_body];
+        if n >= 1 && model.jnt_type()[j as usize] == mjtJoint::mjJNT_FREE {
+            (
+                Some(model.jnt_qposadr()[j as usize] as usize),
+                Some(model.jnt_dofadr()[j as usize] as usize),
+            )
+        } else {
+            (None, None)
+        }
+    };
+
+    let site = id(_mjtObjBase::mjOBJ_SITE, IMU_SITE).expect("IMU site added before compiling");
+    let sensor_adr = |t: mjtSensor| {
+        (0..model.nsensor() as usize)
+            .find(|&s| {
+                model.sensor_type()[s] == t
+                    && model.sensor_objtype()[s] == _mjtObjBase::mjOBJ_SITE as _
+                    && model.sensor_objid()[s] == site as i32
+            })
+            .map(|s| model.sensor_adr()[s] as usize)
+            .expect("IMU sensors added before compiling")
+    };
+    let gyro_adr = sensor_adr(mjtSensor::mjSENS_GYRO);
+    let acc_adr = sensor_adr(mjtSensor::mjSENS_ACCELEROMETER);
+
+    // Feet: the ankle-roll joints' bodies and any body named like them.
+    let mut foot_side = vec![0u8; model.nbody() as usize];
+    for (side, tag) in [(1u8, "left_ankle_roll"), (2u8, "right_ankle_roll")] {
+        if let Some(j) = id(_mjtObjBase::mjOBJ_JOINT, &format!("{tag}_joint")) {
+            foot_side[model.jnt_bodyid()[j] as usize] = side;
+        }
+        for (b, f) in foot_side.iter_mut().enumerate() {
+            if model
+                .id_to_name(_mjtObjBase::mjOBJ_BODY, b)
+                .is_some_and(|n| n.contains(tag))
+            {
+                *f = side;
+            }
+        }
+    }
+
+    let mut initial_qpos = model.qpos0().to_vec();
+    let mode_machine = match choice {
+        ModelChoice::G1_29Dof => {
+            let adr = root_qpos_adr
+                .ok_or_else(|| SimError::Model("the 29-dof pelvis has no free joint".into()))?;
+            initial_qpos[adr + 2] = slots::HOME_ROOT_Z;
+            for s in &slots_v {
+                let name = slots::SLOT_NAMES[s.slot].expect("present slots are named");
+                initial_qpos[s.qpos_adr] = slots::home_angle(name);
+            }
+            hal::mode_machine::G1_29DOF_REV_1_0
+        }
+        ModelChoice::G1_12Dof => hal::mode_machine::G1_23DOF_REV_1_0,
+        ModelChoice::Path(_) => {
+            if let Some(k) = id(_mjtObjBase::mjOBJ_KEY, "home") {
+                let nq = model.nq() as usize;
+                initial_qpos.copy_from_slice(&model.key_qpos()[k * nq..(k + 1) * nq]);
+            }
+            // Guess the variant from the slots present: all 29 → 29-dof, legs only → 23-dof family.
+            if present == (1u64 << 29) - 1 {
+                hal::mode_machine::G1_29DOF_REV_1_0
+            } else {
+                hal::mode_machine::G1_23DOF_REV_1_0
+            }
+        }
+    };
+    let _ = path;
+
+    Ok(Loaded {
+        model,
+        slots: slots_v,
+        present,
+        initial_qpos,
+        mode_machine,
+        pelvis_body,
+        root_qpos_adr,
+        root_dof_adr,
+        gyro_adr,
+        acc_adr,
+        foot_side,
+    })
+}

@@ -1,0 +1,359 @@
+//! Server side of the bridge protocol (`sim_hal::bridge::protocol`): one client, lock-stepped.
+//!
+//! `Hello` → `Welcome`, initial `LowState` (+ `Truth` if asked); then per `LowCmd` one control
+//! tick → `LowState` (+ `Truth`); `Bye` or a clean disconnect ends the session. Any protocol
+//! violation is answered with an `Error` message naming it (best effort) before the session ends;
+//! [`ServeError::exit_code`] maps it to the process exit status (3 for a malformed `LowCmd`).
+use std::io::{self, Read, Write};
+use std::net::{TcpListener, TcpStream, ToSocketAddrs};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use hal::{LowCommand, LowState};
+use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, DecodeError, LOW_STATE_LEN};
+use sim_hal::bridge::{read_msg, write_msg, Kind, ProtocolError, Welcome, PROTOCOL_VERSION};
+
+use crate::Simulator;
+
+/// Session settings.
+#[derive(Clone, Copy, Debug)]
+pub struct ServeOptions {
+    /// How long a read spins on a non-blocking socket before blocking. Saves the wake-up latency
+    /// of a blocking read when the client answers within a few µs; 0 disables spinning.
+    pub spin: Duration,
+    /// No progress messages on stderr.
+    pub quiet: bool,
+}
+
+impl Default for ServeOptions {
+    fn default() -> Self {
+        Self {
+            spin: Duration::from_micros(20),
+            quiet: false,
+        }
+    }
+}
+
+/// How a session ended normally.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SessionEnd {
+    /// The client said `Bye`.
+    Bye,
+    /// The client closed the connection.
+    Disconnected,
+}
+
+/// Summary of a finished session.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SessionSummary {
+    pub end: SessionEnd,
+    pub ticks: u64,
+    pub sim_time_s: f64,
+}
+
+/// Why a session failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("malformed LowCmd: {0}")]
+    MalformedCmd(#[from] DecodeError),
+    #[error("bad Hello: {0}")]
+    BadHello(String),
+    #[error("unexpected {got:?} message (expected {expected})")]
+    Unexpected { got: Kind, expected: &'static str },
+    #[error("protocol: {0}")]
+    Protocol(#[from] ProtocolError),
+    #[error("socket: {0}")]
+    Io(#[from] io::Error),
+    #[error("{0}")]
+    Setup(String),
+}
+
+impl ServeError {
+    /// Process exit status for this failure: 3 malformed `LowCmd`, 2 other protocol errors,
+    /// 1 socket setup / I/O.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            ServeError::MalformedCmd(_) => 3,
+            ServeError::BadHello(_) | ServeError::Unexpected { .. } | ServeError::Protocol(_) => 2,
+            ServeError::Io(_) | ServeError::Setup(_) => 1,
+        }
+    }
+}
+
+/// A stream that can switch between blocking and non-blocking mode.
+pub trait Blocking {
+    fn set_nonblocking(&self, nonblocking: bool) -> io::Result<()>;
+}
+impl Blocking for UnixStream {
+    fn set_nonblocking(&self, nb: bool) -> io::Result<()> {
+        UnixStream::set_nonblocking(self, nb)
+    }
+}
+impl Blocking for TcpStream {
+    fn set_nonblocking(&self, nb: bool) -> io::Result<()> {
+        TcpStream::set_nonblocking(self, nb)
+    }
+}
+
+/// Reads spin on the non-blocking socket for up to `spin`, then fall back to one blocking read.
+/// The socket stays non-blocking between calls, so the fast path costs one `read` syscall.
+struct SpinStream<S: Read + Write + Blocking> {
+    inner: S,
+    spin: Duration,
+}
+
+impl<S: Read + Write + Blocking> SpinStream<S> {
+    fn blocking<T>(&mut self, f: impl FnOnce(&mut S) -> io::Result<T>) -> io::Result<T> {
+        self.inner.set_nonblocking(false)?;
+        let r = f(&mut self.inner);
+        self.inner.set_nonblocking(true)?;
+        r
+    }
+}
+
+impl<S: Read + Write + Blocking> Read for SpinStream<S> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let mut start: Option<Instant> = None;
+        loop {
+            match self.inner.read(buf) {
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                    let t0 = *start.get_or_insert_with(Instant::now);
+                    if t0.elapsed() >= self.spin {
+                        return self.blocking(|s| s.read(buf));
+                    }
+                    std::hint::spin_loop();
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                r => return r,
+            }
+        }
+    }
+}
+
+impl<S: Read + Write + Blocking> Write for SpinStream<S> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        match self.inner.write(buf) {
+            // Socket buffer full: the client is slow to read; wait for it.
+            Err(e) if e.kind() == io::ErrorKind::WouldBlock => self.blocking(|s| s.write(buf)),
+            r => r,
+        }
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Buffers reused for every message of a session.
+struct Bufs {
+    payload: Vec<u8>,
+    scratch: Vec<u8>,
+    state: LowState,
+    state_bytes: [u8; LOW_STATE_LEN],
+    cmd: LowCommand,
+}
+
+fn send_state<W: Write>(
+    w: &mut W,
+    sim: &Simulator,
+    truth: bool,
+    b: &mut Bufs,
+) -> Result<(), ServeError> {
+    sim.low_state(&mut b.state);
+    encode_low_state(&b.state, &mut b.state_bytes);
+    write_msg(w, Kind::LowState, &b.state_bytes, &mut b.scratch)?;
+    if truth {
+        write_msg(w, Kind::Truth, &sim.truth().encode(), &mut b.scratch)?;
+    }
+    Ok(())
+}
+
+/// Serves one client on an accepted stream until `Bye`, disconnect or error. On error an
+/// `Error` message with the reason is sent if the socket is still up.
+pub fn serve_stream<S: Read + Write + Blocking>(
+    stream: S,
+    sim: &mut Simulator,
+    opts: &ServeOptions,
+) -> Result<SessionSummary, ServeError> {
+    stream.set_nonblocking(opts.spin > Duration::ZERO)?;
+    let mut s = SpinStream {
+        inner: stream,
+        spin: opts.spin,
+    };
+    let mut b = Bufs {
+        payload: Vec::with_capacity(4096),
+        scratch: Vec::with_capacity(4096),
+        state: LowState::default(),
+        state_bytes: [0; LOW_STATE_LEN],
+        cmd: LowCommand::default(),
+    };
+    let r = session(&mut s, sim, &mut b);
+    if let Err(e) = &r {
+        // The peer may be gone already (that is often why we failed); ignore send errors.
+        if !matches!(
+            e,
+            ServeError::Protocol(ProtocolError::Closed | ProtocolError::Remote(_))
+        ) {
+            let _ = write_msg(
+                &mut s,
+                Kind::Error,
+                e.to_string().as_bytes(),
+                &mut b.scratch,
+            );
+        }
+    }
+    r
+}
+
+fn session<S: Read + Write>(
+    s: &mut S,
+    sim: &mut Simulator,
+    b: &mut Bufs,
+) -> Result<SessionSummary, ServeError> {
+    // Hello: version u32 LE, want_truth u8, 3 zero bytes.
+    let want_truth = match read_msg(s, &mut b.payload)? {
+        Kind::Hello => {
+            let p = &b.payload;
+            if p.len() != 8 {
+                return Err(ServeError::BadHello(format!(
+                    "payload is {} bytes, expected 8",
+                    p.len()
+                )));
+            }
+            let v = u32::from_le_bytes([p[0], p[1], p[2], p[3]]);
+            if v != PROTOCOL_VERSION {
+                return Err(ServeError::BadHello(format!(
+                    "client speaks protocol version {v}, this simulator speaks {PROTOCOL_VERSION}"
+                )));
+            }
+            p[4] != 0
+        }
+        got => {
+            return Err(ServeError::Unexpected {
+                got,
+                expected: "Hello",
+            })
+        }
+    };
+    let cfg = sim.config();
+    let welcome = Welcome {
+        protocol_version: PROTOCOL_VERSION,
+        motor_slots_present: sim.motor_slots_present(),
+        mode_machine: sim.mode_machine(),
+        physics_dt_ns: (cfg.physics_dt * 1e9).round() as u64,
+        control_dt_ns: (cfg.physics_dt * 1e9).round() as u64 * sim.substeps() as u64,
+    };
+    write_msg(s, Kind::Welcome, &welcome.encode(), &mut b.scratch)?;
+    send_state(s, sim, want_truth, b)?;
+
+    let mut ticks = 0u64;
+    loop {
+        let kind = match read_msg(s, &mut b.payload) {
+            Ok(k) => k,
+            Err(ProtocolError::Closed) => {
+                return Ok(SessionSummary {
+                    end: SessionEnd::Disconnected,
+                    ticks,
+                    sim_time_s: sim.time(),
+                })
+            }
+            Err(e) => return Err(e.into()),
+        };
+        match kind {
+            Kind::LowCmd => {
+                decode_low_cmd(&b.payload, &mut b.cmd)?;
+                sim.apply_command(&b.cmd)
+                    .expect("decoder rejects non-finite fields");
+                sim.step_control_tick();
+                ticks += 1;
+                send_state(s, sim, want_truth, b)?;
+            }
+            Kind::Bye => {
+                return Ok(SessionSummary {
+                    end: SessionEnd::Bye,
+                    ticks,
+                    sim_time_s: sim.time(),
+                })
+            }
+            got => {
+                return Err(ServeError::Unexpected {
+                    got,
+                    expected: "LowCmd or Bye",
+                })
+            }
+        }
+    }
+}
+
+/// Removes the socket file when dropped (normal exit, error, panic unwinding).
+struct SocketFile(PathBuf);
+impl Drop for SocketFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// Binds a Unix socket at `path` (replacing a stale socket file nobody listens on), calls
+/// `ready` once listening, serves one client, and removes the file.
+pub fn serve_unix(
+    path: &Path,
+    sim: &mut Simulator,
+    opts: &ServeOptions,
+    ready: impl FnOnce(),
+) -> Result<SessionSummary, ServeError> {
+    if path.exists() {
+        if UnixStream::connect(path).is_ok() {
+            return Err(ServeError::Setup(format!(
+                "{} is in use by another server",
+                path.display()
+            )));
+        }
+        std::fs::remove_file(path).map_err(|e| {
+            ServeError::Setup(format!("removing stale socket {}: {e}", path.display()))
+        })?;
+    }
+    let listener = UnixListener::bind(path)
+        .map_err(|e| ServeError::Setup(format!("binding {}: {e}", path.display())))?;
+    let _guard = SocketFile(path.to_owned());
+    ready();
+    let (stream, _) = listener.accept()?;
+    drop(listener);
+    serve_stream(stream, sim, opts)
+}
+
+/// Resolves `addr` and refuses anything that is not loopback: the bridge has no authentication
+/// and commands a robot's motors.
+pub fn loopback_addr(addr: &str) -> Result<std::net::SocketAddr, ServeError> {
+    let addrs: Vec<_> = addr
+        .to_socket_addrs()
+        .map_err(|e| ServeError::Setup(format!("cannot resolve --tcp {addr:?}: {e}")))?
+        .collect();
+    match addrs.first() {
+        Some(a) if addrs.iter().all(|a| a.ip().is_loopback()) => Ok(*a),
+        Some(_) => Err(ServeError::Setup(format!(
+            "--tcp {addr:?} is not a loopback address; the bridge is unauthenticated and only \
+             listens on 127.0.0.1 / ::1 (use e.g. --tcp 127.0.0.1:7000)"
+        ))),
+        None => Err(ServeError::Setup(format!(
+            "--tcp {addr:?} resolves to nothing"
+        ))),
+    }
+}
+
+/// Listens on loopback TCP `addr`, calls `ready` with the bound address, serves one client.
+pub fn serve_tcp(
+    addr: &str,
+    sim: &mut Simulator,
+    opts: &ServeOptions,
+    ready: impl FnOnce(std::net::SocketAddr),
+) -> Result<SessionSummary, ServeError> {
+    let a = loopback_addr(addr)?;
+    let listener =
+        TcpListener::bind(a).map_err(|e| ServeError::Setup(format!("binding {a}: {e}")))?;
+    ready(listener.local_addr()?);
+    let (stream, _) = listener.accept()?;
+    drop(listener);
+    // Lock-step messages are small: never let Nagle hold one back.
+    stream.set_nodelay(true)?;
+    serve_stream(stream, sim, opts)
+}

@@ -1,0 +1,163 @@
+//! The 35 unitree_hg motor slots and the per-joint constants the G1 models need but do not all
+//! ship (see `../shared/facts/g1_low_level.md` and `g1_sim_models.md`).
+use hal::NUM_MOTORS;
+
+/// SDK slot names in slot order; slot `i` drives the MJCF joint `<name>_joint`. Slots 29..35 are
+/// unused on every G1 variant (`None`).
+pub const SLOT_NAMES: [Option<&str>; NUM_MOTORS] = [
+    Some("left_hip_pitch"),
+    Some("left_hip_roll"),
+    Some("left_hip_yaw"),
+    Some("left_knee"),
+    Some("left_ankle_pitch"),
+    Some("left_ankle_roll"),
+    Some("right_hip_pitch"),
+    Some("right_hip_roll"),
+    Some("right_hip_yaw"),
+    Some("right_knee"),
+    Some("right_ankle_pitch"),
+    Some("right_ankle_roll"),
+    Some("waist_yaw"),
+    Some("waist_roll"),
+    Some("waist_pitch"),
+    Some("left_shoulder_pitch"),
+    Some("left_shoulder_roll"),
+    Some("left_shoulder_yaw"),
+    Some("left_elbow"),
+    Some("left_wrist_roll"),
+    Some("left_wrist_pitch"),
+    Some("left_wrist_yaw"),
+    Some("right_shoulder_pitch"),
+    Some("right_shoulder_roll"),
+    Some("right_shoulder_yaw"),
+    Some("right_elbow"),
+    Some("right_wrist_roll"),
+    Some("right_wrist_pitch"),
+    Some("right_wrist_yaw"),
+    None,
+    None,
+    None,
+    None,
+    None,
+    None,
+];
+
+/// MJCF joint name of slot `i`, if the slot is used.
+pub fn joint_name(slot: usize) -> Option<String> {
+    SLOT_NAMES
+        .get(slot)
+        .copied()
+        .flatten()
+        .map(|n| format!("{n}_joint"))
+}
+
+/// Actuator group of a G1 joint; effort limit and armature follow from it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Group {
+    /// Hip pitch / yaw, waist yaw: 88 N·m.
+    N88,
+    /// Hip roll, knee: 139 N·m.
+    N139,
+    /// Ankles, waist roll / pitch: 50 N·m.
+    N50,
+    /// Shoulders, elbow, wrist roll: 25 N·m.
+    N25,
+    /// Wrist pitch / yaw: 5 N·m.
+    N5,
+}
+
+fn group(slot_name: &str) -> Option<Group> {
+    // Strip the side so "left_knee" and "right_knee" share an entry.
+    let n = slot_name
+        .trim_start_matches("left_")
+        .trim_start_matches("right_");
+    Some(match n {
+        "hip_pitch" | "hip_yaw" | "waist_yaw" => Group::N88,
+        "hip_roll" | "knee" => Group::N139,
+        "ankle_pitch" | "ankle_roll" | "waist_roll" | "waist_pitch" => Group::N50,
+        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => Group::N25,
+        "wrist_pitch" | "wrist_yaw" => Group::N5,
+        _ => return None,
+    })
+}
+
+/// Effort (torque) limit in N·m from the G1 URDF, by slot name (`"left_knee"`).
+pub fn effort_limit(slot_name: &str) -> Option<f64> {
+    group(slot_name).map(|g| match g {
+        Group::N88 => 88.0,
+        Group::N139 => 139.0,
+        Group::N50 => 50.0,
+        Group::N25 => 25.0,
+        Group::N5 => 5.0,
+    })
+}
+
+/// Reflected rotor inertia (kg·m²) mjlab adds to the 29-dof model, by slot name. The armature
+/// groups do not coincide with the torque groups (hip roll and knee share 0.02510, ankles share
+/// with waist roll/pitch, wrist pitch/yaw have their own).
+pub fn armature(slot_name: &str) -> Option<f64> {
+    let n = slot_name
+        .trim_start_matches("left_")
+        .trim_start_matches("right_");
+    Some(match n {
+        "hip_pitch" | "hip_yaw" | "waist_yaw" => 0.01018,
+        "hip_roll" | "knee" => 0.02510,
+        "waist_roll" | "waist_pitch" | "ankle_pitch" | "ankle_roll" => 0.00722,
+        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 0.00361,
+        "wrist_pitch" | "wrist_yaw" => 0.00425,
+        _ => return None,
+    })
+}
+
+/// Home pose used by mjlab for the 29-dof model: joint angles by slot name (others 0) and the
+/// root height.
+pub const HOME_ROOT_Z: f64 = 0.7837;
+pub fn home_angle(slot_name: &str) -> f64 {
+    match slot_name {
+        "left_hip_pitch" | "right_hip_pitch" => -0.1,
+        "left_knee" | "right_knee" => 0.3,
+        "left_ankle_pitch" | "right_ankle_pitch" => -0.2,
+        "left_shoulder_pitch" | "right_shoulder_pitch" => 0.2,
+        "left_shoulder_roll" => 0.2,
+        "right_shoulder_roll" => -0.2,
+        "left_elbow" | "right_elbow" => 1.28,
+        _ => 0.0,
+    }
+}
+
+/// PD gains `(kp, kd)` that hold a standing pose on the simulated G1: Unitree's leg gains, the
+/// waist gains that keep the 29-dof model free of the 25 Hz waist oscillation, and arm gains from
+/// the peer policy's range.
+pub fn hold_gains(slot: usize) -> (f32, f32) {
+    const LEG_KP: [f32; 6] = [100.0, 100.0, 100.0, 150.0, 40.0, 40.0];
+    const LEG_KD: [f32; 6] = [2.0, 2.0, 2.0, 4.0, 2.0, 2.0];
+    match slot {
+        0..=11 => (LEG_KP[slot % 6], LEG_KD[slot % 6]),
+        12..=14 => (300.0, 20.0),
+        15..=28 => (100.0, 5.0),
+        _ => (0.0, 0.0),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_used_slot_has_constants() {
+        for (i, n) in SLOT_NAMES.iter().enumerate() {
+            match n {
+                Some(n) => {
+                    assert!(effort_limit(n).is_some(), "{n}");
+                    assert!(armature(n).is_some(), "{n}");
+                    assert!(i < 29);
+                }
+                None => assert!(i >= 29),
+            }
+        }
+        assert_eq!(joint_name(3).as_deref(), Some("left_knee_joint"));
+        assert_eq!(effort_limit("right_knee"), Some(139.0));
+        assert_eq!(effort_limit("left_wrist_yaw"), Some(5.0));
+        assert_eq!(armature("right_ankle_roll"), Some(0.00722));
+    }
+}
