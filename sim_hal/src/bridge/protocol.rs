@@ -159,7 +159,9 @@ impl Truth {
     pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
     pub fn encode(&self) -> [u8; Self::LEN] {
         let mut b = [0u8; Self::LEN];
-        let vals = [self.sim_time_s]
+        // No intermediate Vec: this runs every tick when truth is requested.
+        let time = [self.sim_time_s];
+        let vals = time
             .iter()
             .chain(&self.base_pos)
             .chain(&self.base_quat)
@@ -167,8 +169,7 @@ impl Truth {
             .chain(&self.base_lin_vel_body)
             .chain(&self.base_ang_vel_body)
             .copied()
-            .enumerate()
-            .collect::<Vec<_>>();
+            .enumerate();
         for (i, v) in vals {
             b[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
         }
