@@ -1,1 +1,150 @@
-fn main() {}
+//! `g1fw`: the G1 control firmware.
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use firmware::sim_run::{run_sim, SimOptions};
+use firmware::spec::DeploySpec;
+
+#[derive(Parser)]
+#[command(name = "g1fw", version, about = "Unitree G1 control firmware: deploy-spec driven policy, PD targets, safety, simulation bridge")]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Start the MuJoCo simulator (g1-sim) and run the firmware against it, lock-stepped over the
+    /// bridge, then print (and optionally write) a JSON report evaluated from ground truth.
+    Sim(SimArgs),
+    /// Load and validate a deploy spec and its weights, print a summary, exit non-zero on any error.
+    CheckSpec {
+        /// Deploy spec (TOML).
+        #[arg(long)]
+        spec: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct SimArgs {
+    /// Deploy spec (TOML): observation layout, joint map, gains, rates, weights file.
+    #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
+    spec: PathBuf,
+    /// Robot model: `g1-29dof` (mjlab's 29-dof G1, installed by scripts/install.sh), `g1-12dof`
+    /// (../shared/assets/unitree_g1_12dof) or a path to an MJCF file.
+    #[arg(long, default_value = "g1-29dof")]
+    model: String,
+    /// Velocity command vx,vy,wz (m/s, m/s, rad/s), held for the whole run.
+    #[arg(long, default_value = "0.5,0,0", value_parser = parse_cmd, allow_hyphen_values = true)]
+    cmd: [f32; 3],
+    /// Simulated seconds to run.
+    #[arg(long, default_value_t = 20.0)]
+    duration: f64,
+    /// Seed for the simulator (same seed, spec and command: bit-identical run).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the JSON report here (it is always printed to stdout too).
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Physics time step of the simulator, seconds.
+    #[arg(long, default_value_t = 0.002)]
+    physics_dt: f64,
+    /// Skip the start-up ramp: targets are the default pose from the first tick and the policy
+    /// first runs one policy period later (as Unitree's reference loop).
+    #[arg(long)]
+    no_ramp: bool,
+    /// Do not load or run the policy: ramp to the spec's default pose and hold it.
+    #[arg(long)]
+    hold: bool,
+    /// Keep running after a fall instead of stopping at it.
+    #[arg(long)]
+    keep_going: bool,
+    /// Path of the g1-sim binary (default: beside g1fw, or $G1_SIM_BIN).
+    #[arg(long)]
+    sim_bin: Option<PathBuf>,
+    /// Connect to an already running g1-sim at this Unix socket instead of starting one.
+    #[arg(long)]
+    connect: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>().map_err(|e| format!("'{x}': {e}")))
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [a, b, c] if v.iter().all(|x| x.is_finite()) => Ok([*a, *b, *c]),
+        _ => Err(format!("expected three finite numbers VX,VY,WZ, got '{s}'")),
+    }
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_writer(std::io::stderr)
+        .init();
+    match run(Cli::parse()) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<ExitCode> {
+    match cli.command {
+        Cmd::CheckSpec { spec } => {
+            let spec = DeploySpec::load(&spec)?;
+            let c = firmware::controller::Controller::new(spec)?;
+            let s = c.spec();
+            println!(
+                "ok: {} — {} joints, observation {} values, {} Hz control / {} Hz policy, weights sha256 {}",
+                s.meta.name,
+                s.num_joints(),
+                s.observation_dim(),
+                s.rates.control_hz,
+                s.rates.policy_hz,
+                c.weights_sha256()
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Sim(a) => {
+            if !(a.duration > 0.0 && a.duration.is_finite()) {
+                bail!("--duration must be a positive number of seconds");
+            }
+            let spec = DeploySpec::load(&a.spec)?;
+            let opts = SimOptions {
+                model: a.model,
+                command: a.cmd,
+                duration_s: a.duration,
+                seed: a.seed,
+                physics_dt: a.physics_dt,
+                ramp_override: a.no_ramp.then_some((0.0, 0.0)),
+                sim_bin: a.sim_bin,
+                connect: a.connect,
+                stop_on_fall: !a.keep_going,
+                hold_only: a.hold,
+                progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
+            };
+            let report = run_sim(spec, &opts, |_| {})?;
+            let json = serde_json::to_string_pretty(&report)?;
+            println!("{json}");
+            if let Some(path) = a.report {
+                std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+            }
+            tracing::info!(
+                fell = report.fell,
+                distance_x_m = format!("{:.2}", report.distance_x_m),
+                rt = format!("{:.1}x", report.timing.sim_seconds_per_wall_second),
+                "run finished"
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}

@@ -1,5 +1,257 @@
-//! placeholder
+//! The firmware's side of the bridge: a HAL whose time base is the simulator's lock-stepped tick.
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::os::unix::net::UnixStream;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
+
+use super::protocol::{read_msg, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
+
 #[derive(Debug, thiserror::Error)]
-#[error("x")]
-pub struct BridgeError;
-pub struct BridgeHal;
+pub enum BridgeError {
+    #[error("bridge: {0}")]
+    Protocol(#[from] ProtocolError),
+    #[error("bridge: bad LowState frame from the simulator: {0}")]
+    Decode(#[from] DecodeError),
+    #[error("bridge: could not connect to the simulator at {target} within {waited:?}: {last}")]
+    Connect { target: String, waited: Duration, last: String },
+    #[error("bridge: {0} is not a loopback address; the bridge only talks to this machine")]
+    NotLoopback(SocketAddr),
+    #[error("bridge: simulator speaks protocol {got}, this firmware speaks {PROTOCOL_VERSION}")]
+    Version { got: u32 },
+}
+
+impl hal::Error for BridgeError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            BridgeError::Protocol(ProtocolError::Closed) => ErrorKind::Disconnected,
+            BridgeError::Protocol(ProtocolError::Io(_)) => ErrorKind::Disconnected,
+            BridgeError::Protocol(_) => ErrorKind::Malformed,
+            BridgeError::Decode(DecodeError::Crc { .. }) => ErrorKind::Checksum,
+            BridgeError::Decode(_) => ErrorKind::Malformed,
+            BridgeError::Connect { .. } => ErrorKind::Timeout,
+            BridgeError::NotLoopback(_) | BridgeError::Version { .. } => ErrorKind::Other,
+        }
+    }
+}
+
+enum Stream {
+    Unix(UnixStream),
+    Tcp(TcpStream),
+}
+
+impl Read for Stream {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Stream::Unix(s) => s.read(buf),
+            Stream::Tcp(s) => s.read(buf),
+        }
+    }
+}
+
+impl Write for Stream {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        match self {
+            Stream::Unix(s) => s.write(buf),
+            Stream::Tcp(s) => s.write(buf),
+        }
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        match self {
+            Stream::Unix(s) => s.flush(),
+            Stream::Tcp(s) => s.flush(),
+        }
+    }
+}
+
+/// Lock-stepped simulator HAL. `wait_tick` receives the state the simulator produced for the
+/// command of the previous tick (the first call returns the initial state).
+pub struct BridgeHal {
+    stream: Stream,
+    welcome: Welcome,
+    want_truth: bool,
+    state: LowState,
+    state_bytes: [u8; LOW_STATE_LEN],
+    fresh: bool,
+    truth: Truth,
+    cmd_bytes: [u8; LOW_CMD_LEN],
+    /// A command was written since the last tick (so the simulator is stepping).
+    command_sent: bool,
+    /// Ticks on which the firmware wrote no command and the previous one was repeated.
+    repeated_commands: u64,
+    have_initial: bool,
+    tick: TickTime,
+    payload: Vec<u8>,
+    scratch: Vec<u8>,
+}
+
+impl BridgeHal {
+    /// Connects over a Unix-domain socket, retrying until `timeout` (the simulator may still be
+    /// starting). `alive` is polled between retries so a simulator that died is reported at once.
+    pub fn connect_unix(
+        path: &Path,
+        want_truth: bool,
+        timeout: Duration,
+        mut alive: impl FnMut() -> Result<(), String>,
+    ) -> Result<Self, BridgeError> {
+        let start = Instant::now();
+        loop {
+            match UnixStream::connect(path) {
+                Ok(s) => return Self::handshake(Stream::Unix(s), want_truth),
+                Err(e) => {
+                    let last = match alive() {
+                        Ok(()) => e.to_string(),
+                        Err(why) => why,
+                    };
+                    if start.elapsed() >= timeout || last != e.to_string() {
+                        return Err(BridgeError::Connect { target: path.display().to_string(), waited: start.elapsed(), last });
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+            }
+        }
+    }
+
+    /// Connects over loopback TCP (any other address is refused).
+    pub fn connect_tcp(addr: SocketAddr, want_truth: bool) -> Result<Self, BridgeError> {
+        if !addr.ip().is_loopback() {
+            return Err(BridgeError::NotLoopback(addr));
+        }
+        let s = TcpStream::connect(addr).map_err(|e| BridgeError::Connect {
+            target: addr.to_string(),
+            waited: Duration::ZERO,
+            last: e.to_string(),
+        })?;
+        s.set_nodelay(true).map_err(ProtocolError::from)?;
+        Self::handshake(Stream::Tcp(s), want_truth)
+    }
+
+    fn handshake(mut stream: Stream, want_truth: bool) -> Result<Self, BridgeError> {
+        let mut scratch = Vec::with_capacity(4096);
+        let mut payload = Vec::with_capacity(4096);
+        let mut hello = [0u8; 8];
+        hello[..4].copy_from_slice(&PROTOCOL_VERSION.to_le_bytes());
+        hello[4] = want_truth as u8;
+        write_msg(&mut stream, Kind::Hello, &hello, &mut scratch)?;
+        let kind = read_msg(&mut stream, &mut payload)?;
+        if kind != Kind::Welcome {
+            return Err(ProtocolError::Unexpected { expected: Kind::Welcome, got: kind }.into());
+        }
+        let welcome = Welcome::decode(&payload)?;
+        if welcome.protocol_version != PROTOCOL_VERSION {
+            return Err(BridgeError::Version { got: welcome.protocol_version });
+        }
+        let mut hal = Self {
+            stream,
+            welcome,
+            want_truth,
+            state: LowState::default(),
+            state_bytes: [0; LOW_STATE_LEN],
+            fresh: false,
+            truth: Truth::default(),
+            cmd_bytes: [0; LOW_CMD_LEN],
+            command_sent: false,
+            repeated_commands: 0,
+            have_initial: true,
+            tick: TickTime::default(),
+            payload,
+            scratch,
+        };
+        hal.receive_state()?;
+        Ok(hal)
+    }
+
+    fn receive_state(&mut self) -> Result<(), BridgeError> {
+        let kind = read_msg(&mut self.stream, &mut self.payload)?;
+        if kind != Kind::LowState {
+            return Err(ProtocolError::Unexpected { expected: Kind::LowState, got: kind }.into());
+        }
+        // Keep the raw bytes (for logs) even when they fail to decode.
+        let n = self.payload.len().min(LOW_STATE_LEN);
+        self.state_bytes[..n].copy_from_slice(&self.payload[..n]);
+        let decoded = decode_low_state(&self.payload, &mut self.state);
+        if self.want_truth {
+            let kind = read_msg(&mut self.stream, &mut self.payload)?;
+            if kind != Kind::Truth {
+                return Err(ProtocolError::Unexpected { expected: Kind::Truth, got: kind }.into());
+            }
+            self.truth = Truth::decode(&self.payload)?;
+        }
+        decoded?;
+        self.fresh = true;
+        Ok(())
+    }
+
+    pub fn welcome(&self) -> &Welcome {
+        &self.welcome
+    }
+
+    /// Privileged ground truth of the newest tick. Evaluation only: never feed it to control.
+    pub fn truth(&self) -> &Truth {
+        &self.truth
+    }
+
+    /// Raw bytes of the newest LowState frame (for logging).
+    pub fn state_bytes(&self) -> &[u8; LOW_STATE_LEN] {
+        &self.state_bytes
+    }
+
+    /// Raw bytes of the newest LowCmd frame sent.
+    pub fn command_bytes(&self) -> &[u8; LOW_CMD_LEN] {
+        &self.cmd_bytes
+    }
+
+    pub fn repeated_commands(&self) -> u64 {
+        self.repeated_commands
+    }
+
+    /// Tells the simulator to stop; errors are ignored (it may already be gone).
+    pub fn close(mut self) {
+        let _ = write_msg(&mut self.stream, Kind::Bye, &[], &mut self.scratch);
+    }
+}
+
+impl TimeBase for BridgeHal {
+    type Error = BridgeError;
+
+    fn wait_tick(&mut self) -> Result<TickTime, BridgeError> {
+        if self.have_initial {
+            self.have_initial = false;
+            return Ok(self.tick);
+        }
+        if !self.command_sent {
+            // Lock-step needs a command per tick: repeat the last one, as a motor driver would keep
+            // its last setpoint, and count it so the omission is visible.
+            self.repeated_commands += 1;
+            write_msg(&mut self.stream, Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
+        }
+        self.command_sent = false;
+        self.receive_state()?;
+        self.tick.index += 1;
+        self.tick.time_ns = self.tick.index * self.welcome.control_dt_ns;
+        Ok(self.tick)
+    }
+
+    fn period_ns(&self) -> u64 {
+        self.welcome.control_dt_ns
+    }
+}
+
+impl LowLevel for BridgeHal {
+    type Error = BridgeError;
+
+    fn read_state(&mut self, out: &mut LowState) -> Result<bool, BridgeError> {
+        *out = self.state;
+        Ok(std::mem::take(&mut self.fresh))
+    }
+
+    fn write_command(&mut self, cmd: &LowCommand) -> Result<(), BridgeError> {
+        encode_low_cmd(cmd, &mut self.cmd_bytes);
+        write_msg(&mut self.stream, Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
+        self.command_sent = true;
+        Ok(())
+    }
+}

@@ -1,0 +1,276 @@
+//! The per-tick control law: start-up ramp, policy at its own rate, PD targets out, damping on fault.
+//!
+//! Fixed allocation: every buffer is sized in [`Controller::new`]; [`Controller::tick`] allocates
+//! nothing. Time comes only from the tick index, so the same states give the same commands.
+use hal::{LowCommand, LowState, MotorCommand, TickTime, MOTOR_MODE_ENABLED, NUM_MOTORS};
+
+use crate::nn::{Network, NnError};
+use crate::obs::{ObsInputs, ObservationBuilder};
+use crate::spec::DeploySpec;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ControllerError {
+    #[error("loading policy weights {path}: {source}")]
+    Weights { path: std::path::PathBuf, source: NnError },
+    #[error("deploy spec {spec}: policy network {what} is {got}, but the spec needs {expected}")]
+    Dimension { spec: std::path::PathBuf, what: &'static str, got: usize, expected: usize },
+}
+
+/// What the controller is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Ramping to / holding the default pose before the policy engages.
+    Startup,
+    /// Policy in control.
+    Policy,
+    /// Latched safe state: kp = 0, damping only. Left only by a restart.
+    Damping(DampingReason),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DampingReason {
+    Tilt,
+    NonFiniteAction,
+    Requested,
+}
+
+/// What happened in one tick (for logging and evaluation).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct TickInfo {
+    /// The policy ran this tick.
+    pub policy_step: bool,
+}
+
+pub struct Controller {
+    spec: DeploySpec,
+    /// `None`: hold-only mode (no policy loaded; ramp to the default pose and stay there).
+    net: Option<Network>,
+    obs: ObservationBuilder,
+    obs_buf: Vec<f32>,
+    action: Vec<f32>,
+    last_action: Vec<f32>,
+    joint_pos_rel: Vec<f32>,
+    joint_vel: Vec<f32>,
+    action_scale: Vec<f32>,
+    /// Per slot: driven or held, target pose, gains.
+    enabled: [bool; NUM_MOTORS],
+    default_q: [f32; NUM_MOTORS],
+    kp: [f32; NUM_MOTORS],
+    kd: [f32; NUM_MOTORS],
+    target_q: [f32; NUM_MOTORS],
+    start_q: [f32; NUM_MOTORS],
+    ramp_ticks: u64,
+    engage_tick: u64,
+    decimation: u64,
+    policy_steps: u64,
+    mode: Mode,
+}
+
+impl Controller {
+    pub fn new(spec: DeploySpec) -> Result<Self, ControllerError> {
+        let path = spec.weights_path();
+        let net = Network::load(&spec.policy.network, &path).map_err(|source| ControllerError::Weights { path, source })?;
+        Self::build(spec, Some(net))
+    }
+
+    /// A controller that never runs the policy: it ramps to the spec's default pose and holds it.
+    pub fn hold_only(spec: DeploySpec) -> Self {
+        Self::build(spec, None).expect("no network to mismatch")
+    }
+
+    fn build(spec: DeploySpec, net: Option<Network>) -> Result<Self, ControllerError> {
+        let n = spec.num_joints();
+        if let Some(net) = &net {
+            Self::check_dims(&spec, net)?;
+        }
+        let mut enabled = [false; NUM_MOTORS];
+        let mut default_q = [0.0; NUM_MOTORS];
+        let mut kp = [0.0; NUM_MOTORS];
+        let mut kd = [0.0; NUM_MOTORS];
+        let p = &spec.policy;
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            enabled[slot] = true;
+            default_q[slot] = p.default_pose[i];
+            kp[slot] = p.kp[i];
+            kd[slot] = p.kd[i];
+        }
+        for g in &spec.held {
+            let k = g.joints.len();
+            let (q, gp, gd) = (g.q.expand(k).unwrap(), g.kp.expand(k).unwrap(), g.kd.expand(k).unwrap());
+            for (j, name) in g.joints.iter().enumerate() {
+                let slot = hal::g1_motor_slot(name).expect("validated by DeploySpec");
+                enabled[slot] = true;
+                default_q[slot] = q[j];
+                kp[slot] = gp[j];
+                kd[slot] = gd[j];
+            }
+        }
+        let hz = spec.rates.control_hz as f64;
+        let ramp_ticks = (spec.startup.ramp_s * hz).round() as u64;
+        let engage_tick = ramp_ticks + (spec.startup.hold_s * hz).round() as u64;
+        Ok(Self {
+            obs: ObservationBuilder::new(&spec),
+            obs_buf: vec![0.0; spec.observation_dim()],
+            action: vec![0.0; n],
+            last_action: vec![0.0; n],
+            joint_pos_rel: vec![0.0; n],
+            joint_vel: vec![0.0; n],
+            action_scale: p.action_scale.expand(n).expect("validated by DeploySpec"),
+            decimation: spec.decimation() as u64,
+            enabled,
+            default_q,
+            kp,
+            kd,
+            target_q: default_q,
+            start_q: default_q,
+            ramp_ticks,
+            engage_tick,
+            policy_steps: 0,
+            mode: Mode::Startup,
+            net,
+            spec,
+        })
+    }
+
+    fn check_dims(spec: &DeploySpec, net: &Network) -> Result<(), ControllerError> {
+        let dim = |what, got, expected| ControllerError::Dimension { spec: spec.path.clone(), what, got, expected };
+        if net.output_dim() != spec.num_joints() {
+            return Err(dim("output", net.output_dim(), spec.num_joints()));
+        }
+        if net.input_dim() != spec.observation_dim() {
+            return Err(dim("input", net.input_dim(), spec.observation_dim()));
+        }
+        Ok(())
+    }
+
+    pub fn spec(&self) -> &DeploySpec {
+        &self.spec
+    }
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+    pub fn policy_steps(&self) -> u64 {
+        self.policy_steps
+    }
+    /// The observation of the newest policy step.
+    pub fn observation(&self) -> &[f32] {
+        &self.obs_buf
+    }
+    /// The raw policy output of the newest policy step.
+    pub fn action(&self) -> &[f32] {
+        &self.last_action
+    }
+    /// sha256 of the weights file, or "none" in hold-only mode.
+    pub fn weights_sha256(&self) -> String {
+        self.net.as_ref().map_or_else(|| "none".into(), |n| n.weights_sha256().to_string())
+    }
+
+    /// Latches the damping state.
+    pub fn enter_damping(&mut self, reason: DampingReason) {
+        if !matches!(self.mode, Mode::Damping(_)) {
+            self.mode = Mode::Damping(reason);
+        }
+    }
+
+    /// One control tick: `state` is the newest low-level state, `command` the operator's (vx, vy, wz).
+    pub fn tick(&mut self, state: &LowState, tick: TickTime, command: [f32; 3], out: &mut LowCommand) -> TickInfo {
+        let mut info = TickInfo::default();
+        let k = tick.index;
+        if k == 0 {
+            for s in 0..NUM_MOTORS {
+                self.start_q[s] = state.motors[s].q;
+            }
+        }
+        if !matches!(self.mode, Mode::Damping(_)) && estimator::tilt_rad(state.imu.quaternion) > self.spec.safety.tilt_limit_rad {
+            self.enter_damping(DampingReason::Tilt);
+        }
+        match self.mode {
+            Mode::Damping(_) => {}
+            _ if k < self.ramp_ticks => {
+                let a = k as f32 / self.ramp_ticks as f32;
+                for s in 0..NUM_MOTORS {
+                    self.target_q[s] = self.start_q[s] + a * (self.default_q[s] - self.start_q[s]);
+                }
+            }
+            _ if k <= self.engage_tick => self.target_q = self.default_q,
+            _ if self.net.is_none() => self.target_q = self.default_q,
+            _ => {
+                self.mode = Mode::Policy;
+                if (k - self.engage_tick) % self.decimation == 0 {
+                    self.policy_step(state, command);
+                    info.policy_step = true;
+                }
+            }
+        }
+        self.write_command(state, out);
+        info
+    }
+
+    fn policy_step(&mut self, state: &LowState, command: [f32; 3]) {
+        let p = &self.spec.policy;
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            self.joint_pos_rel[i] = state.motors[slot].q - p.default_pose[i];
+            self.joint_vel[i] = state.motors[slot].dq;
+        }
+        let mut cmd = command;
+        if let Some(lo) = self.spec.commands.min {
+            (0..3).for_each(|i| cmd[i] = cmd[i].max(lo[i]));
+        }
+        if let Some(hi) = self.spec.commands.max {
+            (0..3).for_each(|i| cmd[i] = cmd[i].min(hi[i]));
+        }
+        let phase = match &self.spec.phase {
+            Some(ph) => {
+                let t = ph.first_step_time_s + self.policy_steps as f64 / self.spec.rates.policy_hz as f64;
+                (t.rem_euclid(ph.period_s) / ph.period_s) as f32
+            }
+            None => 0.0,
+        };
+        let inputs = ObsInputs {
+            gyro: state.imu.gyroscope,
+            quat: state.imu.quaternion,
+            command: cmd,
+            joint_pos_rel: &self.joint_pos_rel,
+            joint_vel: &self.joint_vel,
+            last_action: &self.last_action,
+            phase,
+        };
+        self.obs.build(&inputs, &mut self.obs_buf);
+        self.policy_steps += 1;
+        let Some(net) = self.net.as_mut() else { return };
+        if net.step(&self.obs_buf, &mut self.action).is_err() || self.action.iter().any(|a| !a.is_finite()) {
+            self.enter_damping(DampingReason::NonFiniteAction);
+            return;
+        }
+        if let Some(c) = p.action_clip {
+            self.action.iter_mut().for_each(|a| *a = a.clamp(-c, c));
+        }
+        self.last_action.copy_from_slice(&self.action);
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            self.target_q[slot] = p.default_pose[i] + self.action_scale[i] * self.action[i];
+        }
+    }
+
+    fn write_command(&self, state: &LowState, out: &mut LowCommand) {
+        out.mode_pr = 0;
+        out.mode_machine = state.mode_machine;
+        let damping = matches!(self.mode, Mode::Damping(_));
+        for s in 0..NUM_MOTORS {
+            out.motors[s] = if !self.enabled[s] {
+                MotorCommand::default()
+            } else if damping {
+                MotorCommand::damping(self.spec.safety.damping_kd)
+            } else {
+                MotorCommand {
+                    mode: MOTOR_MODE_ENABLED,
+                    q: self.target_q[s],
+                    dq: 0.0,
+                    tau: 0.0,
+                    kp: self.kp[s],
+                    kd: self.kd[s],
+                    reserve: 0,
+                }
+            };
+        }
+    }
+}

@@ -1,0 +1,433 @@
+//! The deploy spec: everything about one policy in one TOML file, validated at load.
+//!
+//! It expresses Unitree's unitree_rl_gym G1 policy (12 legs, single frame, phase clock, LSTM) and
+//! unitree_rl_lab-style policies (29 joints through a `joint_ids_map`, per-term history laid out
+//! term by term, command clamps). Paths inside the spec are relative to the spec file. Every
+//! validation error names the offending field.
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::nn::NetworkDesc;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SpecError {
+    #[error("cannot read deploy spec {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("deploy spec {path} is not valid TOML for a deploy spec: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("deploy spec {path}: `{field}`: {message}")]
+    Invalid { path: PathBuf, field: String, message: String },
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeploySpec {
+    pub meta: Meta,
+    pub rates: Rates,
+    #[serde(default)]
+    pub startup: Startup,
+    pub policy: Policy,
+    #[serde(default)]
+    pub held: Vec<HeldGroup>,
+    #[serde(default)]
+    pub commands: Commands,
+    #[serde(default)]
+    pub phase: Option<Phase>,
+    #[serde(default)]
+    pub safety: Safety,
+    pub observation: Observation,
+    /// Directory of the spec file; relative paths resolve against it.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+    /// Where the spec was loaded from (for messages and logs).
+    #[serde(skip)]
+    pub path: PathBuf,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Meta {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rates {
+    /// Fast control tick (state in, command out), Hz.
+    pub control_hz: u32,
+    /// Policy rate, Hz; must divide `control_hz`.
+    pub policy_hz: u32,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Startup {
+    /// Linear ramp from the measured pose to the default pose, seconds (0 = targets are the default
+    /// pose from the first tick).
+    #[serde(default = "Startup::default_ramp")]
+    pub ramp_s: f64,
+    /// Hold the default pose this long after the ramp, seconds. The policy's first step comes one
+    /// policy period after ramp + hold (as in Unitree's reference loop).
+    #[serde(default)]
+    pub hold_s: f64,
+}
+
+impl Startup {
+    fn default_ramp() -> f64 {
+        1.0
+    }
+}
+
+impl Default for Startup {
+    fn default() -> Self {
+        Self { ramp_s: Self::default_ramp(), hold_s: 0.0 }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Policy {
+    /// safetensors file, relative to the spec file.
+    pub weights: PathBuf,
+    pub network: NetworkDesc,
+    /// Policy output index → motor slot (SDK order). Its length is the number of driven joints.
+    pub joint_ids_map: Vec<usize>,
+    /// Optional joint names per policy index, checked against the slot names (catches a wrong map).
+    #[serde(default)]
+    pub joint_names: Vec<String>,
+    /// Per policy joint, rad.
+    pub default_pose: Vec<f32>,
+    /// `q_target = default_pose + action_scale * action` (scalar or per joint).
+    pub action_scale: Scale,
+    /// Clip raw actions to ±this before scaling (none if absent).
+    #[serde(default)]
+    pub action_clip: Option<f32>,
+    pub kp: Vec<f32>,
+    pub kd: Vec<f32>,
+}
+
+/// Motors the policy does not drive, held at a fixed pose.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeldGroup {
+    /// Motor slot names (see `hal::G1_MOTOR_NAMES`, with or without `_joint`).
+    pub joints: Vec<String>,
+    pub q: Scale,
+    pub kp: Scale,
+    pub kd: Scale,
+}
+
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Commands {
+    /// Velocity command clamps (vx, vy, wz), applied before the observation scale.
+    #[serde(default)]
+    pub min: Option<[f32; 3]>,
+    #[serde(default)]
+    pub max: Option<[f32; 3]>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Phase {
+    /// Gait period, seconds.
+    pub period_s: f64,
+    /// Phase-clock time at the policy's first step; it advances by one policy period per step.
+    /// unitree_rl_gym's MuJoCo and real deploy scripts both give 0.02 s.
+    pub first_step_time_s: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Safety {
+    /// Damping applied to every enabled motor in the safe state (kp = 0).
+    #[serde(default = "Safety::default_kd")]
+    pub damping_kd: f32,
+    /// Tilt from upright beyond which the robot is considered fallen, rad.
+    #[serde(default = "Safety::default_tilt")]
+    pub tilt_limit_rad: f32,
+}
+
+impl Safety {
+    fn default_kd() -> f32 {
+        5.0
+    }
+    fn default_tilt() -> f32 {
+        1.0
+    }
+}
+
+impl Default for Safety {
+    fn default() -> Self {
+        Self { damping_kd: Self::default_kd(), tilt_limit_rad: Self::default_tilt() }
+    }
+}
+
+/// How multi-frame history is laid out in the observation vector.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HistoryLayout {
+    /// Each term's frames (oldest first) back to back, term after term (IsaacLab / unitree_rl_lab).
+    #[default]
+    TermMajor,
+    /// Whole frames (all terms), oldest frame first.
+    FrameMajor,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Observation {
+    #[serde(default)]
+    pub history_layout: HistoryLayout,
+    pub terms: Vec<ObsTerm>,
+}
+
+/// The signals an observation term can read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObsKind {
+    /// IMU gyroscope, body frame (3).
+    BaseAngVel,
+    /// Gravity direction in the body frame from the IMU quaternion (3).
+    ProjectedGravity,
+    /// Operator velocity command vx, vy, wz after clamping (3).
+    VelocityCommand,
+    /// Joint position minus default pose, policy order (n).
+    JointPosRel,
+    /// Joint velocity, policy order (n).
+    JointVel,
+    /// Previous raw policy output (n).
+    LastAction,
+    /// sin(2π·phase), cos(2π·phase) (2).
+    GaitPhase,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObsTerm {
+    pub kind: ObsKind,
+    #[serde(default = "Scale::one")]
+    pub scale: Scale,
+    /// Clip to ±clip after scaling.
+    #[serde(default)]
+    pub clip: Option<f32>,
+    /// Frames of history (1 = current only).
+    #[serde(default = "one_usize")]
+    pub history: usize,
+}
+
+fn one_usize() -> usize {
+    1
+}
+
+/// A scalar or one value per element.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Scale {
+    Scalar(f32),
+    PerElement(Vec<f32>),
+}
+
+impl Scale {
+    fn one() -> Self {
+        Scale::Scalar(1.0)
+    }
+    /// Expands to `n` values; `None` if a per-element list has the wrong length.
+    pub fn expand(&self, n: usize) -> Option<Vec<f32>> {
+        match self {
+            Scale::Scalar(s) => Some(vec![*s; n]),
+            Scale::PerElement(v) if v.len() == n => Some(v.clone()),
+            Scale::PerElement(_) => None,
+        }
+    }
+}
+
+impl ObsKind {
+    /// Elements per frame for a policy with `n` driven joints.
+    pub fn dim(self, n: usize) -> usize {
+        match self {
+            ObsKind::BaseAngVel | ObsKind::ProjectedGravity | ObsKind::VelocityCommand => 3,
+            ObsKind::JointPosRel | ObsKind::JointVel | ObsKind::LastAction => n,
+            ObsKind::GaitPhase => 2,
+        }
+    }
+}
+
+impl DeploySpec {
+    pub fn load(path: &Path) -> Result<Self, SpecError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SpecError::Read { path: path.into(), source })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Parses and validates; `path` locates relative files and names the spec in errors.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, SpecError> {
+        let mut spec: DeploySpec =
+            toml::from_str(text).map_err(|e| SpecError::Parse { path: path.into(), message: e.to_string() })?;
+        spec.path = path.to_path_buf();
+        spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        spec.validate()?;
+        Ok(spec)
+    }
+
+    fn invalid(&self, field: &str, message: impl Into<String>) -> SpecError {
+        SpecError::Invalid { path: self.path.clone(), field: field.into(), message: message.into() }
+    }
+
+    pub fn weights_path(&self) -> PathBuf {
+        self.base_dir.join(&self.policy.weights)
+    }
+
+    /// Number of joints the policy drives.
+    pub fn num_joints(&self) -> usize {
+        self.policy.joint_ids_map.len()
+    }
+
+    /// Control ticks per policy step.
+    pub fn decimation(&self) -> u32 {
+        self.rates.control_hz / self.rates.policy_hz
+    }
+
+    pub fn control_dt(&self) -> f64 {
+        1.0 / self.rates.control_hz as f64
+    }
+
+    /// Length of the observation vector the spec builds.
+    pub fn observation_dim(&self) -> usize {
+        let n = self.num_joints();
+        self.observation.terms.iter().map(|t| t.kind.dim(n) * t.history).sum()
+    }
+
+    fn validate(&self) -> Result<(), SpecError> {
+        let r = &self.rates;
+        if r.control_hz == 0 || r.policy_hz == 0 || r.control_hz % r.policy_hz != 0 {
+            return Err(self.invalid(
+                "rates",
+                format!("policy_hz ({}) must be positive and divide control_hz ({})", r.policy_hz, r.control_hz),
+            ));
+        }
+        let s = &self.startup;
+        if !(s.ramp_s >= 0.0 && s.hold_s >= 0.0 && s.ramp_s.is_finite() && s.hold_s.is_finite()) {
+            return Err(self.invalid("startup", "ramp_s and hold_s must be finite and >= 0"));
+        }
+
+        let p = &self.policy;
+        let n = p.joint_ids_map.len();
+        if n == 0 {
+            return Err(self.invalid("policy.joint_ids_map", "is empty"));
+        }
+        let mut used = [false; hal::NUM_MOTORS];
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            if slot >= hal::NUM_MOTORS {
+                return Err(self.invalid(
+                    &format!("policy.joint_ids_map[{i}]"),
+                    format!("slot {slot} out of range 0..{}", hal::NUM_MOTORS),
+                ));
+            }
+            if used[slot] {
+                return Err(self.invalid(&format!("policy.joint_ids_map[{i}]"), format!("slot {slot} appears twice")));
+            }
+            used[slot] = true;
+        }
+        if !p.joint_names.is_empty() {
+            if p.joint_names.len() != n {
+                return Err(self.invalid(
+                    "policy.joint_names",
+                    format!("{} entries, expected {n} (one per joint_ids_map entry)", p.joint_names.len()),
+                ));
+            }
+            for (i, name) in p.joint_names.iter().enumerate() {
+                if hal::g1_motor_slot(name) != Some(p.joint_ids_map[i]) {
+                    return Err(self.invalid(
+                        &format!("policy.joint_names[{i}]"),
+                        format!(
+                            "'{name}' is not motor slot {} ('{}'): joint_ids_map and joint_names disagree",
+                            p.joint_ids_map[i],
+                            hal::G1_MOTOR_NAMES[p.joint_ids_map[i]]
+                        ),
+                    ));
+                }
+            }
+        }
+        for (field, v) in [("policy.default_pose", &p.default_pose), ("policy.kp", &p.kp), ("policy.kd", &p.kd)] {
+            if v.len() != n {
+                return Err(self.invalid(field, format!("{} entries, expected {n} (one per policy joint)", v.len())));
+            }
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(self.invalid(field, "contains a non-finite value"));
+            }
+        }
+        if p.action_scale.expand(n).is_none() {
+            return Err(self.invalid("policy.action_scale", format!("per-joint list must have {n} entries")));
+        }
+
+        for (g, group) in self.held.iter().enumerate() {
+            let k = group.joints.len();
+            for (j, name) in group.joints.iter().enumerate() {
+                let field = format!("held[{g}].joints[{j}]");
+                let slot = hal::g1_motor_slot(name).ok_or_else(|| self.invalid(&field, format!("unknown motor '{name}'")))?;
+                if used[slot] {
+                    return Err(self.invalid(&field, format!("'{name}' is already driven or held")));
+                }
+                used[slot] = true;
+            }
+            for (f, sc) in [("q", &group.q), ("kp", &group.kp), ("kd", &group.kd)] {
+                if sc.expand(k).is_none() {
+                    return Err(self.invalid(&format!("held[{g}].{f}"), format!("per-joint list must have {k} entries")));
+                }
+            }
+        }
+
+        if let (Some(lo), Some(hi)) = (self.commands.min, self.commands.max) {
+            if (0..3).any(|i| lo[i] > hi[i]) {
+                return Err(self.invalid("commands", "min must be <= max for vx, vy, wz"));
+            }
+        }
+        if let Some(ph) = &self.phase {
+            if !(ph.period_s > 0.0) {
+                return Err(self.invalid("phase.period_s", "must be > 0"));
+            }
+        }
+
+        for (i, t) in self.observation.terms.iter().enumerate() {
+            let field = format!("observation.terms[{i}]");
+            if t.history == 0 {
+                return Err(self.invalid(&format!("{field}.history"), "must be >= 1"));
+            }
+            if t.scale.expand(t.kind.dim(n)).is_none() {
+                return Err(self.invalid(
+                    &format!("{field}.scale"),
+                    format!("per-element list must have {} entries for {:?}", t.kind.dim(n), t.kind),
+                ));
+            }
+            if t.kind == ObsKind::GaitPhase && self.phase.is_none() {
+                return Err(self.invalid(&field, "gait_phase needs a [phase] section"));
+            }
+            if let Some(c) = t.clip {
+                if !(c > 0.0) {
+                    return Err(self.invalid(&format!("{field}.clip"), "must be > 0"));
+                }
+            }
+        }
+        if self.observation.history_layout == HistoryLayout::FrameMajor {
+            let h0 = self.observation.terms.first().map_or(1, |t| t.history);
+            if self.observation.terms.iter().any(|t| t.history != h0) {
+                return Err(self.invalid(
+                    "observation.history_layout",
+                    "frame_major needs the same history length for every term",
+                ));
+            }
+        }
+
+        let obs_dim = self.observation_dim();
+        if obs_dim != self.policy.network.input {
+            return Err(self.invalid(
+                "observation",
+                format!("terms add up to {obs_dim} values but policy.network.input is {}", self.policy.network.input),
+            ));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,194 @@
+//! Deploy-spec validation and observation layout: the unitree_rl_lab-style test spec (history and
+//! joint map) and the errors a broken spec gives.
+use std::path::{Path, PathBuf};
+
+use firmware::controller::{Controller, Mode};
+use firmware::obs::{ObsInputs, ObservationBuilder};
+use firmware::spec::DeploySpec;
+use hal::{LowCommand, LowState, TickTime};
+
+fn specs_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs")
+}
+
+fn rl_lab_spec() -> DeploySpec {
+    DeploySpec::load(&specs_dir().join("test/rl_lab_style.toml")).expect("test spec loads")
+}
+
+#[test]
+fn rl_lab_spec_has_480_inputs_and_isaaclab_joint_map() {
+    let spec = rl_lab_spec();
+    assert_eq!(spec.observation_dim(), 480);
+    assert_eq!(spec.num_joints(), 29);
+    assert_eq!(spec.decimation(), 10);
+    // IsaacLab index 2 is the waist yaw, SDK slot 12.
+    assert_eq!(spec.policy.joint_ids_map[2], 12);
+}
+
+/// Frame `k` puts value `k*1000 + element` in every term, so each output position reveals which
+/// frame and element it came from.
+fn push_frame(b: &mut ObservationBuilder, k: usize, out: &mut [f32]) {
+    let v = |i: usize| (k * 1000 + i) as f32;
+    let jp: Vec<f32> = (0..29).map(|i| v(100 + i)).collect();
+    let jv: Vec<f32> = (0..29).map(|i| v(200 + i)).collect();
+    let la: Vec<f32> = (0..29).map(|i| v(300 + i)).collect();
+    let x = ObsInputs {
+        gyro: [v(0), v(1), v(2)],
+        quat: [1.0, 0.0, 0.0, 0.0],
+        command: [v(10), v(11), v(12)],
+        joint_pos_rel: &jp,
+        joint_vel: &jv,
+        last_action: &la,
+        phase: 0.0,
+    };
+    b.build(&x, out);
+}
+
+#[test]
+fn term_major_history_is_oldest_first_per_term_and_primed_by_the_first_frame() {
+    let mut spec = rl_lab_spec();
+    for t in &mut spec.observation.terms {
+        t.clip = None;
+        t.scale = firmware::spec::Scale::Scalar(1.0);
+    }
+    let mut b = ObservationBuilder::new(&spec);
+    let mut out = vec![0.0; 480];
+    push_frame(&mut b, 1, &mut out);
+    // After one frame all 5 history slots hold frame 1.
+    for h in 0..5 {
+        assert_eq!(out[h * 3], 1000.0, "ang vel history slot {h}");
+    }
+    for k in 2..=7 {
+        push_frame(&mut b, k, &mut out);
+    }
+    // Newest frame is 7; history holds 3,4,5,6,7, oldest first.
+    // Term 0: base_ang_vel (3 × 5 = 15 values) at 0..15.
+    assert_eq!(&out[0..3], &[3000.0, 3001.0, 3002.0]);
+    assert_eq!(&out[12..15], &[7000.0, 7001.0, 7002.0]);
+    // Term 1: projected gravity at 15..30, upright → (0, 0, −1) in every frame.
+    assert_eq!(&out[15..18], &[0.0, 0.0, -1.0]);
+    // Term 2: command at 30..45.
+    assert_eq!(out[30], 3010.0);
+    assert_eq!(out[42], 7010.0);
+    // Term 3: joint_pos_rel at 45..190, 29 per frame.
+    assert_eq!(out[45], 3100.0);
+    assert_eq!(out[45 + 4 * 29 + 28], 7128.0);
+    // Term 4: joint_vel at 190..335; term 5: last_action at 335..480.
+    assert_eq!(out[190], 3200.0);
+    assert_eq!(out[335 + 4 * 29], 7300.0);
+    assert_eq!(out[479], 7328.0);
+}
+
+#[test]
+fn scales_and_clips_apply_per_term() {
+    let spec = rl_lab_spec();
+    let mut b = ObservationBuilder::new(&spec);
+    let mut out = vec![0.0; 480];
+    push_frame(&mut b, 0, &mut out);
+    // base_ang_vel scale 0.2: 2 * 0.2 (newest frame at 12..15).
+    assert!((out[14] - 0.4).abs() < 1e-6);
+    // joint_pos_rel element 28 is 128 → clipped to 100; element 0 is exactly 100.
+    assert_eq!(out[45 + 28], 100.0);
+    assert_eq!(out[45 + 27], 100.0);
+    assert_eq!(out[45 + 4 * 29], 100.0);
+    // base_ang_vel 1000 * 0.2 = 200 → clipped to 100.
+    push_frame(&mut b, 1, &mut out);
+    assert_eq!(out[12], 100.0);
+}
+
+#[test]
+fn controller_reads_joints_through_the_map_and_writes_targets_to_slots() {
+    let spec = rl_lab_spec();
+    let mut c = Controller::new(spec.clone()).unwrap();
+    let mut state = LowState::default();
+    for (slot, m) in state.motors.iter_mut().enumerate() {
+        m.q = slot as f32 * 0.01;
+    }
+    let mut cmd = LowCommand::default();
+    let ticks_to_first_policy = (0.5 * 500.0) as u64 + 10;
+    for k in 0..=ticks_to_first_policy {
+        let info = c.tick(&state, TickTime { index: k, time_ns: k * 2_000_000 }, [2.0, 0.0, 0.0], &mut cmd);
+        assert_eq!(info.policy_step, k == ticks_to_first_policy, "tick {k}");
+    }
+    assert_eq!(c.mode(), Mode::Policy);
+    let obs = c.observation();
+    // joint_pos_rel (newest frame, the whole history is primed): IsaacLab index 2 = slot 12.
+    let newest = 45 + 4 * 29;
+    assert!((obs[newest + 2] - (0.12 - spec.policy.default_pose[2])).abs() < 1e-6);
+    // The command was clamped to max vx 1.0 before entering the observation.
+    assert_eq!(obs[30 + 12], 1.0);
+    // Targets land in the mapped slots: slot 12 gets IsaacLab joint 2's default + scaled action.
+    let a = c.action()[2];
+    let expected = spec.policy.default_pose[2] + 0.25 * a;
+    assert!((cmd.motors[12].q - expected).abs() < 1e-6);
+    assert_eq!(cmd.motors[12].kp, 300.0);
+    assert_eq!(cmd.motors[29].mode, 0, "unused slots stay disabled");
+}
+
+#[test]
+fn ramp_moves_linearly_from_the_measured_pose() {
+    let spec = rl_lab_spec();
+    let mut c = Controller::new(spec.clone()).unwrap();
+    let state = LowState::default(); // all joints at 0
+    let mut cmd = LowCommand::default();
+    for k in 0..=125 {
+        c.tick(&state, TickTime { index: k, time_ns: 0 }, [0.0; 3], &mut cmd);
+    }
+    // Halfway through a 250-tick ramp: half the default pose. Slot 3 = left knee, default 0.3.
+    assert!((cmd.motors[3].q - 0.15).abs() < 1e-6, "{}", cmd.motors[3].q);
+    assert_eq!(c.mode(), Mode::Startup);
+}
+
+#[test]
+fn tilt_latches_damping() {
+    let spec = rl_lab_spec();
+    let mut c = Controller::new(spec).unwrap();
+    let mut state = LowState::default();
+    let a: f32 = 1.2; // beyond the 1.0 rad limit
+    state.imu.quaternion = [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0];
+    let mut cmd = LowCommand::default();
+    c.tick(&state, TickTime::default(), [0.0; 3], &mut cmd);
+    assert!(matches!(c.mode(), Mode::Damping(_)));
+    assert_eq!((cmd.motors[0].kp, cmd.motors[0].kd), (0.0, 5.0));
+    // Upright again: still damping (latched).
+    state.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
+    c.tick(&state, TickTime { index: 1, time_ns: 0 }, [0.0; 3], &mut cmd);
+    assert!(matches!(c.mode(), Mode::Damping(_)));
+    assert_eq!(cmd.motors[0].kp, 0.0);
+}
+
+fn load_err(text: &str) -> String {
+    DeploySpec::from_toml(text, &specs_dir().join("test/x.toml")).unwrap_err().to_string()
+}
+
+#[test]
+fn broken_specs_name_the_field() {
+    let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
+    let e = load_err(&good.replace("input = 480", "input = 479"));
+    assert!(e.contains("`observation`") && e.contains("480") && e.contains("479"), "{e}");
+    let e = load_err(&good.replace("action_scale = 0.25", "action_scale = [0.25, 0.25]"));
+    assert!(e.contains("policy.action_scale"), "{e}");
+    let e = load_err(&good.replace("policy_hz = 50", "policy_hz = 7"));
+    assert!(e.contains("`rates`"), "{e}");
+    let e = load_err(&good.replace("[0, 6, 12, 1,", "[0, 6, 13, 1,"));
+    assert!(e.contains("joint_ids_map"), "{e}");
+    let e = load_err(&good.replace("\"waist_yaw_joint\", \"left_hip_roll_joint\"", "\"left_hip_roll_joint\", \"waist_yaw_joint\""));
+    assert!(e.contains("policy.joint_names[2]"), "{e}");
+    let e = load_err(&good.replace("kind = \"joint_vel\"", "kind = \"joint_jerk\""));
+    assert!(e.contains("not valid TOML for a deploy spec") && e.contains("joint_jerk"), "{e}");
+    let e = load_err(&good.replace("[meta]", "[meta]\nbogus = 1"));
+    assert!(e.contains("bogus"), "{e}");
+}
+
+#[test]
+fn wrong_network_dimension_is_a_clear_error() {
+    // Observation and network.input agree (481) but the weights take 480.
+    let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
+    let text = good
+        .replace("input = 480", "input = 482")
+        .replace("{ kind = \"last_action\", history = 5, clip = 100.0 },", "{ kind = \"last_action\", history = 5, clip = 100.0 },\n  { kind = \"gait_phase\" },")
+        .replace("[observation]", "[phase]\nperiod_s = 0.8\nfirst_step_time_s = 0.02\n\n[observation]");
+    let spec = DeploySpec::from_toml(&text, &specs_dir().join("test/x.toml")).unwrap();
+    let e = Controller::new(spec).err().expect("dimension mismatch").to_string();
+    assert!(e.contains("480") || e.contains("482"), "{e}");
+}
