@@ -1,0 +1,96 @@
+//! `Network::step` must not allocate: counts allocations on this thread around a step loop.
+
+use firmware::nn::{LayerDesc, Network, NetworkDesc};
+use safetensors::tensor::{Dtype, TensorView};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+thread_local! {
+    static ALLOCS: Cell<usize> = const { Cell::new(0) };
+}
+
+/// Counts allocations per thread (so parallel tests do not interfere) and defers to `System`.
+struct Counting;
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCS.with(|c| c.set(c.get() + 1));
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+#[test]
+fn step_does_not_allocate() {
+    let tensors: Vec<(&str, Vec<usize>)> = vec![
+        ("w_ih", vec![32, 5]),
+        ("w_hh", vec![32, 8]),
+        ("b_ih", vec![32]),
+        ("b_hh", vec![32]),
+        ("l.w", vec![4, 8]),
+        ("l.b", vec![4]),
+    ];
+    let data: Vec<Vec<u8>> = tensors
+        .iter()
+        .map(|(_, s)| {
+            let n: usize = s.iter().product();
+            (0..n)
+                .flat_map(|i| ((i % 7) as f32 * 0.1 - 0.3).to_le_bytes())
+                .collect()
+        })
+        .collect();
+    let views: Vec<(&str, TensorView<'_>)> = tensors
+        .iter()
+        .zip(&data)
+        .map(|((n, s), d)| (*n, TensorView::new(Dtype::F32, s.clone(), d).unwrap()))
+        .collect();
+    let bytes = safetensors::serialize(views, &None).unwrap();
+    let desc = NetworkDesc {
+        input: 5,
+        layers: vec![
+            LayerDesc::Lstm {
+                weight_ih: "w_ih".into(),
+                weight_hh: "w_hh".into(),
+                bias_ih: "b_ih".into(),
+                bias_hh: "b_hh".into(),
+                initial_hidden: None,
+                initial_cell: None,
+            },
+            LayerDesc::Tanh,
+            LayerDesc::Linear {
+                weight: "l.w".into(),
+                bias: "l.b".into(),
+            },
+            LayerDesc::Elu { alpha: 1.0 },
+            LayerDesc::Relu,
+        ],
+    };
+    let mut net = Network::from_safetensors_bytes(&desc, &bytes).unwrap();
+    let x = [0.5f32; 5];
+    let mut y = [0.0f32; 4];
+    let before = ALLOCS.with(Cell::get);
+    for _ in 0..1000 {
+        net.step(&x, &mut y).unwrap();
+    }
+    net.reset();
+    net.step(&x, &mut y).unwrap();
+    let after = ALLOCS.with(Cell::get);
+    assert_eq!(
+        after - before,
+        0,
+        "step/reset allocated {} times",
+        after - before
+    );
+}
