@@ -4,7 +4,9 @@
 use std::path::Path;
 
 fn fail(msg: &str) -> ! {
-    eprintln!("error: {msg}\n       Run `scripts/install.sh` from the repository root to install MuJoCo 3.17.0 into .deps/.");
+    eprintln!(
+        "error: {msg}\n       Run `scripts/install.sh` from the repository root to install MuJoCo 3.17.0 into .deps/."
+    );
     std::process::exit(1);
 }
 

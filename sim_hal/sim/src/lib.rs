@@ -68,10 +68,7 @@ impl SimConfig {
     /// Physics steps per control tick.
     pub fn substeps(&self) -> Result<u32, SimError> {
         if !(self.physics_dt.is_finite() && self.physics_dt > 0.0) {
-            return Err(SimError::Config(format!(
-                "physics dt {} must be > 0",
-                self.physics_dt
-            )));
+            return Err(SimError::Config(format!("physics dt {} must be > 0", self.physics_dt)));
         }
         let r = self.control_dt / self.physics_dt;
         let n = r.round();
@@ -199,13 +196,7 @@ impl Simulator {
     /// fields (the decoder already does for wire frames) so NaN never reaches the physics.
     pub fn apply_command(&mut self, cmd: &LowCommand) -> Result<(), SimError> {
         for (slot, m) in cmd.motors.iter().enumerate() {
-            for (field, v) in [
-                ("q", m.q),
-                ("dq", m.dq),
-                ("tau", m.tau),
-                ("kp", m.kp),
-                ("kd", m.kd),
-            ] {
+            for (field, v) in [("q", m.q), ("dq", m.dq), ("tau", m.tau), ("kp", m.kp), ("kd", m.kd)] {
                 if !v.is_finite() {
                     return Err(SimError::NonFinite { field, slot });
                 }
@@ -232,8 +223,7 @@ impl Simulator {
             for (t, s) in tau.iter_mut().zip(&self.slots) {
                 let c = &self.cmd[s.slot];
                 if c.enabled {
-                    let raw =
-                        c.tau + c.kp * (c.q - qpos[s.qpos_adr]) + c.kd * (c.dq - qvel[s.dof_adr]);
+                    let raw = c.tau + c.kp * (c.q - qpos[s.qpos_adr]) + c.kd * (c.dq - qvel[s.dof_adr]);
                     *t = raw.clamp(s.tau_lo, s.tau_hi);
                 }
             }
@@ -346,11 +336,7 @@ impl Simulator {
                 let c = d.cvel()[self.pelvis_body];
                 let r = d.xmat()[self.pelvis_body];
                 let w_world = [c[0], c[1], c[2]];
-                (
-                    d.xpos()[self.pelvis_body],
-                    [c[3], c[4], c[5]],
-                    mat_t_vec(&r, &w_world),
-                )
+                (d.xpos()[self.pelvis_body], [c[3], c[4], c[5]], mat_t_vec(&r, &w_world))
             }
         };
         let r = quat_to_mat(quat);
@@ -415,10 +401,7 @@ impl Simulator {
     }
     /// `(lo, hi)` torque clamp of slot `i`, if present.
     pub fn effort_limit(&self, slot: usize) -> Option<(f64, f64)> {
-        self.slots
-            .iter()
-            .find(|s| s.slot == slot)
-            .map(|s| (s.tau_lo, s.tau_hi))
+        self.slots.iter().find(|s| s.slot == slot).map(|s| (s.tau_lo, s.tau_hi))
     }
     /// The underlying MuJoCo data (and, through it, the model), for inspection.
     pub fn data(&self) -> &MjData<Box<MjModel>> {

@@ -120,8 +120,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         imu_noise: cli.imu_noise,
     };
     let model_name = cli.model.to_string();
-    let mut sim = Simulator::load(cli.model, config)
-        .with_context(|| format!("loading model {model_name}"))?;
+    let mut sim = Simulator::load(cli.model, config).with_context(|| format!("loading model {model_name}"))?;
     if let Some(seconds) = cli.bench_bare {
         bench_bare(&mut sim, seconds)?;
         return Ok(ExitCode::SUCCESS);

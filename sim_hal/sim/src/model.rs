@@ -8,7 +8,7 @@
 //! - one `motor` actuator (gear 1, ctrlrange = effort limit) per slot joint that has no direct
 //!   torque actuator (gear 1, fixed gain 1, no bias, no dynamics);
 //! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it.
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::str::FromStr;
 
 use hal::NUM_MOTORS;
@@ -136,14 +136,7 @@ fn edit_err(what: &str, e: impl std::fmt::Display) -> SimError {
 }
 
 /// A joint-transmission torque actuator the PD law can drive directly.
-fn is_direct_motor(
-    trn: mjtTrn,
-    gain: mjtGain,
-    gainprm0: f64,
-    bias: mjtBias,
-    dyn_: mjtDyn,
-    gear: &[f64],
-) -> bool {
+fn is_direct_motor(trn: mjtTrn, gain: mjtGain, gainprm0: f64, bias: mjtBias, dyn_: mjtDyn, gear: &[f64]) -> bool {
     trn == mjtTrn::mjTRN_JOINT
         && gain == mjtGain::mjGAIN_FIXED
         && gainprm0 == 1.0
@@ -161,8 +154,7 @@ pub fn load(choice: &ModelChoice, physics_dt: f64) -> Result<Loaded, SimError> {
             hint: choice.missing_hint(),
         });
     }
-    let mut spec =
-        MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
+    let mut spec = MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
     spec.option_mut().timestep = physics_dt;
 
     add_floor_if_missing(&mut spec)?;
@@ -172,7 +164,7 @@ pub fn load(choice: &ModelChoice, physics_dt: f64) -> Result<Loaded, SimError> {
     let model = spec
         .compile()
         .map_err(|e| edit_err(&format!("compiling {}", path.display()), e))?;
-    resolve(choice, model, &limits, &path)
+    resolve(choice, model, &limits)
 }
 
 fn add_floor_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
@@ -184,8 +176,7 @@ fn add_floor_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
         let g = spec.world_body_mut().add_geom();
         g.set_type(_mjtGeomBase::mjGEOM_PLANE);
         *g.size_mut() = [0.0, 0.0, 0.05];
-        g.set_name("floor")
-            .map_err(|e| edit_err("naming the floor", e))?;
+        g.set_name("floor").map_err(|e| edit_err("naming the floor", e))?;
     }
     Ok(())
 }
@@ -208,7 +199,7 @@ fn prepare_slot_joints(spec: &mut MjSpec) -> Result<[Option<(f64, f64)>; NUM_MOT
     }
     let mut limits = [None; NUM_MOTORS];
     for (slot, lim) in limits.iter_mut().enumerate() {
-        let (Some(sname), Some(jname)) = (slots::SLOT_NAMES[slot], slots::joint_name(slot)) else {
+        let (Some(sname), Some(jname)) = (slots::slot_name(slot), slots::joint_name(slot)) else {
             continue;
         };
         let Some(j) = spec.joint_mut(&jname) else {
@@ -229,7 +220,7 @@ fn prepare_slot_joints(spec: &mut MjSpec) -> Result<[Option<(f64, f64)>; NUM_MOT
             (-e, e)
         };
         *lim = Some((lo, hi));
-        if !has_motor.iter().any(|t| *t == jname) {
+        if !has_motor.contains(&jname) {
             let a = spec.add_actuator();
             a.set_to_motor();
             a.set_trntype(mjtTrn::mjTRN_JOINT);
@@ -251,13 +242,11 @@ fn add_imu_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
             .ok_or_else(|| SimError::Model(format!("model has no body named {PELVIS:?}")))?;
         let s = pelvis.add_site();
         *s.pos_mut() = IMU_SITE_POS;
-        s.set_name(IMU_SITE)
-            .map_err(|e| edit_err("naming the IMU site", e))?;
+        s.set_name(IMU_SITE).map_err(|e| edit_err("naming the IMU site", e))?;
     }
     let on_site = |t: mjtSensor| {
-        spec.sensor_iter().any(|s| {
-            s.type_() == t && s.objtype() == _mjtObjBase::mjOBJ_SITE && s.objname() == IMU_SITE
-        })
+        spec.sensor_iter()
+            .any(|s| s.type_() == t && s.objtype() == _mjtObjBase::mjOBJ_SITE && s.objname() == IMU_SITE)
     };
     let want = [
         (
@@ -277,8 +266,7 @@ fn add_imu_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
             s.set_type(t);
             s.set_objtype(_mjtObjBase::mjOBJ_SITE);
             s.set_objname(IMU_SITE);
-            s.set_name(name)
-                .map_err(|e| edit_err("naming an IMU sensor", e))?;
+            s.set_name(name).map_err(|e| edit_err("naming an IMU sensor", e))?;
         }
     }
     Ok(())
@@ -288,7 +276,6 @@ fn resolve(
     choice: &ModelChoice,
     model: MjModel,
     limits: &[Option<(f64, f64)>; NUM_MOTORS],
-    path: &Path,
 ) -> Result<Loaded, SimError> {
     let id = |t: _mjtObjBase, n: &str| model.name_to_id(t, n);
     let mut slots_v = Vec::new();
@@ -312,9 +299,7 @@ fn resolve(
                         &model.actuator_gear()[a],
                     )
             })
-            .ok_or_else(|| {
-                SimError::Model(format!("no torque actuator for {jname} after editing"))
-            })?;
+            .ok_or_else(|| SimError::Model(format!("no torque actuator for {jname} after editing")))?;
         slots_v.push(SlotMap {
             slot,
             joint,
@@ -375,11 +360,10 @@ fn resolve(
     let mut initial_qpos = model.qpos0().to_vec();
     let mode_machine = match choice {
         ModelChoice::G1_29Dof => {
-            let adr = root_qpos_adr
-                .ok_or_else(|| SimError::Model("the 29-dof pelvis has no free joint".into()))?;
+            let adr = root_qpos_adr.ok_or_else(|| SimError::Model("the 29-dof pelvis has no free joint".into()))?;
             initial_qpos[adr + 2] = slots::HOME_ROOT_Z;
             for s in &slots_v {
-                let name = slots::SLOT_NAMES[s.slot].expect("present slots are named");
+                let name = slots::slot_name(s.slot).expect("present slots are named");
                 initial_qpos[s.qpos_adr] = slots::home_angle(name);
             }
             hal::mode_machine::G1_29DOF_REV_1_0
@@ -398,7 +382,6 @@ fn resolve(
             }
         }
     };
-    let _ = path;
 
     Ok(Loaded {
         model,

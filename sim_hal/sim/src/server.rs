@@ -153,12 +153,7 @@ struct Bufs {
     cmd: LowCommand,
 }
 
-fn send_state<W: Write>(
-    w: &mut W,
-    sim: &Simulator,
-    truth: bool,
-    b: &mut Bufs,
-) -> Result<(), ServeError> {
+fn send_state<W: Write>(w: &mut W, sim: &Simulator, truth: bool, b: &mut Bufs) -> Result<(), ServeError> {
     sim.low_state(&mut b.state);
     encode_low_state(&b.state, &mut b.state_bytes);
     write_msg(w, Kind::LowState, &b.state_bytes, &mut b.scratch)?;
@@ -194,22 +189,13 @@ pub fn serve_stream<S: Read + Write + Blocking>(
             e,
             ServeError::Protocol(ProtocolError::Closed | ProtocolError::Remote(_))
         ) {
-            let _ = write_msg(
-                &mut s,
-                Kind::Error,
-                e.to_string().as_bytes(),
-                &mut b.scratch,
-            );
+            let _ = write_msg(&mut s, Kind::Error, e.to_string().as_bytes(), &mut b.scratch);
         }
     }
     r
 }
 
-fn session<S: Read + Write>(
-    s: &mut S,
-    sim: &mut Simulator,
-    b: &mut Bufs,
-) -> Result<SessionSummary, ServeError> {
+fn session<S: Read + Write>(s: &mut S, sim: &mut Simulator, b: &mut Bufs) -> Result<SessionSummary, ServeError> {
     // Hello: version u32 LE, want_truth u8, 3 zero bytes.
     let want_truth = match read_msg(s, &mut b.payload)? {
         Kind::Hello => {
@@ -228,12 +214,7 @@ fn session<S: Read + Write>(
             }
             p[4] != 0
         }
-        got => {
-            return Err(ServeError::Unexpected {
-                got,
-                expected: "Hello",
-            })
-        }
+        got => return Err(ServeError::Unexpected { got, expected: "Hello" }),
     };
     let cfg = sim.config();
     let welcome = Welcome {
@@ -262,8 +243,7 @@ fn session<S: Read + Write>(
         match kind {
             Kind::LowCmd => {
                 decode_low_cmd(&b.payload, &mut b.cmd)?;
-                sim.apply_command(&b.cmd)
-                    .expect("decoder rejects non-finite fields");
+                sim.apply_command(&b.cmd).expect("decoder rejects non-finite fields");
                 sim.step_control_tick();
                 ticks += 1;
                 send_state(s, sim, want_truth, b)?;
@@ -308,12 +288,11 @@ pub fn serve_unix(
                 path.display()
             )));
         }
-        std::fs::remove_file(path).map_err(|e| {
-            ServeError::Setup(format!("removing stale socket {}: {e}", path.display()))
-        })?;
+        std::fs::remove_file(path)
+            .map_err(|e| ServeError::Setup(format!("removing stale socket {}: {e}", path.display())))?;
     }
-    let listener = UnixListener::bind(path)
-        .map_err(|e| ServeError::Setup(format!("binding {}: {e}", path.display())))?;
+    let listener =
+        UnixListener::bind(path).map_err(|e| ServeError::Setup(format!("binding {}: {e}", path.display())))?;
     let _guard = SocketFile(path.to_owned());
     ready();
     let (stream, _) = listener.accept()?;
@@ -334,9 +313,7 @@ pub fn loopback_addr(addr: &str) -> Result<std::net::SocketAddr, ServeError> {
             "--tcp {addr:?} is not a loopback address; the bridge is unauthenticated and only \
              listens on 127.0.0.1 / ::1 (use e.g. --tcp 127.0.0.1:7000)"
         ))),
-        None => Err(ServeError::Setup(format!(
-            "--tcp {addr:?} resolves to nothing"
-        ))),
+        None => Err(ServeError::Setup(format!("--tcp {addr:?} resolves to nothing"))),
     }
 }
 
@@ -348,8 +325,7 @@ pub fn serve_tcp(
     ready: impl FnOnce(std::net::SocketAddr),
 ) -> Result<SessionSummary, ServeError> {
     let a = loopback_addr(addr)?;
-    let listener =
-        TcpListener::bind(a).map_err(|e| ServeError::Setup(format!("binding {a}: {e}")))?;
+    let listener = TcpListener::bind(a).map_err(|e| ServeError::Setup(format!("binding {a}: {e}")))?;
     ready(listener.local_addr()?);
     let (stream, _) = listener.accept()?;
     drop(listener);

@@ -1,54 +1,18 @@
 //! The 35 unitree_hg motor slots and the per-joint constants the G1 models need but do not all
 //! ship (see `../shared/facts/g1_low_level.md` and `g1_sim_models.md`).
-use hal::NUM_MOTORS;
 
-/// SDK slot names in slot order; slot `i` drives the MJCF joint `<name>_joint`. Slots 29..35 are
-/// unused on every G1 variant (`None`).
-pub const SLOT_NAMES: [Option<&str>; NUM_MOTORS] = [
-    Some("left_hip_pitch"),
-    Some("left_hip_roll"),
-    Some("left_hip_yaw"),
-    Some("left_knee"),
-    Some("left_ankle_pitch"),
-    Some("left_ankle_roll"),
-    Some("right_hip_pitch"),
-    Some("right_hip_roll"),
-    Some("right_hip_yaw"),
-    Some("right_knee"),
-    Some("right_ankle_pitch"),
-    Some("right_ankle_roll"),
-    Some("waist_yaw"),
-    Some("waist_roll"),
-    Some("waist_pitch"),
-    Some("left_shoulder_pitch"),
-    Some("left_shoulder_roll"),
-    Some("left_shoulder_yaw"),
-    Some("left_elbow"),
-    Some("left_wrist_roll"),
-    Some("left_wrist_pitch"),
-    Some("left_wrist_yaw"),
-    Some("right_shoulder_pitch"),
-    Some("right_shoulder_roll"),
-    Some("right_shoulder_yaw"),
-    Some("right_elbow"),
-    Some("right_wrist_roll"),
-    Some("right_wrist_pitch"),
-    Some("right_wrist_yaw"),
-    None,
-    None,
-    None,
-    None,
-    None,
-    None,
-];
+/// SDK name of slot `i` (`"left_knee"`), from `hal::G1_MOTOR_NAMES`; `None` for the unused
+/// slots 29..35. Slot `i` drives the MJCF joint `<name>_joint`.
+pub fn slot_name(slot: usize) -> Option<&'static str> {
+    hal::G1_MOTOR_NAMES
+        .get(slot)
+        .copied()
+        .filter(|n| !n.starts_with("unused"))
+}
 
 /// MJCF joint name of slot `i`, if the slot is used.
 pub fn joint_name(slot: usize) -> Option<String> {
-    SLOT_NAMES
-        .get(slot)
-        .copied()
-        .flatten()
-        .map(|n| format!("{n}_joint"))
+    slot_name(slot).map(|n| format!("{n}_joint"))
 }
 
 /// Actuator group of a G1 joint; effort limit and armature follow from it.
@@ -68,9 +32,7 @@ enum Group {
 
 fn group(slot_name: &str) -> Option<Group> {
     // Strip the side so "left_knee" and "right_knee" share an entry.
-    let n = slot_name
-        .trim_start_matches("left_")
-        .trim_start_matches("right_");
+    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
     Some(match n {
         "hip_pitch" | "hip_yaw" | "waist_yaw" => Group::N88,
         "hip_roll" | "knee" => Group::N139,
@@ -96,9 +58,7 @@ pub fn effort_limit(slot_name: &str) -> Option<f64> {
 /// groups do not coincide with the torque groups (hip roll and knee share 0.02510, ankles share
 /// with waist roll/pitch, wrist pitch/yaw have their own).
 pub fn armature(slot_name: &str) -> Option<f64> {
-    let n = slot_name
-        .trim_start_matches("left_")
-        .trim_start_matches("right_");
+    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
     Some(match n {
         "hip_pitch" | "hip_yaw" | "waist_yaw" => 0.01018,
         "hip_roll" | "knee" => 0.02510,
@@ -125,16 +85,28 @@ pub fn home_angle(slot_name: &str) -> f64 {
     }
 }
 
-/// PD gains `(kp, kd)` that hold a standing pose on the simulated G1: Unitree's leg gains, the
-/// waist gains that keep the 29-dof model free of the 25 Hz waist oscillation, and arm gains from
-/// the peer policy's range.
+/// PD gains `(kp, kd)` with which a pure posture-holding PD keeps the simulated G1 standing
+/// (used by `Simulator::hold_initial_pose_command`, the bare-stepping benchmark and the tests).
+///
+/// Unitree's walking-policy leg gains (kp 100/100/100/150/40/40, kd 2/2/2/4/2/2) with waist
+/// 300/20, except for measured deviations:
+/// - ankle pitch kp 250 instead of 40: the body is an inverted pendulum on the two (co-axial)
+///   ankle-pitch joints, and without a balancing policy their stiffness must exceed
+///   m·g·h ≈ 33 kg · 9.81 · 0.62 m ≈ 200 N·m/rad in total; at 40 the 29-dof robot pitches forward
+///   and falls in about 1.2 s;
+/// - hip pitch kp 200 and knee kp 300: the 12-dof model starts with straight legs (`qpos0`), where
+///   the weaker gains let the knees creep to their hyper-extension limit and the robot folds
+///   forward after about 1.3 s;
+/// - arm kd 2 instead of 5: the explicit motor law at dt 0.002 is unstable when
+///   kd·dt / I > 2, and the elbow / wrist links (I ≈ 0.004–0.01 kg·m² with armature) chatter
+///   bang-bang at the 25 / 5 N·m limits with kd 5, shaking the pelvis IMU.
 pub fn hold_gains(slot: usize) -> (f32, f32) {
-    const LEG_KP: [f32; 6] = [100.0, 100.0, 100.0, 150.0, 40.0, 40.0];
+    const LEG_KP: [f32; 6] = [200.0, 100.0, 100.0, 300.0, 250.0, 40.0];
     const LEG_KD: [f32; 6] = [2.0, 2.0, 2.0, 4.0, 2.0, 2.0];
     match slot {
         0..=11 => (LEG_KP[slot % 6], LEG_KD[slot % 6]),
         12..=14 => (300.0, 20.0),
-        15..=28 => (100.0, 5.0),
+        15..=28 => (100.0, 2.0),
         _ => (0.0, 0.0),
     }
 }
@@ -145,8 +117,8 @@ mod tests {
 
     #[test]
     fn every_used_slot_has_constants() {
-        for (i, n) in SLOT_NAMES.iter().enumerate() {
-            match n {
+        for i in 0..hal::NUM_MOTORS {
+            match slot_name(i) {
                 Some(n) => {
                     assert!(effort_limit(n).is_some(), "{n}");
                     assert!(armature(n).is_some(), "{n}");

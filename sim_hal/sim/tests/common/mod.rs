@@ -1,0 +1,46 @@
+//! Shared test helpers: the installed dependencies are required, never silently skipped.
+#![allow(dead_code)]
+use g1_sim::model::{deps_dir, shared_dir};
+use g1_sim::{ModelChoice, SimConfig, Simulator};
+
+/// Panics with instructions when `scripts/install.sh` has not been run.
+pub fn require_deps() {
+    let xml = deps_dir().join("g1_29dof/g1.xml");
+    assert!(
+        xml.exists(),
+        "\n\nThe 29-dof G1 model is missing at {}.\nRun scripts/install.sh from the repository root \
+         (it installs MuJoCo 3.17.0 and the G1 MJCF into .deps/), then re-run the tests.\n",
+        xml.display()
+    );
+}
+
+/// `true` when the 12-dof model is available; prints a loud SKIP when `../shared` is absent.
+/// A present `shared` directory without the model is a failure, not a skip.
+pub fn have_12dof(test: &str) -> bool {
+    let dir = shared_dir();
+    if !dir.exists() {
+        eprintln!(
+            "\n*** SKIP {test}: {} is absent, so the 12-dof G1 model cannot be tested \
+             (set G1_SHARED_DIR to run it). ***\n",
+            dir.display()
+        );
+        return false;
+    }
+    let xml = ModelChoice::G1_12Dof.path();
+    assert!(
+        xml.exists(),
+        "{} exists but has no 12-dof model at {}",
+        dir.display(),
+        xml.display()
+    );
+    true
+}
+
+pub fn load(choice: ModelChoice) -> Simulator {
+    Simulator::load(choice, SimConfig::default()).expect("model loads")
+}
+
+pub fn load29() -> Simulator {
+    require_deps();
+    load(ModelChoice::G1_29Dof)
+}
