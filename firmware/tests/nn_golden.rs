@@ -144,10 +144,7 @@ fn peer_policy_golden() {
 #[test]
 fn both_toml_forms_parse_identically() {
     let a = peer_desc();
-    let b = toml::from_str::<Spec>(PEER_TOML_TABLES)
-        .unwrap()
-        .policy
-        .network;
+    let b = toml::from_str::<Spec>(PEER_TOML_TABLES).unwrap().policy.network;
     assert_eq!(a, b);
     assert_eq!(a.layers.len(), 4);
     assert!(matches!(a.layers[0], LayerDesc::Lstm { .. }));
@@ -194,14 +191,12 @@ struct File {
 impl File {
     fn add(&mut self, name: &str, shape: &[usize], data: &[f32]) -> &mut Self {
         let bytes = data.iter().flat_map(|v| v.to_le_bytes()).collect();
-        self.tensors
-            .push((name.into(), Dtype::F32, shape.to_vec(), bytes));
+        self.tensors.push((name.into(), Dtype::F32, shape.to_vec(), bytes));
         self.f32s.insert(name.into(), data.to_vec());
         self
     }
     fn add_raw(&mut self, name: &str, dtype: Dtype, shape: &[usize], bytes: Vec<u8>) {
-        self.tensors
-            .push((name.into(), dtype, shape.to_vec(), bytes));
+        self.tensors.push((name.into(), dtype, shape.to_vec(), bytes));
     }
     fn bytes(&self) -> Vec<u8> {
         let views: Vec<(String, TensorView<'_>)> = self
@@ -249,24 +244,11 @@ fn sig(x: f64) -> f64 {
 /// Textbook PyTorch LSTM cell in f64; updates `h`, `c` in place.
 fn ref_lstm(f: &File, p: &str, x: &[f64], h: &mut [f64], c: &mut [f64]) {
     let hsz = h.len();
-    let a = ref_linear(
-        &f.get(&format!("{p}.w_ih")),
-        &f.get(&format!("{p}.b_ih")),
-        x,
-    );
-    let b = ref_linear(
-        &f.get(&format!("{p}.w_hh")),
-        &f.get(&format!("{p}.b_hh")),
-        h,
-    );
+    let a = ref_linear(&f.get(&format!("{p}.w_ih")), &f.get(&format!("{p}.b_ih")), x);
+    let b = ref_linear(&f.get(&format!("{p}.w_hh")), &f.get(&format!("{p}.b_hh")), h);
     let g: Vec<f64> = a.iter().zip(&b).map(|(a, b)| a + b).collect();
     for k in 0..hsz {
-        let (i, fg, gg, o) = (
-            sig(g[k]),
-            sig(g[hsz + k]),
-            g[2 * hsz + k].tanh(),
-            sig(g[3 * hsz + k]),
-        );
+        let (i, fg, gg, o) = (sig(g[k]), sig(g[hsz + k]), g[2 * hsz + k].tanh(), sig(g[3 * hsz + k]));
         c[k] = fg * c[k] + i * gg;
         h[k] = o * c[k].tanh();
     }
@@ -274,16 +256,8 @@ fn ref_lstm(f: &File, p: &str, x: &[f64], h: &mut [f64], c: &mut [f64]) {
 
 fn add_lstm(f: &mut File, rng: &mut Rng, p: &str, n_in: usize, hsz: usize, initial: bool) {
     let s = 1.0 / (hsz as f32).sqrt();
-    f.add(
-        &format!("{p}.w_ih"),
-        &[4 * hsz, n_in],
-        &rng.vec(4 * hsz * n_in, s),
-    );
-    f.add(
-        &format!("{p}.w_hh"),
-        &[4 * hsz, hsz],
-        &rng.vec(4 * hsz * hsz, s),
-    );
+    f.add(&format!("{p}.w_ih"), &[4 * hsz, n_in], &rng.vec(4 * hsz * n_in, s));
+    f.add(&format!("{p}.w_hh"), &[4 * hsz, hsz], &rng.vec(4 * hsz * hsz, s));
     f.add(&format!("{p}.b_ih"), &[4 * hsz], &rng.vec(4 * hsz, s));
     f.add(&format!("{p}.b_hh"), &[4 * hsz], &rng.vec(4 * hsz, s));
     if initial {
@@ -310,10 +284,7 @@ fn check_linear_then(act: Option<LayerDesc>, f: fn(f64) -> f64, n_in: usize, n_o
     file.add("b", &[n_out], &rng.vec(n_out, 1.0));
     let mut layers = vec![linear_desc("w", "b")];
     layers.extend(act);
-    let desc = NetworkDesc {
-        input: n_in,
-        layers,
-    };
+    let desc = NetworkDesc { input: n_in, layers };
     let mut net = Network::from_safetensors_bytes(&desc, &file.bytes()).unwrap();
     assert_eq!((net.input_dim(), net.output_dim()), (n_in, n_out));
     let mut y = vec![0.0f32; n_out];
@@ -443,10 +414,7 @@ fn determinism_fingerprint() {
     }
     let hex: String = h.finalize().iter().map(|b| format!("{b:02x}")).collect();
     eprintln!("determinism fingerprint: {hex}");
-    assert_eq!(
-        hex,
-        "a21b6ff395443f658a93de0e0a7a137a6c3e5792e57222e3e8734acfbb7013f1"
-    );
+    assert_eq!(hex, "a21b6ff395443f658a93de0e0a7a137a6c3e5792e57222e3e8734acfbb7013f1");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -501,11 +469,7 @@ fn error_wrong_shapes() {
     let (e, s) = load_err(
         &net(
             6,
-            vec![
-                linear_desc("w", "b4"),
-                LayerDesc::Relu,
-                linear_desc("w2", "b4"),
-            ],
+            vec![linear_desc("w", "b4"), LayerDesc::Relu, linear_desc("w2", "b4")],
         ),
         &bytes,
     );
@@ -528,10 +492,7 @@ fn error_wrong_shapes() {
     f2.add("m.b_ih", &[8], &rng.vec(8, 1.0));
     f2.add("m.b_hh", &[8], &rng.vec(8, 1.0));
     let (e, s) = load_err(&net(3, vec![lstm_desc("m", false)]), &f2.bytes());
-    assert!(
-        matches!(e, NnError::Shape { .. }) && s.contains("[8, 2]"),
-        "{s}"
-    );
+    assert!(matches!(e, NnError::Shape { .. }) && s.contains("[8, 2]"), "{s}");
 }
 
 #[test]
@@ -546,10 +507,7 @@ fn error_dtype_format_io_and_params() {
         layers: vec![linear_desc(w, "b")],
     };
     let (e, s) = load_err(&one("w"), &bytes);
-    assert!(
-        matches!(e, NnError::Dtype { .. }) && s.contains("F64"),
-        "{s}"
-    );
+    assert!(matches!(e, NnError::Dtype { .. }) && s.contains("F64"), "{s}");
     let (e, _) = load_err(&one("nan"), &bytes);
     assert!(matches!(e, NnError::NonFinite { .. }));
     // Garbage and truncated files.
@@ -581,27 +539,9 @@ fn error_wrong_slice_lengths_leave_state_untouched() {
     let mut net = Network::from_safetensors_bytes(&desc, &bytes).unwrap();
     let mut y = [0.0f32; 3];
     let e = net.step(&[0.0; 5], &mut y).unwrap_err();
-    assert!(
-        matches!(
-            e,
-            NnError::InputLen {
-                expected: 6,
-                found: 5
-            }
-        ),
-        "{e}"
-    );
+    assert!(matches!(e, NnError::InputLen { expected: 6, found: 5 }), "{e}");
     let e = net.step(&[0.0; 6], &mut [0.0; 4]).unwrap_err();
-    assert!(
-        matches!(
-            e,
-            NnError::OutputLen {
-                expected: 3,
-                found: 4
-            }
-        ),
-        "{e}"
-    );
+    assert!(matches!(e, NnError::OutputLen { expected: 3, found: 4 }), "{e}");
     // Failed calls did not advance state: sequence equals a fresh network's.
     let mut fresh = Network::from_safetensors_bytes(&desc, &bytes).unwrap();
     assert_eq!(run_seq(&mut net, 10), run_seq(&mut fresh, 10));

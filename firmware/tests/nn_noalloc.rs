@@ -87,10 +87,5 @@ fn step_does_not_allocate() {
     net.reset();
     net.step(&x, &mut y).unwrap();
     let after = ALLOCS.with(Cell::get);
-    assert_eq!(
-        after - before,
-        0,
-        "step/reset allocated {} times",
-        after - before
-    );
+    assert_eq!(after - before, 0, "step/reset allocated {} times", after - before);
 }

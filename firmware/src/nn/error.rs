@@ -19,9 +19,7 @@ pub enum NnError {
     NoLayers,
     #[error("network input dimension must be > 0")]
     ZeroInput,
-    #[error(
-        "{layer}: tensor `{tensor}` ({role}) not found in weight file (available: {available})"
-    )]
+    #[error("{layer}: tensor `{tensor}` ({role}) not found in weight file (available: {available})")]
     MissingTensor {
         layer: String,
         role: &'static str,
@@ -43,9 +41,7 @@ pub enum NnError {
         expected: String,
         found: Vec<usize>,
     },
-    #[error(
-        "{layer}: tensor `{tensor}` ({role}) contains a non-finite value at flat index {index}"
-    )]
+    #[error("{layer}: tensor `{tensor}` ({role}) contains a non-finite value at flat index {index}")]
     NonFinite {
         layer: String,
         role: &'static str,

@@ -6,9 +6,10 @@
 //! between platforms and libc versions), so results are bit-identical on x86-64 and aarch64.
 //! Speed comes from the layout (independent output lanes), not from reassociating sums.
 
-/// Output rows processed together: 16 independent accumulators (4 SSE / 2 AVX / 4 NEON
+/// Output rows processed together: 32 independent accumulators (8 SSE / 4 AVX / 8 NEON
 /// registers), enough to hide add latency while staying in registers on every target.
-pub(crate) const BLOCK: usize = 16;
+/// Measured on the peer policy (x86-64 baseline SSE2): 16 -> ~3.5 us/step, 32 -> ~2.5 us/step.
+pub(crate) const BLOCK: usize = 32;
 
 /// `y = W x + b` with `W` stored as row panels of [`BLOCK`] rows, column-major inside a panel.
 ///
@@ -94,18 +95,10 @@ pub(crate) fn exp(x: f32) -> f32 {
     let n = k - SHIFTER;
     let r = x - n * C1 - n * C2;
     let z = r * r;
-    let p = ((((0.00019875691 * r + 0.0013981999) * r + 0.008333452) * r + 0.041665796) * r
-        + 0.16666666)
-        * r
-        + 0.5;
+    let p = ((((0.00019875691 * r + 0.0013981999) * r + 0.008333452) * r + 0.041665796) * r + 0.16666666) * r + 0.5;
     let p = p * z + r + 1.0;
     // 2^n: n sits in the low bits of k's representation (k = 0x4B40_0000 + n as bits).
-    let scale = f32::from_bits(
-        k.to_bits()
-            .wrapping_sub(0x4B40_0000)
-            .wrapping_add(127)
-            .wrapping_shl(23),
-    );
+    let scale = f32::from_bits(k.to_bits().wrapping_sub(0x4B40_0000).wrapping_add(127).wrapping_shl(23));
     p * scale
 }
 
@@ -122,11 +115,7 @@ pub(crate) fn sigmoid(x: f32) -> f32 {
 pub(crate) fn tanh(x: f32) -> f32 {
     let a = x.abs();
     let s = a * a;
-    let small = ((((-0.0057049887 * s + 0.020639088) * s - 0.053739715) * s + 0.13331442) * s
-        - 0.3333328)
-        * s
-        * a
-        + a;
+    let small = ((((-0.0057049887 * s + 0.020639088) * s - 0.053739715) * s + 0.13331442) * s - 0.3333328) * s * a + a;
     let large = 1.0 - 2.0 / (exp(a + a) + 1.0);
     let t = if a < 0.625 { small } else { large };
     // NaN: `a < 0.625` is false, `large` is NaN, copysign keeps it NaN.
@@ -169,10 +158,7 @@ mod tests {
         while x < 20.0 {
             let t = tanh(x) as f64;
             let tw = (x as f64).tanh();
-            assert!(
-                (t - tw).abs() <= 2e-7 + 3e-7 * tw.abs(),
-                "tanh({x}) {t} vs {tw}"
-            );
+            assert!((t - tw).abs() <= 2e-7 + 3e-7 * tw.abs(), "tanh({x}) {t} vs {tw}");
             let s = sigmoid(x) as f64;
             let sw = 1.0 / (1.0 + (-(x as f64)).exp());
             assert!((s - sw).abs() <= 2e-7, "sigmoid({x}) {s} vs {sw}");

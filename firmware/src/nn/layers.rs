@@ -186,13 +186,7 @@ impl TensorSource<'_, '_> {
         }
     }
 
-    fn input_check(
-        &self,
-        t: &Tensor,
-        expected: usize,
-        found: usize,
-        source_desc: &str,
-    ) -> Result<(), NnError> {
+    fn input_check(&self, t: &Tensor, expected: usize, found: usize, source_desc: &str) -> Result<(), NnError> {
         if expected == found {
             Ok(())
         } else {
@@ -209,12 +203,7 @@ impl TensorSource<'_, '_> {
     /// Builds the layer for `desc`, given the width `input` produced by `source_desc`.
     /// Also returns the number of learned parameters as stored in the file (weights and biases;
     /// LSTM initial states are buffers, not parameters, matching PyTorch's `parameters()`).
-    pub(crate) fn build(
-        &self,
-        desc: &LayerDesc,
-        input: usize,
-        source_desc: &str,
-    ) -> Result<(Layer, usize), NnError> {
+    pub(crate) fn build(&self, desc: &LayerDesc, input: usize, source_desc: &str) -> Result<(Layer, usize), NnError> {
         Ok(match desc {
             LayerDesc::Linear { weight, bias } => {
                 let w = self.matrix("weight", weight, "[out, in]")?;
@@ -222,10 +211,7 @@ impl TensorSource<'_, '_> {
                 self.input_check(&w, cols, input, source_desc)?;
                 let b = self.vector("bias", bias, rows)?;
                 let n = w.data.len() + b.data.len();
-                (
-                    Layer::Linear(PackedMatrix::pack(&w.data, &b.data, rows, cols)),
-                    n,
-                )
+                (Layer::Linear(PackedMatrix::pack(&w.data, &b.data, rows, cols)), n)
             }
             LayerDesc::Elu { alpha } => {
                 if !alpha.is_finite() {

@@ -106,10 +106,7 @@ impl Network {
             source_desc = src.layer;
         }
         let widest = dims[1..dims.len() - 1].iter().copied().max().unwrap_or(0);
-        let sha256 = Sha256::digest(bytes)
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect();
+        let sha256 = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
         Ok(Network {
             layers,
             dims,
