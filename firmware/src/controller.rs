@@ -31,6 +31,8 @@ pub enum Mode {
 pub enum DampingReason {
     Tilt,
     NonFiniteAction,
+    /// The HAL reported bad or missing data.
+    HalFault,
     Requested,
 }
 
@@ -57,6 +59,9 @@ pub struct Controller {
     default_q: [f32; NUM_MOTORS],
     kp: [f32; NUM_MOTORS],
     kd: [f32; NUM_MOTORS],
+    /// Gains during ramp and hold.
+    startup_kp: [f32; NUM_MOTORS],
+    startup_kd: [f32; NUM_MOTORS],
     target_q: [f32; NUM_MOTORS],
     start_q: [f32; NUM_MOTORS],
     ramp_ticks: u64,
@@ -105,6 +110,15 @@ impl Controller {
                 kd[slot] = gd[j];
             }
         }
+        let (mut startup_kp, mut startup_kd) = (kp, kd);
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            if let Some(v) = &spec.startup.kp {
+                startup_kp[slot] = v[i];
+            }
+            if let Some(v) = &spec.startup.kd {
+                startup_kd[slot] = v[i];
+            }
+        }
         let hz = spec.rates.control_hz as f64;
         let ramp_ticks = (spec.startup.ramp_s * hz).round() as u64;
         let engage_tick = ramp_ticks + (spec.startup.hold_s * hz).round() as u64;
@@ -121,6 +135,8 @@ impl Controller {
             default_q,
             kp,
             kd,
+            startup_kp,
+            startup_kd,
             target_q: default_q,
             start_q: default_q,
             ramp_ticks,
@@ -251,10 +267,20 @@ impl Controller {
         }
     }
 
+    /// Writes the damping command (kp = 0, configured kd on every enabled motor) into `out`.
+    pub fn damping_command(&self, state: &LowState, out: &mut LowCommand) {
+        out.mode_pr = 0;
+        out.mode_machine = state.mode_machine;
+        for s in 0..NUM_MOTORS {
+            out.motors[s] = if self.enabled[s] { MotorCommand::damping(self.spec.safety.damping_kd) } else { MotorCommand::default() };
+        }
+    }
+
     fn write_command(&self, state: &LowState, out: &mut LowCommand) {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
         let damping = matches!(self.mode, Mode::Damping(_));
+        let (kp, kd) = if self.mode == Mode::Startup { (&self.startup_kp, &self.startup_kd) } else { (&self.kp, &self.kd) };
         for s in 0..NUM_MOTORS {
             out.motors[s] = if !self.enabled[s] {
                 MotorCommand::default()
@@ -266,8 +292,8 @@ impl Controller {
                     q: self.target_q[s],
                     dq: 0.0,
                     tau: 0.0,
-                    kp: self.kp[s],
-                    kd: self.kd[s],
+                    kp: kp[s],
+                    kd: kd[s],
                     reserve: 0,
                 }
             };

@@ -10,7 +10,7 @@ use serde::Serialize;
 use sha2::{Digest, Sha256};
 use sim_hal::bridge::{BridgeHal, Truth};
 
-use crate::controller::Controller;
+use crate::controller::{Controller, DampingReason};
 use crate::spec::DeploySpec;
 
 /// Everything `g1fw sim` needs besides the spec.
@@ -247,7 +247,20 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
 
     let result: Result<()> = (|| {
         loop {
-            let tick = hal.wait_tick().with_context(|| simulator_gone(&mut child))?;
+            let tick = match hal.wait_tick() {
+                Ok(t) => t,
+                Err(e) => {
+                    // Best effort: command damping before giving up (the link may still carry it).
+                    controller.enter_damping(DampingReason::HalFault);
+                    controller.damping_command(&state, &mut cmd);
+                    let _ = hal.write_command(&cmd);
+                    let at = format!("at tick {}", ticks + 1);
+                    return Err(match hal::Error::kind(&e) {
+                        hal::ErrorKind::Disconnected => anyhow::Error::new(e).context(format!("{} {at}", simulator_gone(&mut child))),
+                        _ => anyhow::Error::new(e).context(format!("bad data from the simulator {at}; motors commanded to damping")),
+                    });
+                }
+            };
             let t0 = Instant::now();
             hal.read_state(&mut state)?;
             let info = controller.tick(&state, tick, opts.command, &mut cmd);

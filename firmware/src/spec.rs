@@ -73,6 +73,13 @@ pub struct Startup {
     /// policy period after ramp + hold (as in Unitree's reference loop).
     #[serde(default)]
     pub hold_s: f64,
+    /// Gains for the policy joints during ramp and hold (and in hold-only mode), one per policy
+    /// joint; default: the policy's `kp`/`kd`. A policy's walking gains are often too soft to stand
+    /// without the policy (e.g. ankle kp 40), and a simulated robot has no gantry to hang from.
+    #[serde(default)]
+    pub kp: Option<Vec<f32>>,
+    #[serde(default)]
+    pub kd: Option<Vec<f32>>,
 }
 
 impl Startup {
@@ -83,7 +90,7 @@ impl Startup {
 
 impl Default for Startup {
     fn default() -> Self {
-        Self { ramp_s: Self::default_ramp(), hold_s: 0.0 }
+        Self { ramp_s: Self::default_ramp(), hold_s: 0.0, kp: None, kd: None }
     }
 }
 
@@ -357,6 +364,13 @@ impl DeploySpec {
             }
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(self.invalid(field, "contains a non-finite value"));
+            }
+        }
+        for (field, v) in [("startup.kp", &self.startup.kp), ("startup.kd", &self.startup.kd)] {
+            if let Some(v) = v {
+                if v.len() != n || v.iter().any(|x| !x.is_finite() || *x < 0.0) {
+                    return Err(self.invalid(field, format!("needs {n} finite non-negative entries (one per policy joint)")));
+                }
             }
         }
         if p.action_scale.expand(n).is_none() {

@@ -1,0 +1,168 @@
+//! Bad input ends with a clear message and a non-zero exit, never a panic: a corrupted or truncated
+//! frame from the bridge, a bridge that dies mid-run, a spec with a wrong dimension.
+use std::os::unix::net::UnixListener;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::thread;
+
+use hal::LowState;
+use integration_tests::*;
+use sensor_io::unitree_hg::{encode_low_state, LOW_STATE_LEN};
+use sim_hal::bridge::*;
+
+#[derive(Clone, Copy)]
+enum Fault {
+    CorruptCrc,
+    Truncated,
+    Die,
+    GarbageHeader,
+}
+
+/// A stand-in simulator: valid states for `good_ticks` ticks, then the fault.
+fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<()> {
+    let _ = std::fs::remove_file(socket);
+    let listener = UnixListener::bind(socket).unwrap();
+    thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        let (mut payload, mut scratch) = (Vec::new(), Vec::new());
+        assert_eq!(read_msg(&mut s, &mut payload).unwrap(), Kind::Hello);
+        let want_truth = payload[4] != 0;
+        let w = Welcome { protocol_version: PROTOCOL_VERSION, motor_slots_present: (1 << 29) - 1, mode_machine: 5, physics_dt_ns: 2_000_000, control_dt_ns: 2_000_000 };
+        write_msg(&mut s, Kind::Welcome, &w.encode(), &mut scratch).unwrap();
+        let mut state = LowState::default();
+        state.imu.accelerometer = [0.0, 0.0, 9.81];
+        let mut bytes = [0u8; LOW_STATE_LEN];
+        assert!(want_truth, "g1fw sim always asks for ground truth");
+        let mut send = |s: &mut std::os::unix::net::UnixStream, tick: u32, scratch: &mut Vec<u8>| {
+            state.tick = tick;
+            encode_low_state(&state, &mut bytes);
+            write_msg(s, Kind::LowState, &bytes, scratch).unwrap();
+            let t = Truth { base_pos: [0.0, 0.0, 0.78], base_quat: [1.0, 0.0, 0.0, 0.0], ..Truth::default() };
+            write_msg(s, Kind::Truth, &t.encode(), scratch).unwrap();
+        };
+        send(&mut s, 0, &mut scratch);
+        for tick in 1..=good_ticks {
+            if read_msg(&mut s, &mut payload).is_err() {
+                return;
+            }
+            send(&mut s, tick, &mut scratch);
+        }
+        let _ = read_msg(&mut s, &mut payload);
+        let truth = Truth { base_pos: [0.0, 0.0, 0.78], base_quat: [1.0, 0.0, 0.0, 0.0], ..Truth::default() }.encode();
+        match fault {
+            Fault::CorruptCrc => {
+                encode_low_state(&state, &mut bytes);
+                bytes[100] ^= 0xFF;
+                let _ = write_msg(&mut s, Kind::LowState, &bytes, &mut scratch);
+                let _ = write_msg(&mut s, Kind::Truth, &truth, &mut scratch);
+            }
+            Fault::Truncated => {
+                let _ = write_msg(&mut s, Kind::LowState, &bytes[..1000], &mut scratch);
+                let _ = write_msg(&mut s, Kind::Truth, &truth, &mut scratch);
+            }
+            Fault::GarbageHeader => {
+                use std::io::Write;
+                let _ = s.write_all(&[0xde, 0xad, 0xbe, 0xef, 1, 2, 3, 4]);
+            }
+            Fault::Die => return,
+        }
+        // Linger until the firmware hangs up, so the fault (not a disconnect) is what it sees.
+        let _ = read_msg(&mut s, &mut payload);
+    })
+}
+
+fn g1fw(args: &[&str]) -> Output {
+    Command::new(built_bin("g1fw")).args(args).current_dir(repo_root()).output().expect("g1fw runs")
+}
+
+fn socket_path(tag: &str) -> PathBuf {
+    std::env::temp_dir().join(format!("g1fw-test-{tag}-{}.sock", std::process::id()))
+}
+
+/// Runs g1fw in hold mode (no policy needed) against the fake simulator.
+fn run_against(fault: Fault, tag: &str) -> (i32, String) {
+    let sock = socket_path(tag);
+    let server = fake_sim(&sock, 50, fault);
+    let out = g1fw(&[
+        "sim", "--hold", "--quiet", "--duration", "2", "--spec", "specs/test/rl_lab_style.toml",
+        "--connect", sock.to_str().unwrap(),
+    ]);
+    server.join().unwrap();
+    let _ = std::fs::remove_file(&sock);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!stderr.contains("panicked"), "g1fw panicked:\n{stderr}");
+    (out.status.code().unwrap_or(-1), stderr)
+}
+
+#[test]
+fn corrupted_frame_is_a_clear_error() {
+    let (code, err) = run_against(Fault::CorruptCrc, "crc");
+    assert_ne!(code, 0);
+    assert!(err.contains("CRC mismatch"), "{err}");
+}
+
+#[test]
+fn truncated_frame_is_a_clear_error() {
+    let (code, err) = run_against(Fault::Truncated, "short");
+    assert_ne!(code, 0);
+    assert!(err.contains("1000 bytes, expected 2092"), "{err}");
+}
+
+#[test]
+fn garbage_on_the_wire_is_a_clear_error() {
+    let (code, err) = run_against(Fault::GarbageHeader, "magic");
+    assert_ne!(code, 0);
+    assert!(err.contains("bad magic"), "{err}");
+}
+
+#[test]
+fn bridge_dying_mid_run_is_a_clear_error() {
+    let (code, err) = run_against(Fault::Die, "die");
+    assert_ne!(code, 0);
+    assert!(err.contains("mid-run") && err.contains("connection closed"), "{err}");
+}
+
+#[test]
+fn real_simulator_killed_mid_run_is_a_clear_error() {
+    let sock = socket_path("kill");
+    let _ = std::fs::remove_file(&sock);
+    let mut sim = Command::new(built_bin("g1-sim"))
+        .args(["--socket", sock.to_str().unwrap(), "--model", "g1-29dof", "--quiet"])
+        .spawn()
+        .expect("g1-sim starts");
+    let child = Command::new(built_bin("g1fw"))
+        .args(["sim", "--hold", "--keep-going", "--quiet", "--duration", "600", "--spec", "specs/test/rl_lab_style.toml", "--connect", sock.to_str().unwrap()])
+        .current_dir(repo_root())
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    thread::sleep(std::time::Duration::from_millis(1500));
+    sim.kill().unwrap();
+    sim.wait().unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let _ = std::fs::remove_file(&sock);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_ne!(out.status.code(), Some(0), "{err}");
+    assert!(err.contains("mid-run"), "{err}");
+}
+
+#[test]
+fn spec_with_wrong_dimension_is_a_clear_error() {
+    let dir = std::env::temp_dir().join(format!("g1fw-spec-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = std::fs::read_to_string(repo_root().join("specs/test/rl_lab_style.toml"))
+        .unwrap()
+        .replace("input = 480", "input = 470")
+        .replace("weights = \"mlp_480_29.safetensors\"", &format!("weights = \"{}\"", repo_root().join("specs/test/mlp_480_29.safetensors").display()));
+    let spec = dir.join("bad.toml");
+    std::fs::write(&spec, text).unwrap();
+    for args in [vec!["check-spec", "--spec", spec.to_str().unwrap()], vec!["sim", "--spec", spec.to_str().unwrap(), "--quiet"]] {
+        let out = g1fw(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_ne!(out.status.code(), Some(0));
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(err.contains("`observation`") && err.contains("480") && err.contains("470"), "{err}");
+    }
+}
