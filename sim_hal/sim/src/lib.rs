@@ -346,8 +346,9 @@ impl Simulator {
         let (gb, rootid) = (m.geom_bodyid(), m.body_rootid());
         for c in d.contact() {
             let (g1, g2) = (c.geom[0], c.geom[1]);
-            if g1 < 0 || g2 < 0 {
-                continue; // flex contact
+            // Skip flex contacts (no geom) and candidates still separated (inside the margin).
+            if g1 < 0 || g2 < 0 || c.dist > 0.0 {
+                continue;
             }
             let (b1, b2) = (gb[g1 as usize] as usize, gb[g2 as usize] as usize);
             for (foot, other) in [(b1, b2), (b2, b1)] {
