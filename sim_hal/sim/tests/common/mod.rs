@@ -19,7 +19,11 @@ pub fn require_deps() {
 pub fn have_12dof(test: &str) -> bool {
     let dir = shared_dir();
     if !dir.exists() {
-        eprintln!(
+        // Through the stderr handle, not eprintln!: libtest captures the macros, and a skip must
+        // be visible in a normal `cargo test` run.
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
             "\n*** SKIP {test}: {} is absent, so the 12-dof G1 model cannot be tested \
              (set G1_SHARED_DIR to run it). ***\n",
             dir.display()
