@@ -208,10 +208,13 @@ impl Controller {
                     self.target_q[s] = self.start_q[s] + a * (self.default_q[s] - self.start_q[s]);
                 }
             }
-            _ if k <= self.engage_tick => self.target_q = self.default_q,
-            _ if self.net.is_none() => self.target_q = self.default_q,
-            _ => {
+            _ if k < self.engage_tick || self.net.is_none() => self.target_q = self.default_q,
+            _ if k == self.engage_tick => {
+                // Policy gains from here; its first step comes one policy period later.
                 self.mode = Mode::Policy;
+                self.target_q = self.default_q;
+            }
+            _ => {
                 if (k - self.engage_tick) % self.decimation == 0 {
                     self.policy_step(state, command);
                     info.policy_step = true;

@@ -267,9 +267,10 @@ impl Simulator {
 
     /// Fills `out` with what the robot would report now. Absent slots read as all zeros.
     ///
-    /// The IMU rates come from MuJoCo's gyro / accelerometer on `imu_in_pelvis`, which `mj_step`
-    /// evaluates before integrating: they are one physics step older than `q` / `dq` (as with
-    /// unitree_mujoco's bridge). `ddq` is the joint acceleration of that last step.
+    /// The gyroscope is the pelvis's body-frame angular velocity of the current state (models with
+    /// a free root); the accelerometer comes from MuJoCo's sensor on `imu_in_pelvis`, which
+    /// `mj_step` evaluates before integrating, so it is one physics step older than `q` / `dq`.
+    /// `ddq` is the joint acceleration of that last step.
     pub fn low_state(&self, out: &mut LowState) {
         out.version = [1, 0];
         out.mode_pr = 0;
@@ -278,11 +279,18 @@ impl Simulator {
         let quat = self.base_quat();
         let sd = self.data.sensordata();
         let n = &self.imu_noise_now;
-        let gyro = [
-            sd[self.gyro_adr] + n[0],
-            sd[self.gyro_adr + 1] + n[1],
-            sd[self.gyro_adr + 2] + n[2],
-        ];
+        // The gyro sensor is evaluated inside `mj_step` before integration, one physics step older
+        // than qpos/qvel. A real IMU samples rate and attitude together, and Unitree's reference
+        // loop reads the free joint's body-frame angular velocity, so use that when the model has
+        // a free root (the IMU site is axis-aligned with the pelvis in both G1 models).
+        let w = match self.root_dof_adr {
+            Some(da) => {
+                let v = self.data.qvel();
+                [v[da + 3], v[da + 4], v[da + 5]]
+            }
+            None => [sd[self.gyro_adr], sd[self.gyro_adr + 1], sd[self.gyro_adr + 2]],
+        };
+        let gyro = [w[0] + n[0], w[1] + n[1], w[2] + n[2]];
         let acc = [
             sd[self.acc_adr] + n[3],
             sd[self.acc_adr + 1] + n[4],

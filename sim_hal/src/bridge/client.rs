@@ -1,5 +1,5 @@
 //! The firmware's side of the bridge: a HAL whose time base is the simulator's lock-stepped tick.
-use std::io::{Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::os::unix::net::UnixStream;
 use std::path::Path;
@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
+use super::spin::SpinStream;
 use super::protocol::{read_msg, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
 
 #[derive(Debug, thiserror::Error)]
@@ -39,9 +40,13 @@ impl hal::Error for BridgeError {
 }
 
 enum Stream {
-    Unix(UnixStream),
-    Tcp(TcpStream),
+    Unix(SpinStream<UnixStream>),
+    Tcp(SpinStream<TcpStream>),
 }
+
+/// How long the firmware spins waiting for the simulator's answer before blocking: about one
+/// control tick of physics on this class of machine.
+pub const CLIENT_SPIN: Duration = Duration::from_micros(300);
 
 impl Read for Stream {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
@@ -70,7 +75,8 @@ impl Write for Stream {
 /// Lock-stepped simulator HAL. `wait_tick` receives the state the simulator produced for the
 /// command of the previous tick (the first call returns the initial state).
 pub struct BridgeHal {
-    stream: Stream,
+    /// Buffered so one `recv` usually brings a whole LowState + Truth pair.
+    stream: BufReader<Stream>,
     welcome: Welcome,
     want_truth: bool,
     state: LowState,
@@ -100,7 +106,10 @@ impl BridgeHal {
         let start = Instant::now();
         loop {
             match UnixStream::connect(path) {
-                Ok(s) => return Self::handshake(Stream::Unix(s), want_truth),
+                Ok(s) => {
+                    let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
+                    return Self::handshake(Stream::Unix(s), want_truth);
+                }
                 Err(e) => {
                     let last = match alive() {
                         Ok(()) => e.to_string(),
@@ -126,16 +135,18 @@ impl BridgeHal {
             last: e.to_string(),
         })?;
         s.set_nodelay(true).map_err(ProtocolError::from)?;
+        let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
         Self::handshake(Stream::Tcp(s), want_truth)
     }
 
-    fn handshake(mut stream: Stream, want_truth: bool) -> Result<Self, BridgeError> {
+    fn handshake(stream: Stream, want_truth: bool) -> Result<Self, BridgeError> {
+        let mut stream = BufReader::with_capacity(16 * 1024, stream);
         let mut scratch = Vec::with_capacity(4096);
         let mut payload = Vec::with_capacity(4096);
         let mut hello = [0u8; 8];
         hello[..4].copy_from_slice(&PROTOCOL_VERSION.to_le_bytes());
         hello[4] = want_truth as u8;
-        write_msg(&mut stream, Kind::Hello, &hello, &mut scratch)?;
+        write_msg(stream.get_mut(), Kind::Hello, &hello, &mut scratch)?;
         let kind = read_msg(&mut stream, &mut payload)?;
         if kind != Kind::Welcome {
             return Err(ProtocolError::Unexpected { expected: Kind::Welcome, got: kind }.into());
@@ -210,7 +221,7 @@ impl BridgeHal {
 
     /// Tells the simulator to stop; errors are ignored (it may already be gone).
     pub fn close(mut self) {
-        let _ = write_msg(&mut self.stream, Kind::Bye, &[], &mut self.scratch);
+        let _ = write_msg(self.stream.get_mut(), Kind::Bye, &[], &mut self.scratch);
     }
 }
 
@@ -226,7 +237,7 @@ impl TimeBase for BridgeHal {
             // Lock-step needs a command per tick: repeat the last one, as a motor driver would keep
             // its last setpoint, and count it so the omission is visible.
             self.repeated_commands += 1;
-            write_msg(&mut self.stream, Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
+            write_msg(self.stream.get_mut(), Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
         }
         self.command_sent = false;
         self.receive_state()?;
@@ -250,7 +261,7 @@ impl LowLevel for BridgeHal {
 
     fn write_command(&mut self, cmd: &LowCommand) -> Result<(), BridgeError> {
         encode_low_cmd(cmd, &mut self.cmd_bytes);
-        write_msg(&mut self.stream, Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
+        write_msg(self.stream.get_mut(), Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
         self.command_sent = true;
         Ok(())
     }

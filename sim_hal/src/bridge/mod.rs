@@ -4,6 +4,8 @@
 //! ever read by evaluation code.
 pub mod client;
 pub mod protocol;
+pub mod spin;
 
 pub use client::{BridgeError, BridgeHal};
 pub use protocol::*;
+pub use spin::{Blocking, SpinStream};
