@@ -18,7 +18,7 @@ else
   echo "[demo] no policy: $weights is missing (../shared is not beside this checkout)." >&2
   echo "[demo] holding the default pose instead. To walk, put ../shared beside the checkout or pass" >&2
   echo "[demo]   target/release/g1fw sim --spec YOUR_SPEC.toml   (see specs/ for the format)" >&2
-  target/release/g1fw sim --model g1-29dof --spec specs/peer/unitree_g1_lstm.toml --hold --duration 5 \
+  target/release/g1fw sim --model g1-29dof --spec specs/peer/unitree_g1_lstm.toml --hold --ramp 2 --duration 10 \
     --report out/demo_report.json "$@"
 fi
 echo "[demo] report written to out/demo_report.json" >&2

@@ -264,26 +264,44 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             let t0 = Instant::now();
             hal.read_state(&mut state)?;
             let info = controller.tick(&state, tick, opts.command, &mut cmd);
+            let last = tick.index >= total_ticks;
+            if !last {
+                hal.write_command(&cmd).with_context(|| simulator_gone(&mut child))?;
+            }
             let compute = t0.elapsed();
             max_compute = max_compute.max(compute);
             sum_compute += compute;
-            hasher.update(hal.state_bytes());
 
+            // Everything below is evaluation: it runs while the simulator steps.
+            hasher.update(hal.state_bytes());
+            if !last {
+                hasher.update(hal.command_bytes());
+            }
             let truth = *hal.truth();
             agg.add(&truth, tick.index as f64 * control_dt, opts.duration_s);
-            observe(&TickRecord { index: tick.index, state: &state, command: &cmd, truth: &truth, controller: &controller, policy_step: info.policy_step });
+            observe(&TickRecord {
+                index: tick.index,
+                state: &state,
+                command: &cmd,
+                truth: &truth,
+                controller: &controller,
+                policy_step: info.policy_step,
+            });
             ticks = tick.index;
             if let Some(pb) = &progress {
                 if tick.index % 50 == 0 {
                     pb.set_position((tick.index as f64 * control_dt * 1000.0) as u64);
-                    pb.set_message(format!("x {:+.2} m  z {:.2} m  {:?}", truth.base_pos[0] - agg.start[0], truth.base_pos[2], controller.mode()));
+                    pb.set_message(format!(
+                        "x {:+.2} m  z {:.2} m  {:?}",
+                        truth.base_pos[0] - agg.start[0],
+                        truth.base_pos[2],
+                        controller.mode()
+                    ));
                 }
             }
-            if tick.index >= total_ticks || (opts.stop_on_fall && agg.fell_at.is_some()) {
+            if last || (opts.stop_on_fall && agg.fell_at.is_some()) {
                 break;
             }
-            hal.write_command(&cmd).with_context(|| simulator_gone(&mut child))?;
-            hasher.update(hal.command_bytes());
         }
         Ok(())
     })();

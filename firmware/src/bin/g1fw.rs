@@ -53,8 +53,11 @@ struct SimArgs {
     physics_dt: f64,
     /// Skip the start-up ramp: targets are the default pose from the first tick and the policy
     /// first runs one policy period later (as Unitree's reference loop).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "ramp")]
     no_ramp: bool,
+    /// Start-up ramp duration in seconds (overrides the spec's `startup.ramp_s`).
+    #[arg(long)]
+    ramp: Option<f64>,
     /// Do not load or run the policy: ramp to the spec's default pose and hold it.
     #[arg(long)]
     hold: bool,
@@ -118,6 +121,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
             if !(a.duration > 0.0 && a.duration.is_finite()) {
                 bail!("--duration must be a positive number of seconds");
             }
+            if a.ramp.is_some_and(|r| !(r >= 0.0 && r.is_finite())) {
+                bail!("--ramp must be a non-negative number of seconds");
+            }
             let spec = DeploySpec::load(&a.spec)?;
             let opts = SimOptions {
                 model: a.model,
@@ -125,7 +131,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 duration_s: a.duration,
                 seed: a.seed,
                 physics_dt: a.physics_dt,
-                ramp_override: a.no_ramp.then_some((0.0, 0.0)),
+                ramp_override: if a.no_ramp {
+                    Some((0.0, 0.0))
+                } else {
+                    a.ramp.map(|r| (r, spec.startup.hold_s))
+                },
                 sim_bin: a.sim_bin,
                 connect: a.connect,
                 stop_on_fall: !a.keep_going,

@@ -4,15 +4,16 @@
 //! tick → `LowState` (+ `Truth`); `Bye` or a clean disconnect ends the session. Any protocol
 //! violation is answered with an `Error` message naming it (best effort) before the session ends;
 //! [`ServeError::exit_code`] maps it to the process exit status (3 for a malformed `LowCmd`).
-use std::io::{self, Read, Write};
-use std::net::{TcpListener, TcpStream, ToSocketAddrs};
+use std::io::{self, BufReader, Read, Write};
+use std::net::{TcpListener, ToSocketAddrs};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use hal::{LowCommand, LowState};
 use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, DecodeError, LOW_STATE_LEN};
-use sim_hal::bridge::{read_msg, write_msg, Kind, ProtocolError, Welcome, PROTOCOL_VERSION};
+pub use sim_hal::bridge::Blocking;
+use sim_hal::bridge::{append_msg, read_msg, write_msg, Kind, ProtocolError, SpinStream, Welcome, PROTOCOL_VERSION};
 
 use crate::Simulator;
 
@@ -82,65 +83,21 @@ impl ServeError {
 }
 
 /// A stream that can switch between blocking and non-blocking mode.
-pub trait Blocking {
-    fn set_nonblocking(&self, nonblocking: bool) -> io::Result<()>;
-}
-impl Blocking for UnixStream {
-    fn set_nonblocking(&self, nb: bool) -> io::Result<()> {
-        UnixStream::set_nonblocking(self, nb)
-    }
-}
-impl Blocking for TcpStream {
-    fn set_nonblocking(&self, nb: bool) -> io::Result<()> {
-        TcpStream::set_nonblocking(self, nb)
-    }
-}
+/// Reads through a buffer (a frame usually arrives in one `recv`), writes straight through.
+struct Buffered<T: Read + Write>(BufReader<T>);
 
-/// Reads spin on the non-blocking socket for up to `spin`, then fall back to one blocking read.
-/// The socket stays non-blocking between calls, so the fast path costs one `read` syscall.
-struct SpinStream<S: Read + Write + Blocking> {
-    inner: S,
-    spin: Duration,
-}
-
-impl<S: Read + Write + Blocking> SpinStream<S> {
-    fn blocking<T>(&mut self, f: impl FnOnce(&mut S) -> io::Result<T>) -> io::Result<T> {
-        self.inner.set_nonblocking(false)?;
-        let r = f(&mut self.inner);
-        self.inner.set_nonblocking(true)?;
-        r
-    }
-}
-
-impl<S: Read + Write + Blocking> Read for SpinStream<S> {
+impl<T: Read + Write> Read for Buffered<T> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let mut start: Option<Instant> = None;
-        loop {
-            match self.inner.read(buf) {
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    let t0 = *start.get_or_insert_with(Instant::now);
-                    if t0.elapsed() >= self.spin {
-                        return self.blocking(|s| s.read(buf));
-                    }
-                    std::hint::spin_loop();
-                }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-                r => return r,
-            }
-        }
+        self.0.read(buf)
     }
 }
 
-impl<S: Read + Write + Blocking> Write for SpinStream<S> {
+impl<T: Read + Write> Write for Buffered<T> {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        match self.inner.write(buf) {
-            // Socket buffer full: the client is slow to read; wait for it.
-            Err(e) if e.kind() == io::ErrorKind::WouldBlock => self.blocking(|s| s.write(buf)),
-            r => r,
-        }
+        self.0.get_mut().write(buf)
     }
     fn flush(&mut self) -> io::Result<()> {
-        self.inner.flush()
+        self.0.get_mut().flush()
     }
 }
 
@@ -156,10 +113,13 @@ struct Bufs {
 fn send_state<W: Write>(w: &mut W, sim: &Simulator, truth: bool, b: &mut Bufs) -> Result<(), ServeError> {
     sim.low_state(&mut b.state);
     encode_low_state(&b.state, &mut b.state_bytes);
-    write_msg(w, Kind::LowState, &b.state_bytes, &mut b.scratch)?;
+    b.scratch.clear();
+    append_msg(&mut b.scratch, Kind::LowState, &b.state_bytes);
     if truth {
-        write_msg(w, Kind::Truth, &sim.truth().encode(), &mut b.scratch)?;
+        append_msg(&mut b.scratch, Kind::Truth, &sim.truth().encode());
     }
+    // One write for both messages: one wake-up of the client per tick.
+    w.write_all(&b.scratch)?;
     Ok(())
 }
 
@@ -170,11 +130,7 @@ pub fn serve_stream<S: Read + Write + Blocking>(
     sim: &mut Simulator,
     opts: &ServeOptions,
 ) -> Result<SessionSummary, ServeError> {
-    stream.set_nonblocking(opts.spin > Duration::ZERO)?;
-    let mut s = SpinStream {
-        inner: stream,
-        spin: opts.spin,
-    };
+    let mut s = Buffered(BufReader::with_capacity(16 * 1024, SpinStream::new(stream, opts.spin)?));
     let mut b = Bufs {
         payload: Vec::with_capacity(4096),
         scratch: Vec::with_capacity(4096),

@@ -66,13 +66,18 @@ pub enum ProtocolError {
 /// write so a message is never split across two syscalls on the lock-stepped path.
 pub fn write_msg<W: Write>(w: &mut W, kind: Kind, payload: &[u8], scratch: &mut Vec<u8>) -> Result<(), ProtocolError> {
     scratch.clear();
-    scratch.extend_from_slice(&MAGIC);
-    scratch.push(kind as u8);
-    scratch.push(0);
-    scratch.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-    scratch.extend_from_slice(payload);
+    append_msg(scratch, kind, payload);
     w.write_all(scratch)?;
     Ok(())
+}
+
+/// Appends one framed message to `buf`, so several can leave in one write (one wake-up of the peer).
+pub fn append_msg(buf: &mut Vec<u8>, kind: Kind, payload: &[u8]) {
+    buf.extend_from_slice(&MAGIC);
+    buf.push(kind as u8);
+    buf.push(0);
+    buf.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+    buf.extend_from_slice(payload);
 }
 
 /// Reads one message into `payload` (resized, capacity reused). Returns its kind.
