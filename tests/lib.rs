@@ -3,13 +3,18 @@ use std::path::{Path, PathBuf};
 
 /// Repository root.
 pub fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("tests/ has a parent").to_path_buf()
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ has a parent")
+        .to_path_buf()
 }
 
 /// `../shared` beside the checkout (or `$G1_SHARED_DIR`), if present. When absent, tests that need
 /// it call [`skip_or_fail`].
 pub fn shared_dir() -> Option<PathBuf> {
-    let p = std::env::var_os("G1_SHARED_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("../shared"));
+    let p = std::env::var_os("G1_SHARED_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| repo_root().join("../shared"));
     p.join("peer_policy").is_dir().then_some(p)
 }
 
@@ -28,7 +33,11 @@ pub fn built_bin(name: &str) -> PathBuf {
     // target/<profile>/deps/<test> → target/<profile>/<name>
     let dir = exe.parent().and_then(Path::parent).expect("target dir");
     let p = dir.join(name);
-    assert!(p.is_file(), "{} not built: run `cargo build --release --workspace --bins` first", p.display());
+    assert!(
+        p.is_file(),
+        "{} not built: run `cargo build --release --workspace --bins` first",
+        p.display()
+    );
     p
 }
 
@@ -41,11 +50,19 @@ pub fn peer_spec_path() -> PathBuf {
 pub fn read_tensor(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
     let st = safetensors::SafeTensors::deserialize(&bytes).expect("valid safetensors");
-    let t = st.tensor(name).unwrap_or_else(|e| panic!("{name} in {}: {e}", path.display()));
+    let t = st
+        .tensor(name)
+        .unwrap_or_else(|e| panic!("{name} in {}: {e}", path.display()));
     let data = t.data();
     let vals = match t.dtype() {
-        safetensors::Dtype::F32 => data.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64).collect(),
-        safetensors::Dtype::F64 => data.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect(),
+        safetensors::Dtype::F32 => data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64)
+            .collect(),
+        safetensors::Dtype::F64 => data
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect(),
         d => panic!("unsupported dtype {d:?}"),
     };
     (t.shape().to_vec(), vals)

@@ -5,7 +5,11 @@
 /// Same formula as unitree_rl_gym's deploy scripts.
 pub fn projected_gravity(q: [f32; 4]) -> [f32; 3] {
     let [w, x, y, z] = q;
-    [2.0 * (-z * x + w * y), -2.0 * (z * y + w * x), 1.0 - 2.0 * (w * w + z * z)]
+    [
+        2.0 * (-z * x + w * y),
+        -2.0 * (z * y + w * x),
+        1.0 - 2.0 * (w * w + z * z),
+    ]
 }
 
 /// Angle between the body z axis and the world z axis, radians.

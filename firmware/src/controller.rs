@@ -11,9 +11,17 @@ use crate::spec::DeploySpec;
 #[derive(Debug, thiserror::Error)]
 pub enum ControllerError {
     #[error("loading policy weights {path}: {source}")]
-    Weights { path: std::path::PathBuf, source: NnError },
+    Weights {
+        path: std::path::PathBuf,
+        source: Box<NnError>,
+    },
     #[error("deploy spec {spec}: policy network {what} is {got}, but the spec needs {expected}")]
-    Dimension { spec: std::path::PathBuf, what: &'static str, got: usize, expected: usize },
+    Dimension {
+        spec: std::path::PathBuf,
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
 }
 
 /// What the controller is doing.
@@ -74,7 +82,10 @@ pub struct Controller {
 impl Controller {
     pub fn new(spec: DeploySpec) -> Result<Self, ControllerError> {
         let path = spec.weights_path();
-        let net = Network::load(&spec.policy.network, &path).map_err(|source| ControllerError::Weights { path, source })?;
+        let net = Network::load(&spec.policy.network, &path).map_err(|source| ControllerError::Weights {
+            path,
+            source: Box::new(source),
+        })?;
         Self::build(spec, Some(net))
     }
 
@@ -149,7 +160,12 @@ impl Controller {
     }
 
     fn check_dims(spec: &DeploySpec, net: &Network) -> Result<(), ControllerError> {
-        let dim = |what, got, expected| ControllerError::Dimension { spec: spec.path.clone(), what, got, expected };
+        let dim = |what, got, expected| ControllerError::Dimension {
+            spec: spec.path.clone(),
+            what,
+            got,
+            expected,
+        };
         if net.output_dim() != spec.num_joints() {
             return Err(dim("output", net.output_dim(), spec.num_joints()));
         }
@@ -173,12 +189,14 @@ impl Controller {
         &self.obs_buf
     }
     /// The raw policy output of the newest policy step.
-    pub fn action(&self) -> &[f32] {
+    pub fn last_action(&self) -> &[f32] {
         &self.last_action
     }
     /// sha256 of the weights file, or "none" in hold-only mode.
     pub fn weights_sha256(&self) -> String {
-        self.net.as_ref().map_or_else(|| "none".into(), |n| n.weights_sha256().to_string())
+        self.net
+            .as_ref()
+            .map_or_else(|| "none".into(), |n| n.weights_sha256().to_string())
     }
 
     /// Latches the damping state.
@@ -197,7 +215,9 @@ impl Controller {
                 self.start_q[s] = state.motors[s].q;
             }
         }
-        if !matches!(self.mode, Mode::Damping(_)) && estimator::tilt_rad(state.imu.quaternion) > self.spec.safety.tilt_limit_rad {
+        if !matches!(self.mode, Mode::Damping(_))
+            && estimator::tilt_rad(state.imu.quaternion) > self.spec.safety.tilt_limit_rad
+        {
             self.enter_damping(DampingReason::Tilt);
         }
         match self.mode {
@@ -215,7 +235,7 @@ impl Controller {
                 self.target_q = self.default_q;
             }
             _ => {
-                if (k - self.engage_tick) % self.decimation == 0 {
+                if (k - self.engage_tick).is_multiple_of(self.decimation) {
                     self.policy_step(state, command);
                     info.policy_step = true;
                 }
@@ -275,7 +295,11 @@ impl Controller {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
         for s in 0..NUM_MOTORS {
-            out.motors[s] = if self.enabled[s] { MotorCommand::damping(self.spec.safety.damping_kd) } else { MotorCommand::default() };
+            out.motors[s] = if self.enabled[s] {
+                MotorCommand::damping(self.spec.safety.damping_kd)
+            } else {
+                MotorCommand::default()
+            };
         }
     }
 
@@ -283,7 +307,11 @@ impl Controller {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
         let damping = matches!(self.mode, Mode::Damping(_));
-        let (kp, kd) = if self.mode == Mode::Startup { (&self.startup_kp, &self.startup_kd) } else { (&self.kp, &self.kd) };
+        let (kp, kd) = if self.mode == Mode::Startup {
+            (&self.startup_kp, &self.startup_kd)
+        } else {
+            (&self.kp, &self.kd)
+        };
         for s in 0..NUM_MOTORS {
             out.motors[s] = if !self.enabled[s] {
                 MotorCommand::default()

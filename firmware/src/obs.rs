@@ -55,7 +55,12 @@ impl ObservationBuilder {
                 }
             })
             .collect();
-        Self { terms, layout: spec.observation.history_layout, dim: spec.observation_dim(), primed: false }
+        Self {
+            terms,
+            layout: spec.observation.history_layout,
+            dim: spec.observation_dim(),
+            primed: false,
+        }
     }
 
     pub fn dim(&self) -> usize {

@@ -111,7 +111,9 @@ struct SimChild {
 impl SimChild {
     fn status_line(&mut self) -> Result<(), String> {
         match self.child.try_wait() {
-            Ok(Some(status)) => Err(format!("the simulator exited during start-up ({status}); see its message above")),
+            Ok(Some(status)) => Err(format!(
+                "the simulator exited during start-up ({status}); see its message above"
+            )),
             Ok(None) => Ok(()),
             Err(e) => Err(format!("cannot poll the simulator process: {e}")),
         }
@@ -202,7 +204,11 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     }
     let spec_name = spec.path.display().to_string();
     let control_dt = spec.control_dt();
-    let mut controller = if opts.hold_only { Controller::hold_only(spec) } else { Controller::new(spec)? };
+    let mut controller = if opts.hold_only {
+        Controller::hold_only(spec)
+    } else {
+        Controller::new(spec)?
+    };
 
     let mut child = None;
     let mut hal = match &opts.connect {
@@ -232,7 +238,11 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         .map(|&s| hal::G1_MOTOR_NAMES[s])
         .collect();
     if !missing.is_empty() {
-        bail!("the model '{}' lacks joints the policy drives: {}", opts.model, missing.join(", "));
+        bail!(
+            "the model '{}' lacks joints the policy drives: {}",
+            opts.model,
+            missing.join(", ")
+        );
     }
 
     let total_ticks = (opts.duration_s / control_dt).round() as u64;
@@ -256,8 +266,11 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
                     let _ = hal.write_command(&cmd);
                     let at = format!("at tick {}", ticks + 1);
                     return Err(match hal::Error::kind(&e) {
-                        hal::ErrorKind::Disconnected => anyhow::Error::new(e).context(format!("{} {at}", simulator_gone(&mut child))),
-                        _ => anyhow::Error::new(e).context(format!("bad data from the simulator {at}; motors commanded to damping")),
+                        hal::ErrorKind::Disconnected => {
+                            anyhow::Error::new(e).context(format!("{} {at}", simulator_gone(&mut child)))
+                        }
+                        _ => anyhow::Error::new(e)
+                            .context(format!("bad data from the simulator {at}; motors commanded to damping")),
                     });
                 }
             };

@@ -17,7 +17,11 @@ pub enum SpecError {
     #[error("deploy spec {path} is not valid TOML for a deploy spec: {message}")]
     Parse { path: PathBuf, message: String },
     #[error("deploy spec {path}: `{field}`: {message}")]
-    Invalid { path: PathBuf, field: String, message: String },
+    Invalid {
+        path: PathBuf,
+        field: String,
+        message: String,
+    },
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -90,7 +94,12 @@ impl Startup {
 
 impl Default for Startup {
     fn default() -> Self {
-        Self { ramp_s: Self::default_ramp(), hold_s: 0.0, kp: None, kd: None }
+        Self {
+            ramp_s: Self::default_ramp(),
+            hold_s: 0.0,
+            kp: None,
+            kd: None,
+        }
     }
 }
 
@@ -169,7 +178,10 @@ impl Safety {
 
 impl Default for Safety {
     fn default() -> Self {
-        Self { damping_kd: Self::default_kd(), tilt_limit_rad: Self::default_tilt() }
+        Self {
+            damping_kd: Self::default_kd(),
+            tilt_limit_rad: Self::default_tilt(),
+        }
     }
 }
 
@@ -265,14 +277,19 @@ impl ObsKind {
 
 impl DeploySpec {
     pub fn load(path: &Path) -> Result<Self, SpecError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SpecError::Read { path: path.into(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| SpecError::Read {
+            path: path.into(),
+            source,
+        })?;
         Self::from_toml(&text, path)
     }
 
     /// Parses and validates; `path` locates relative files and names the spec in errors.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, SpecError> {
-        let mut spec: DeploySpec =
-            toml::from_str(text).map_err(|e| SpecError::Parse { path: path.into(), message: e.to_string() })?;
+        let mut spec: DeploySpec = toml::from_str(text).map_err(|e| SpecError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
         spec.path = path.to_path_buf();
         spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         spec.validate()?;
@@ -280,7 +297,11 @@ impl DeploySpec {
     }
 
     fn invalid(&self, field: &str, message: impl Into<String>) -> SpecError {
-        SpecError::Invalid { path: self.path.clone(), field: field.into(), message: message.into() }
+        SpecError::Invalid {
+            path: self.path.clone(),
+            field: field.into(),
+            message: message.into(),
+        }
     }
 
     pub fn weights_path(&self) -> PathBuf {
@@ -309,10 +330,13 @@ impl DeploySpec {
 
     fn validate(&self) -> Result<(), SpecError> {
         let r = &self.rates;
-        if r.control_hz == 0 || r.policy_hz == 0 || r.control_hz % r.policy_hz != 0 {
+        if r.control_hz == 0 || r.policy_hz == 0 || !r.control_hz.is_multiple_of(r.policy_hz) {
             return Err(self.invalid(
                 "rates",
-                format!("policy_hz ({}) must be positive and divide control_hz ({})", r.policy_hz, r.control_hz),
+                format!(
+                    "policy_hz ({}) must be positive and divide control_hz ({})",
+                    r.policy_hz, r.control_hz
+                ),
             ));
         }
         let s = &self.startup;
@@ -334,7 +358,10 @@ impl DeploySpec {
                 ));
             }
             if used[slot] {
-                return Err(self.invalid(&format!("policy.joint_ids_map[{i}]"), format!("slot {slot} appears twice")));
+                return Err(self.invalid(
+                    &format!("policy.joint_ids_map[{i}]"),
+                    format!("slot {slot} appears twice"),
+                ));
             }
             used[slot] = true;
         }
@@ -342,7 +369,10 @@ impl DeploySpec {
             if p.joint_names.len() != n {
                 return Err(self.invalid(
                     "policy.joint_names",
-                    format!("{} entries, expected {n} (one per joint_ids_map entry)", p.joint_names.len()),
+                    format!(
+                        "{} entries, expected {n} (one per joint_ids_map entry)",
+                        p.joint_names.len()
+                    ),
                 ));
             }
             for (i, name) in p.joint_names.iter().enumerate() {
@@ -358,9 +388,16 @@ impl DeploySpec {
                 }
             }
         }
-        for (field, v) in [("policy.default_pose", &p.default_pose), ("policy.kp", &p.kp), ("policy.kd", &p.kd)] {
+        for (field, v) in [
+            ("policy.default_pose", &p.default_pose),
+            ("policy.kp", &p.kp),
+            ("policy.kd", &p.kd),
+        ] {
             if v.len() != n {
-                return Err(self.invalid(field, format!("{} entries, expected {n} (one per policy joint)", v.len())));
+                return Err(self.invalid(
+                    field,
+                    format!("{} entries, expected {n} (one per policy joint)", v.len()),
+                ));
             }
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(self.invalid(field, "contains a non-finite value"));
@@ -369,7 +406,10 @@ impl DeploySpec {
         for (field, v) in [("startup.kp", &self.startup.kp), ("startup.kd", &self.startup.kd)] {
             if let Some(v) = v {
                 if v.len() != n || v.iter().any(|x| !x.is_finite() || *x < 0.0) {
-                    return Err(self.invalid(field, format!("needs {n} finite non-negative entries (one per policy joint)")));
+                    return Err(self.invalid(
+                        field,
+                        format!("needs {n} finite non-negative entries (one per policy joint)"),
+                    ));
                 }
             }
         }
@@ -381,7 +421,8 @@ impl DeploySpec {
             let k = group.joints.len();
             for (j, name) in group.joints.iter().enumerate() {
                 let field = format!("held[{g}].joints[{j}]");
-                let slot = hal::g1_motor_slot(name).ok_or_else(|| self.invalid(&field, format!("unknown motor '{name}'")))?;
+                let slot =
+                    hal::g1_motor_slot(name).ok_or_else(|| self.invalid(&field, format!("unknown motor '{name}'")))?;
                 if used[slot] {
                     return Err(self.invalid(&field, format!("'{name}' is already driven or held")));
                 }
@@ -389,7 +430,10 @@ impl DeploySpec {
             }
             for (f, sc) in [("q", &group.q), ("kp", &group.kp), ("kd", &group.kd)] {
                 if sc.expand(k).is_none() {
-                    return Err(self.invalid(&format!("held[{g}].{f}"), format!("per-joint list must have {k} entries")));
+                    return Err(self.invalid(
+                        &format!("held[{g}].{f}"),
+                        format!("per-joint list must have {k} entries"),
+                    ));
                 }
             }
         }
@@ -400,7 +444,7 @@ impl DeploySpec {
             }
         }
         if let Some(ph) = &self.phase {
-            if !(ph.period_s > 0.0) {
+            if ph.period_s.is_nan() || ph.period_s <= 0.0 {
                 return Err(self.invalid("phase.period_s", "must be > 0"));
             }
         }
@@ -420,7 +464,7 @@ impl DeploySpec {
                 return Err(self.invalid(&field, "gait_phase needs a [phase] section"));
             }
             if let Some(c) = t.clip {
-                if !(c > 0.0) {
+                if c.is_nan() || c <= 0.0 {
                     return Err(self.invalid(&format!("{field}.clip"), "must be > 0"));
                 }
             }
@@ -439,7 +483,10 @@ impl DeploySpec {
         if obs_dim != self.policy.network.input {
             return Err(self.invalid(
                 "observation",
-                format!("terms add up to {obs_dim} values but policy.network.input is {}", self.policy.network.input),
+                format!(
+                    "terms add up to {obs_dim} values but policy.network.input is {}",
+                    self.policy.network.input
+                ),
             ));
         }
         Ok(())

@@ -107,7 +107,15 @@ fn controller_reads_joints_through_the_map_and_writes_targets_to_slots() {
     let mut cmd = LowCommand::default();
     let ticks_to_first_policy = (0.5 * 500.0) as u64 + 10;
     for k in 0..=ticks_to_first_policy {
-        let info = c.tick(&state, TickTime { index: k, time_ns: k * 2_000_000 }, [2.0, 0.0, 0.0], &mut cmd);
+        let info = c.tick(
+            &state,
+            TickTime {
+                index: k,
+                time_ns: k * 2_000_000,
+            },
+            [2.0, 0.0, 0.0],
+            &mut cmd,
+        );
         assert_eq!(info.policy_step, k == ticks_to_first_policy, "tick {k}");
     }
     assert_eq!(c.mode(), Mode::Policy);
@@ -118,7 +126,7 @@ fn controller_reads_joints_through_the_map_and_writes_targets_to_slots() {
     // The command was clamped to max vx 1.0 before entering the observation.
     assert_eq!(obs[30 + 12], 1.0);
     // Targets land in the mapped slots: slot 12 gets IsaacLab joint 2's default + scaled action.
-    let a = c.action()[2];
+    let a = c.last_action()[2];
     let expected = spec.policy.default_pose[2] + 0.25 * a;
     assert!((cmd.motors[12].q - expected).abs() < 1e-6);
     assert_eq!(cmd.motors[12].kp, 300.0);
@@ -158,24 +166,35 @@ fn tilt_latches_damping() {
 }
 
 fn load_err(text: &str) -> String {
-    DeploySpec::from_toml(text, &specs_dir().join("test/x.toml")).unwrap_err().to_string()
+    DeploySpec::from_toml(text, &specs_dir().join("test/x.toml"))
+        .unwrap_err()
+        .to_string()
 }
 
 #[test]
 fn broken_specs_name_the_field() {
     let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
     let e = load_err(&good.replace("input = 480", "input = 479"));
-    assert!(e.contains("`observation`") && e.contains("480") && e.contains("479"), "{e}");
+    assert!(
+        e.contains("`observation`") && e.contains("480") && e.contains("479"),
+        "{e}"
+    );
     let e = load_err(&good.replace("action_scale = 0.25", "action_scale = [0.25, 0.25]"));
     assert!(e.contains("policy.action_scale"), "{e}");
     let e = load_err(&good.replace("policy_hz = 50", "policy_hz = 7"));
     assert!(e.contains("`rates`"), "{e}");
     let e = load_err(&good.replace("[0, 6, 12, 1,", "[0, 6, 13, 1,"));
     assert!(e.contains("joint_ids_map"), "{e}");
-    let e = load_err(&good.replace("\"waist_yaw_joint\", \"left_hip_roll_joint\"", "\"left_hip_roll_joint\", \"waist_yaw_joint\""));
+    let e = load_err(&good.replace(
+        "\"waist_yaw_joint\", \"left_hip_roll_joint\"",
+        "\"left_hip_roll_joint\", \"waist_yaw_joint\"",
+    ));
     assert!(e.contains("policy.joint_names[2]"), "{e}");
     let e = load_err(&good.replace("kind = \"joint_vel\"", "kind = \"joint_jerk\""));
-    assert!(e.contains("not valid TOML for a deploy spec") && e.contains("joint_jerk"), "{e}");
+    assert!(
+        e.contains("not valid TOML for a deploy spec") && e.contains("joint_jerk"),
+        "{e}"
+    );
     let e = load_err(&good.replace("[meta]", "[meta]\nbogus = 1"));
     assert!(e.contains("bogus"), "{e}");
 }
@@ -186,8 +205,14 @@ fn wrong_network_dimension_is_a_clear_error() {
     let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
     let text = good
         .replace("input = 480", "input = 482")
-        .replace("{ kind = \"last_action\", history = 5, clip = 100.0 },", "{ kind = \"last_action\", history = 5, clip = 100.0 },\n  { kind = \"gait_phase\" },")
-        .replace("[observation]", "[phase]\nperiod_s = 0.8\nfirst_step_time_s = 0.02\n\n[observation]");
+        .replace(
+            "{ kind = \"last_action\", history = 5, clip = 100.0 },",
+            "{ kind = \"last_action\", history = 5, clip = 100.0 },\n  { kind = \"gait_phase\" },",
+        )
+        .replace(
+            "[observation]",
+            "[phase]\nperiod_s = 0.8\nfirst_step_time_s = 0.02\n\n[observation]",
+        );
     let spec = DeploySpec::from_toml(&text, &specs_dir().join("test/x.toml")).unwrap();
     let e = Controller::new(spec).err().expect("dimension mismatch").to_string();
     assert!(e.contains("480") || e.contains("482"), "{e}");

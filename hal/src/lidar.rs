@@ -25,7 +25,12 @@ pub struct PointFrame<const CAP: usize> {
 impl<const CAP: usize> PointFrame<CAP> {
     pub const fn new() -> Self {
         Self {
-            points: [LidarPoint { xyz: [0.0; 3], reflectivity: 0, tag: 0, offset_ns: 0 }; CAP],
+            points: [LidarPoint {
+                xyz: [0.0; 3],
+                reflectivity: 0,
+                tag: 0,
+                offset_ns: 0,
+            }; CAP],
             len: 0,
             timestamp_ns: 0,
             overflow: 0,

@@ -22,7 +22,15 @@ pub struct MotorCommand {
 impl MotorCommand {
     /// Passive damping: no stiffness, only velocity damping (Unitree's recommended safe state).
     pub const fn damping(kd: f32) -> Self {
-        Self { mode: MOTOR_MODE_ENABLED, q: 0.0, dq: 0.0, tau: 0.0, kp: 0.0, kd, reserve: 0 }
+        Self {
+            mode: MOTOR_MODE_ENABLED,
+            q: 0.0,
+            dq: 0.0,
+            tau: 0.0,
+            kp: 0.0,
+            kd,
+            reserve: 0,
+        }
     }
 }
 
@@ -39,7 +47,12 @@ pub struct LowCommand {
 
 impl Default for LowCommand {
     fn default() -> Self {
-        Self { mode_pr: 0, mode_machine: 0, motors: [MotorCommand::default(); NUM_MOTORS], reserve: [0; 4] }
+        Self {
+            mode_pr: 0,
+            mode_machine: 0,
+            motors: [MotorCommand::default(); NUM_MOTORS],
+            reserve: [0; 4],
+        }
     }
 }
 
@@ -59,7 +72,13 @@ pub struct ImuState {
 
 impl Default for ImuState {
     fn default() -> Self {
-        Self { quaternion: [1.0, 0.0, 0.0, 0.0], gyroscope: [0.0; 3], accelerometer: [0.0; 3], rpy: [0.0; 3], temperature: 0 }
+        Self {
+            quaternion: [1.0, 0.0, 0.0, 0.0],
+            gyroscope: [0.0; 3],
+            accelerometer: [0.0; 3],
+            rpy: [0.0; 3],
+            temperature: 0,
+        }
     }
 }
 

@@ -21,13 +21,21 @@ fn bitwise_crc(bytes: &[u8]) -> u32 {
 fn bench(c: &mut Criterion) {
     let mut sb = [0u8; LOW_STATE_LEN];
     encode_low_state(&LowState::default(), &mut sb);
-    c.bench_function("crc_table_lowstate", |b| b.iter(|| crc32_words(black_box(&sb[..LOW_STATE_LEN - 4]))));
-    c.bench_function("crc_bitwise_lowstate", |b| b.iter(|| bitwise_crc(black_box(&sb[..LOW_STATE_LEN - 4]))));
+    c.bench_function("crc_table_lowstate", |b| {
+        b.iter(|| crc32_words(black_box(&sb[..LOW_STATE_LEN - 4])))
+    });
+    c.bench_function("crc_bitwise_lowstate", |b| {
+        b.iter(|| bitwise_crc(black_box(&sb[..LOW_STATE_LEN - 4])))
+    });
     let mut out = LowState::default();
-    c.bench_function("decode_low_state", |b| b.iter(|| decode_low_state(black_box(&sb), &mut out)));
+    c.bench_function("decode_low_state", |b| {
+        b.iter(|| decode_low_state(black_box(&sb), &mut out))
+    });
     let cmd = LowCommand::default();
     let mut cb = [0u8; LOW_CMD_LEN];
-    c.bench_function("encode_low_cmd", |b| b.iter(|| encode_low_cmd(black_box(&cmd), &mut cb)));
+    c.bench_function("encode_low_cmd", |b| {
+        b.iter(|| encode_low_cmd(black_box(&cmd), &mut cb))
+    });
 }
 
 criterion_group!(benches, bench);

@@ -27,7 +27,13 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
         let (mut payload, mut scratch) = (Vec::new(), Vec::new());
         assert_eq!(read_msg(&mut s, &mut payload).unwrap(), Kind::Hello);
         let want_truth = payload[4] != 0;
-        let w = Welcome { protocol_version: PROTOCOL_VERSION, motor_slots_present: (1 << 29) - 1, mode_machine: 5, physics_dt_ns: 2_000_000, control_dt_ns: 2_000_000 };
+        let w = Welcome {
+            protocol_version: PROTOCOL_VERSION,
+            motor_slots_present: (1 << 29) - 1,
+            mode_machine: 5,
+            physics_dt_ns: 2_000_000,
+            control_dt_ns: 2_000_000,
+        };
         write_msg(&mut s, Kind::Welcome, &w.encode(), &mut scratch).unwrap();
         let mut state = LowState::default();
         state.imu.accelerometer = [0.0, 0.0, 9.81];
@@ -37,7 +43,11 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
             state.tick = tick;
             encode_low_state(&state, &mut bytes);
             write_msg(s, Kind::LowState, &bytes, scratch).unwrap();
-            let t = Truth { base_pos: [0.0, 0.0, 0.78], base_quat: [1.0, 0.0, 0.0, 0.0], ..Truth::default() };
+            let t = Truth {
+                base_pos: [0.0, 0.0, 0.78],
+                base_quat: [1.0, 0.0, 0.0, 0.0],
+                ..Truth::default()
+            };
             write_msg(s, Kind::Truth, &t.encode(), scratch).unwrap();
         };
         send(&mut s, 0, &mut scratch);
@@ -48,7 +58,12 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
             send(&mut s, tick, &mut scratch);
         }
         let _ = read_msg(&mut s, &mut payload);
-        let truth = Truth { base_pos: [0.0, 0.0, 0.78], base_quat: [1.0, 0.0, 0.0, 0.0], ..Truth::default() }.encode();
+        let truth = Truth {
+            base_pos: [0.0, 0.0, 0.78],
+            base_quat: [1.0, 0.0, 0.0, 0.0],
+            ..Truth::default()
+        }
+        .encode();
         match fault {
             Fault::CorruptCrc => {
                 encode_low_state(&state, &mut bytes);
@@ -72,7 +87,11 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
 }
 
 fn g1fw(args: &[&str]) -> Output {
-    Command::new(built_bin("g1fw")).args(args).current_dir(repo_root()).output().expect("g1fw runs")
+    Command::new(built_bin("g1fw"))
+        .args(args)
+        .current_dir(repo_root())
+        .output()
+        .expect("g1fw runs")
 }
 
 fn socket_path(tag: &str) -> PathBuf {
@@ -84,8 +103,15 @@ fn run_against(fault: Fault, tag: &str) -> (i32, String) {
     let sock = socket_path(tag);
     let server = fake_sim(&sock, 50, fault);
     let out = g1fw(&[
-        "sim", "--hold", "--quiet", "--duration", "2", "--spec", "specs/test/rl_lab_style.toml",
-        "--connect", sock.to_str().unwrap(),
+        "sim",
+        "--hold",
+        "--quiet",
+        "--duration",
+        "2",
+        "--spec",
+        "specs/test/rl_lab_style.toml",
+        "--connect",
+        sock.to_str().unwrap(),
     ]);
     server.join().unwrap();
     let _ = std::fs::remove_file(&sock);
@@ -131,7 +157,18 @@ fn real_simulator_killed_mid_run_is_a_clear_error() {
         .spawn()
         .expect("g1-sim starts");
     let child = Command::new(built_bin("g1fw"))
-        .args(["sim", "--hold", "--keep-going", "--quiet", "--duration", "600", "--spec", "specs/test/rl_lab_style.toml", "--connect", sock.to_str().unwrap()])
+        .args([
+            "sim",
+            "--hold",
+            "--keep-going",
+            "--quiet",
+            "--duration",
+            "600",
+            "--spec",
+            "specs/test/rl_lab_style.toml",
+            "--connect",
+            sock.to_str().unwrap(),
+        ])
         .current_dir(repo_root())
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
@@ -155,14 +192,26 @@ fn spec_with_wrong_dimension_is_a_clear_error() {
     let text = std::fs::read_to_string(repo_root().join("specs/test/rl_lab_style.toml"))
         .unwrap()
         .replace("input = 480", "input = 470")
-        .replace("weights = \"mlp_480_29.safetensors\"", &format!("weights = \"{}\"", repo_root().join("specs/test/mlp_480_29.safetensors").display()));
+        .replace(
+            "weights = \"mlp_480_29.safetensors\"",
+            &format!(
+                "weights = \"{}\"",
+                repo_root().join("specs/test/mlp_480_29.safetensors").display()
+            ),
+        );
     let spec = dir.join("bad.toml");
     std::fs::write(&spec, text).unwrap();
-    for args in [vec!["check-spec", "--spec", spec.to_str().unwrap()], vec!["sim", "--spec", spec.to_str().unwrap(), "--quiet"]] {
+    for args in [
+        vec!["check-spec", "--spec", spec.to_str().unwrap()],
+        vec!["sim", "--spec", spec.to_str().unwrap(), "--quiet"],
+    ] {
         let out = g1fw(&args);
         let err = String::from_utf8_lossy(&out.stderr);
         assert_ne!(out.status.code(), Some(0));
         assert!(!err.contains("panicked"), "{err}");
-        assert!(err.contains("`observation`") && err.contains("480") && err.contains("470"), "{err}");
+        assert!(
+            err.contains("`observation`") && err.contains("480") && err.contains("470"),
+            "{err}"
+        );
     }
 }

@@ -15,8 +15,14 @@ fn run(model: &str, cmd: [f32; 3], duration_s: f64) -> Report {
     let r = run_sim(spec, &opts, |_| {}).expect("run completes");
     eprintln!(
         "{model} cmd {cmd:?}: fell {} x {:.2} m vx2 {:.3} wz2 {:.3} z [{:.3}, {:.3}] tilt {:.1}° rt {:.1}x",
-        r.fell, r.distance_x_m, r.mean_body_vx_second_half, r.mean_body_wz_second_half, r.base_z_min, r.base_z_max,
-        r.tilt_max_deg, r.timing.sim_seconds_per_wall_second
+        r.fell,
+        r.distance_x_m,
+        r.mean_body_vx_second_half,
+        r.mean_body_wz_second_half,
+        r.base_z_min,
+        r.base_z_max,
+        r.tilt_max_deg,
+        r.timing.sim_seconds_per_wall_second
     );
     r
 }
@@ -26,7 +32,9 @@ fn run(model: &str, cmd: [f32; 3], duration_s: f64) -> Report {
 /// match the ones the reference Python loop recorded.
 #[test]
 fn first_observations_match_the_reference_loop() {
-    let Some(shared) = shared_dir() else { return skip_or_fail("golden_walk observation test") };
+    let Some(shared) = shared_dir() else {
+        return skip_or_fail("golden_walk observation test");
+    };
     let golden = shared.join("peer_policy/unitree_g1_lstm/golden_walk_vx0.5.safetensors");
     let (shape, gobs) = read_tensor(&golden, "obs");
     let (_, gt) = read_tensor(&golden, "t");
@@ -50,7 +58,11 @@ fn first_observations_match_the_reference_loop() {
     assert!(obs.len() >= 10, "only {} policy steps", obs.len());
     let mut worst = (0.0f64, 0, 0);
     for (k, (t, o)) in obs.iter().take(10).enumerate() {
-        assert!((t - gt[k]).abs() < 1e-9, "policy step {k} at t={t}, reference at {}", gt[k]);
+        assert!(
+            (t - gt[k]).abs() < 1e-9,
+            "policy step {k} at t={t}, reference at {}",
+            gt[k]
+        );
         for i in 0..47 {
             let err = (o[i] as f64 - gobs[k * 47 + i]).abs();
             if err > worst.0 {
@@ -59,12 +71,27 @@ fn first_observations_match_the_reference_loop() {
         }
     }
     for (k, (_, o)) in obs.iter().take(10).enumerate() {
-        let e = (0..47).map(|i| (o[i] as f64 - gobs[k * 47 + i]).abs()).fold(0.0, f64::max);
-        let arg = (0..47).max_by(|&a, &b| ((o[a] as f64 - gobs[k * 47 + a]).abs()).total_cmp(&(o[b] as f64 - gobs[k * 47 + b]).abs())).unwrap();
+        let e = (0..47)
+            .map(|i| (o[i] as f64 - gobs[k * 47 + i]).abs())
+            .fold(0.0, f64::max);
+        let arg = (0..47)
+            .max_by(|&a, &b| {
+                ((o[a] as f64 - gobs[k * 47 + a]).abs()).total_cmp(&(o[b] as f64 - gobs[k * 47 + b]).abs())
+            })
+            .unwrap();
         eprintln!("step {k}: max err {e:.2e} at {arg}");
     }
-    eprintln!("max |obs - golden| over the first 10 steps: {:.2e} (step {}, element {})", worst.0, worst.1, worst.2);
-    assert!(worst.0 <= 1e-3, "observation {} of step {} differs by {}", worst.2, worst.1, worst.0);
+    eprintln!(
+        "max |obs - golden| over the first 10 steps: {:.2e} (step {}, element {})",
+        worst.0, worst.1, worst.2
+    );
+    assert!(
+        worst.0 <= 1e-3,
+        "observation {} of step {} differs by {}",
+        worst.2,
+        worst.1,
+        worst.0
+    );
 }
 
 #[test]
@@ -97,7 +124,11 @@ fn stands_runs_and_turns_without_falling_on_both_models() {
             let r = run(model, cmd, 20.0);
             assert!(!r.fell, "{model} {cmd:?}: fell at {:?}", r.fell_at_s);
             if cmd[2] > 0.0 {
-                assert!(r.mean_body_wz_second_half > 0.25, "{model}: turning at {:.3} rad/s", r.mean_body_wz_second_half);
+                assert!(
+                    r.mean_body_wz_second_half > 0.25,
+                    "{model}: turning at {:.3} rad/s",
+                    r.mean_body_wz_second_half
+                );
             }
             if cmd[0] > 0.5 {
                 assert!(r.distance_x_m > 10.0, "{model}: only {:.2} m at vx 0.8", r.distance_x_m);
@@ -116,7 +147,11 @@ fn same_seed_gives_bit_identical_runs() {
     // Everything but the wall-clock `timing` figures must be identical, bit for bit.
     let strip = |r: &Report| {
         let mut v = serde_json::to_value(r).unwrap();
-        for k in ["sim_seconds_per_wall_second", "max_tick_compute_us", "mean_tick_compute_us"] {
+        for k in [
+            "sim_seconds_per_wall_second",
+            "max_tick_compute_us",
+            "mean_tick_compute_us",
+        ] {
             v.as_object_mut().unwrap().remove(k).expect("timing field present");
         }
         v.to_string()

@@ -8,7 +8,11 @@ use firmware::sim_run::{run_sim, SimOptions};
 use firmware::spec::DeploySpec;
 
 #[derive(Parser)]
-#[command(name = "g1fw", version, about = "Unitree G1 control firmware: deploy-spec driven policy, PD targets, safety, simulation bridge")]
+#[command(
+    name = "g1fw",
+    version,
+    about = "Unitree G1 control firmware: deploy-spec driven policy, PD targets, safety, simulation bridge"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Cmd,
@@ -146,7 +150,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let json = serde_json::to_string_pretty(&report)?;
             println!("{json}");
             if let Some(path) = a.report {
-                std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+                std::fs::write(&path, format!("{json}\n"))
+                    .with_context(|| format!("writing report {}", path.display()))?;
             }
             tracing::info!(
                 fell = report.fell,

@@ -62,7 +62,10 @@ mod tests {
     use proptest::prelude::*;
 
     fn words(bytes: &[u8]) -> Vec<u32> {
-        bytes.chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect()
+        bytes
+            .chunks_exact(4)
+            .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]))
+            .collect()
     }
 
     /// Independent implementation: the `crc` crate's CRC-32/MPEG-2 over each word's big-endian bytes.
@@ -78,7 +81,10 @@ mod tests {
         let be = b"12345678";
         let le: Vec<u8> = be.chunks_exact(4).flat_map(|w| [w[3], w[2], w[1], w[0]]).collect();
         assert_eq!(crc32_words(&le), crc::Crc::<u32>::new(&crc::CRC_32_MPEG_2).checksum(be));
-        assert_eq!(crc::Crc::<u32>::new(&crc::CRC_32_MPEG_2).checksum(b"123456789"), 0x0376_E6E7);
+        assert_eq!(
+            crc::Crc::<u32>::new(&crc::CRC_32_MPEG_2).checksum(b"123456789"),
+            0x0376_E6E7
+        );
     }
 
     proptest! {

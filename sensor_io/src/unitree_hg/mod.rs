@@ -19,11 +19,23 @@ const LOW_STATE_REMOTE_AT: usize = LOW_STATE_MOTORS_AT + NUM_MOTORS * MOTOR_STAT
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DecodeError {
     #[error("{message}: frame is {got} bytes, expected {expected}")]
-    Length { message: &'static str, expected: usize, got: usize },
+    Length {
+        message: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("{message}: CRC mismatch (frame says {stored:#010x}, contents give {computed:#010x})")]
-    Crc { message: &'static str, stored: u32, computed: u32 },
+    Crc {
+        message: &'static str,
+        stored: u32,
+        computed: u32,
+    },
     #[error("{message}: non-finite value in {field}[{index}]")]
-    NonFinite { message: &'static str, field: &'static str, index: usize },
+    NonFinite {
+        message: &'static str,
+        field: &'static str,
+        index: usize,
+    },
 }
 
 struct Writer<'a> {
@@ -71,12 +83,20 @@ fn seal(buf: &mut [u8]) {
 
 fn check(message: &'static str, buf: &[u8], expected: usize) -> Result<(), DecodeError> {
     if buf.len() != expected {
-        return Err(DecodeError::Length { message, expected, got: buf.len() });
+        return Err(DecodeError::Length {
+            message,
+            expected,
+            got: buf.len(),
+        });
     }
     let stored = rd_u32(buf, expected - 4);
     let computed = crc32_words(&buf[..expected - 4]);
     if stored != computed {
-        return Err(DecodeError::Crc { message, stored, computed });
+        return Err(DecodeError::Crc {
+            message,
+            stored,
+            computed,
+        });
     }
     Ok(())
 }
@@ -110,12 +130,28 @@ pub fn encode_low_cmd(cmd: &LowCommand, out: &mut [u8; LOW_CMD_LEN]) {
 pub fn decode_low_cmd(buf: &[u8], out: &mut LowCommand) -> Result<(), DecodeError> {
     const M: &str = "LowCmd_";
     check(M, buf, LOW_CMD_LEN)?;
-    let mut cmd = LowCommand { mode_pr: buf[0], mode_machine: buf[1], ..LowCommand::default() };
+    let mut cmd = LowCommand {
+        mode_pr: buf[0],
+        mode_machine: buf[1],
+        ..LowCommand::default()
+    };
     for (i, m) in cmd.motors.iter_mut().enumerate() {
         let at = LOW_CMD_MOTORS_AT + i * MOTOR_CMD_LEN;
         let [q, dq, tau, kp, kd] = rd_f32s::<5>(buf, at + 4);
-        finite(M, "motor_cmd", &[q, dq, tau, kp, kd]).map_err(|_| DecodeError::NonFinite { message: M, field: "motor_cmd", index: i })?;
-        *m = MotorCommand { mode: buf[at], q, dq, tau, kp, kd, reserve: rd_u32(buf, at + 24) };
+        finite(M, "motor_cmd", &[q, dq, tau, kp, kd]).map_err(|_| DecodeError::NonFinite {
+            message: M,
+            field: "motor_cmd",
+            index: i,
+        })?;
+        *m = MotorCommand {
+            mode: buf[at],
+            q,
+            dq,
+            tau,
+            kp,
+            kd,
+            reserve: rd_u32(buf, at + 24),
+        };
     }
     for (i, r) in cmd.reserve.iter_mut().enumerate() {
         *r = rd_u32(buf, LOW_CMD_MOTORS_AT + NUM_MOTORS * MOTOR_CMD_LEN + 4 * i);
@@ -183,7 +219,11 @@ pub fn decode_low_state(buf: &[u8], out: &mut LowState) -> Result<(), DecodeErro
         let [q, dq, ddq, tau_est] = rd_f32s::<4>(buf, at + 4);
         let voltage = rd_f32(buf, at + 24);
         if !(q.is_finite() && dq.is_finite() && ddq.is_finite() && tau_est.is_finite() && voltage.is_finite()) {
-            return Err(DecodeError::NonFinite { message: M, field: "motor_state", index: i });
+            return Err(DecodeError::NonFinite {
+                message: M,
+                field: "motor_state",
+                index: i,
+            });
         }
         *m = MotorState {
             mode: buf[at],
@@ -204,7 +244,8 @@ pub fn decode_low_state(buf: &[u8], out: &mut LowState) -> Result<(), DecodeErro
     out.tick = rd_u32(buf, 12);
     out.imu = imu;
     out.motors = motors;
-    out.wireless_remote.copy_from_slice(&buf[LOW_STATE_REMOTE_AT..LOW_STATE_REMOTE_AT + 40]);
+    out.wireless_remote
+        .copy_from_slice(&buf[LOW_STATE_REMOTE_AT..LOW_STATE_REMOTE_AT + 40]);
     out.reserve = core::array::from_fn(|k| rd_u32(buf, LOW_STATE_REMOTE_AT + 40 + 4 * k));
     Ok(())
 }

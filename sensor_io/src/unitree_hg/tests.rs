@@ -2,16 +2,35 @@ use super::*;
 use proptest::prelude::*;
 
 fn sample_cmd(seed: u32) -> LowCommand {
-    let mut c = LowCommand { mode_pr: 1, mode_machine: 5, reserve: [1, 2, 3, seed], ..Default::default() };
+    let mut c = LowCommand {
+        mode_pr: 1,
+        mode_machine: 5,
+        reserve: [1, 2, 3, seed],
+        ..Default::default()
+    };
     for (i, m) in c.motors.iter_mut().enumerate() {
         let f = i as f32 + seed as f32 * 0.001;
-        *m = MotorCommand { mode: 1, q: f * 0.1, dq: -f, tau: f * 2.0, kp: 100.0 + f, kd: 2.5, reserve: i as u32 };
+        *m = MotorCommand {
+            mode: 1,
+            q: f * 0.1,
+            dq: -f,
+            tau: f * 2.0,
+            kp: 100.0 + f,
+            kd: 2.5,
+            reserve: i as u32,
+        };
     }
     c
 }
 
 fn sample_state(seed: u32) -> LowState {
-    let mut s = LowState { version: [7, seed], mode_pr: 0, mode_machine: 5, tick: 123_456 + seed, ..Default::default() };
+    let mut s = LowState {
+        version: [7, seed],
+        mode_pr: 0,
+        mode_machine: 5,
+        tick: 123_456 + seed,
+        ..Default::default()
+    };
     s.imu = ImuState {
         quaternion: [0.9, 0.1, -0.2, 0.3],
         gyroscope: [0.5, -0.25, 1.0],
@@ -97,7 +116,17 @@ fn short_frame_is_a_length_error() {
     encode_low_state(&sample_state(0), &mut sb);
     let mut out = LowState::default();
     let e = decode_low_state(&sb[..100], &mut out).unwrap_err();
-    assert!(matches!(e, DecodeError::Length { expected: LOW_STATE_LEN, got: 100, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DecodeError::Length {
+                expected: LOW_STATE_LEN,
+                got: 100,
+                ..
+            }
+        ),
+        "{e}"
+    );
     let e = decode_low_cmd(&[], &mut LowCommand::default()).unwrap_err();
     assert!(matches!(e, DecodeError::Length { got: 0, .. }));
 }
@@ -118,7 +147,10 @@ fn dirty_padding_changes_the_crc() {
     let mut cb = [0u8; LOW_CMD_LEN];
     encode_low_cmd(&sample_cmd(0), &mut cb);
     cb[2] = 0xAA;
-    assert!(matches!(decode_low_cmd(&cb, &mut LowCommand::default()), Err(DecodeError::Crc { .. })));
+    assert!(matches!(
+        decode_low_cmd(&cb, &mut LowCommand::default()),
+        Err(DecodeError::Crc { .. })
+    ));
 }
 
 #[test]
@@ -128,20 +160,41 @@ fn nan_fields_are_rejected_by_name() {
     let mut sb = [0u8; LOW_STATE_LEN];
     encode_low_state(&s, &mut sb);
     let e = decode_low_state(&sb, &mut LowState::default()).unwrap_err();
-    assert_eq!(e, DecodeError::NonFinite { message: "LowState_", field: "imu_state.gyroscope", index: 1 });
+    assert_eq!(
+        e,
+        DecodeError::NonFinite {
+            message: "LowState_",
+            field: "imu_state.gyroscope",
+            index: 1
+        }
+    );
 
     let mut s = sample_state(0);
     s.motors[7].dq = f32::INFINITY;
     encode_low_state(&s, &mut sb);
     let e = decode_low_state(&sb, &mut LowState::default()).unwrap_err();
-    assert_eq!(e, DecodeError::NonFinite { message: "LowState_", field: "motor_state", index: 7 });
+    assert_eq!(
+        e,
+        DecodeError::NonFinite {
+            message: "LowState_",
+            field: "motor_state",
+            index: 7
+        }
+    );
 
     let mut c = sample_cmd(0);
     c.motors[4].kd = f32::NAN;
     let mut cb = [0u8; LOW_CMD_LEN];
     encode_low_cmd(&c, &mut cb);
     let e = decode_low_cmd(&cb, &mut LowCommand::default()).unwrap_err();
-    assert_eq!(e, DecodeError::NonFinite { message: "LowCmd_", field: "motor_cmd", index: 4 });
+    assert_eq!(
+        e,
+        DecodeError::NonFinite {
+            message: "LowCmd_",
+            field: "motor_cmd",
+            index: 4
+        }
+    );
     assert!(e.to_string().contains("motor_cmd[4]"));
 }
 

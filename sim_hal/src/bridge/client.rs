@@ -8,8 +8,8 @@ use std::time::{Duration, Instant};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
-use super::spin::SpinStream;
 use super::protocol::{read_msg, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
+use super::spin::SpinStream;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
@@ -18,7 +18,11 @@ pub enum BridgeError {
     #[error("bridge: bad LowState frame from the simulator: {0}")]
     Decode(#[from] DecodeError),
     #[error("bridge: could not connect to the simulator at {target} within {waited:?}: {last}")]
-    Connect { target: String, waited: Duration, last: String },
+    Connect {
+        target: String,
+        waited: Duration,
+        last: String,
+    },
     #[error("bridge: {0} is not a loopback address; the bridge only talks to this machine")]
     NotLoopback(SocketAddr),
     #[error("bridge: simulator speaks protocol {got}, this firmware speaks {PROTOCOL_VERSION}")]
@@ -116,7 +120,11 @@ impl BridgeHal {
                         Err(why) => why,
                     };
                     if start.elapsed() >= timeout || last != e.to_string() {
-                        return Err(BridgeError::Connect { target: path.display().to_string(), waited: start.elapsed(), last });
+                        return Err(BridgeError::Connect {
+                            target: path.display().to_string(),
+                            waited: start.elapsed(),
+                            last,
+                        });
                     }
                     std::thread::sleep(Duration::from_millis(5));
                 }
@@ -149,11 +157,17 @@ impl BridgeHal {
         write_msg(stream.get_mut(), Kind::Hello, &hello, &mut scratch)?;
         let kind = read_msg(&mut stream, &mut payload)?;
         if kind != Kind::Welcome {
-            return Err(ProtocolError::Unexpected { expected: Kind::Welcome, got: kind }.into());
+            return Err(ProtocolError::Unexpected {
+                expected: Kind::Welcome,
+                got: kind,
+            }
+            .into());
         }
         let welcome = Welcome::decode(&payload)?;
         if welcome.protocol_version != PROTOCOL_VERSION {
-            return Err(BridgeError::Version { got: welcome.protocol_version });
+            return Err(BridgeError::Version {
+                got: welcome.protocol_version,
+            });
         }
         let mut hal = Self {
             stream,
@@ -178,7 +192,11 @@ impl BridgeHal {
     fn receive_state(&mut self) -> Result<(), BridgeError> {
         let kind = read_msg(&mut self.stream, &mut self.payload)?;
         if kind != Kind::LowState {
-            return Err(ProtocolError::Unexpected { expected: Kind::LowState, got: kind }.into());
+            return Err(ProtocolError::Unexpected {
+                expected: Kind::LowState,
+                got: kind,
+            }
+            .into());
         }
         // Keep the raw bytes (for logs) even when they fail to decode.
         let n = self.payload.len().min(LOW_STATE_LEN);
@@ -187,7 +205,11 @@ impl BridgeHal {
         if self.want_truth {
             let kind = read_msg(&mut self.stream, &mut self.payload)?;
             if kind != Kind::Truth {
-                return Err(ProtocolError::Unexpected { expected: Kind::Truth, got: kind }.into());
+                return Err(ProtocolError::Unexpected {
+                    expected: Kind::Truth,
+                    got: kind,
+                }
+                .into());
             }
             self.truth = Truth::decode(&self.payload)?;
         }

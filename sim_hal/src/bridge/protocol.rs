@@ -84,7 +84,11 @@ pub fn append_msg(buf: &mut Vec<u8>, kind: Kind, payload: &[u8]) {
 pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, ProtocolError> {
     let mut h = [0u8; HEADER_LEN];
     if let Err(e) = r.read_exact(&mut h) {
-        return Err(if e.kind() == io::ErrorKind::UnexpectedEof { ProtocolError::Closed } else { e.into() });
+        return Err(if e.kind() == io::ErrorKind::UnexpectedEof {
+            ProtocolError::Closed
+        } else {
+            e.into()
+        });
     }
     if h[0..2] != MAGIC {
         return Err(ProtocolError::BadMagic([h[0], h[1]]));
@@ -96,7 +100,11 @@ pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, Proto
     }
     payload.resize(len, 0);
     if let Err(e) = r.read_exact(payload) {
-        return Err(if e.kind() == io::ErrorKind::UnexpectedEof { ProtocolError::Closed } else { e.into() });
+        return Err(if e.kind() == io::ErrorKind::UnexpectedEof {
+            ProtocolError::Closed
+        } else {
+            e.into()
+        });
     }
     if kind == Kind::Error {
         return Err(ProtocolError::Remote(String::from_utf8_lossy(payload).into_owned()));
@@ -129,7 +137,11 @@ impl Welcome {
     }
     pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
         if b.len() != Self::LEN {
-            return Err(ProtocolError::BadLength { kind: Kind::Welcome, expected: Self::LEN, got: b.len() });
+            return Err(ProtocolError::BadLength {
+                kind: Kind::Welcome,
+                expected: Self::LEN,
+                got: b.len(),
+            });
         }
         let u64_at = |i: usize| u64::from_le_bytes(b[i..i + 8].try_into().expect("8 bytes"));
         Ok(Self {
@@ -184,7 +196,11 @@ impl Truth {
     }
     pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
         if b.len() != Self::LEN {
-            return Err(ProtocolError::BadLength { kind: Kind::Truth, expected: Self::LEN, got: b.len() });
+            return Err(ProtocolError::BadLength {
+                kind: Kind::Truth,
+                expected: Self::LEN,
+                got: b.len(),
+            });
         }
         let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().expect("8 bytes"));
         let a3 = |i: usize| [f(i), f(i + 1), f(i + 2)];
@@ -216,21 +232,38 @@ mod tests {
         assert!(matches!(read_msg(&mut &wire[..9], &mut p), Err(ProtocolError::Closed)));
         let mut bad = wire.clone();
         bad[0] = b'X';
-        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::BadMagic(_))));
+        assert!(matches!(
+            read_msg(&mut bad.as_slice(), &mut p),
+            Err(ProtocolError::BadMagic(_))
+        ));
         let mut bad = wire.clone();
         bad[2] = 99;
-        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::UnknownKind(99))));
+        assert!(matches!(
+            read_msg(&mut bad.as_slice(), &mut p),
+            Err(ProtocolError::UnknownKind(99))
+        ));
         let mut bad = wire.clone();
         bad[4..8].copy_from_slice(&u32::MAX.to_le_bytes());
-        assert!(matches!(read_msg(&mut bad.as_slice(), &mut p), Err(ProtocolError::TooLong(_))));
+        assert!(matches!(
+            read_msg(&mut bad.as_slice(), &mut p),
+            Err(ProtocolError::TooLong(_))
+        ));
         let mut err = Vec::new();
         write_msg(&mut err, Kind::Error, b"model not found", &mut scratch).unwrap();
-        assert!(matches!(read_msg(&mut err.as_slice(), &mut p), Err(ProtocolError::Remote(m)) if m == "model not found"));
+        assert!(
+            matches!(read_msg(&mut err.as_slice(), &mut p), Err(ProtocolError::Remote(m)) if m == "model not found")
+        );
     }
 
     #[test]
     fn welcome_and_truth_round_trip() {
-        let w = Welcome { protocol_version: 1, motor_slots_present: 0xFFF, mode_machine: 5, physics_dt_ns: 2_000_000, control_dt_ns: 2_000_000 };
+        let w = Welcome {
+            protocol_version: 1,
+            motor_slots_present: 0xFFF,
+            mode_machine: 5,
+            physics_dt_ns: 2_000_000,
+            control_dt_ns: 2_000_000,
+        };
         assert_eq!(Welcome::decode(&w.encode()).unwrap(), w);
         let t = Truth {
             sim_time_s: 1.5,
