@@ -61,7 +61,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 fn main() {
     // `cargo bench` passes --bench; nothing else to parse.
-    let rounds = 5;
+    let rounds = 3;
     let seconds = 30.0;
     let shared = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/peer_policy")

@@ -4,9 +4,11 @@
 
 const POLY: u32 = 0x04C1_1DB7;
 
-/// Byte-at-a-time table, built at compile time.
-const TABLE: [u32; 256] = {
-    let mut table = [0u32; 256];
+/// Slicing-by-8 tables, built at compile time: `TABLES[0]` is the classic byte table and
+/// `TABLES[k][i]` is byte `i` followed by `k` zero bytes. Eight independent lookups per two words
+/// instead of a serial chain of eight: about 4x faster, and the CRC runs twice per frame per tick.
+const TABLES: [[u32; 256]; 8] = {
+    let mut t = [[0u32; 256]; 8];
     let mut i = 0;
     while i < 256 {
         let mut c = (i as u32) << 24;
@@ -15,20 +17,43 @@ const TABLE: [u32; 256] = {
             c = if c & 0x8000_0000 != 0 { (c << 1) ^ POLY } else { c << 1 };
             b += 1;
         }
-        table[i] = c;
+        t[0][i] = c;
         i += 1;
     }
-    table
+    let mut k = 1;
+    while k < 8 {
+        let mut i = 0;
+        while i < 256 {
+            let prev = t[k - 1][i];
+            t[k][i] = (prev << 8) ^ t[0][(prev >> 24) as usize];
+            i += 1;
+        }
+        k += 1;
+    }
+    t
 };
 
-/// CRC over `words.len() / 4` little-endian u32 words of `bytes` (length must be a multiple of 4;
-/// trailing bytes are ignored).
+/// CRC over the little-endian u32 words of `bytes` (length must be a multiple of 4; trailing
+/// bytes are ignored).
 pub fn crc32_words(bytes: &[u8]) -> u32 {
+    let t = &TABLES;
     let mut crc = 0xFFFF_FFFFu32;
-    for w in bytes.chunks_exact(4) {
-        // The word's MSB comes first: feed its bytes in big-endian order.
+    let mut pairs = bytes.chunks_exact(8);
+    for p in &mut pairs {
+        // Each word's MSB comes first, i.e. the word value is fed big-endian.
+        let x = crc ^ u32::from_le_bytes([p[0], p[1], p[2], p[3]]);
+        crc = t[7][(x >> 24) as usize]
+            ^ t[6][((x >> 16) & 0xFF) as usize]
+            ^ t[5][((x >> 8) & 0xFF) as usize]
+            ^ t[4][(x & 0xFF) as usize]
+            ^ t[3][p[7] as usize]
+            ^ t[2][p[6] as usize]
+            ^ t[1][p[5] as usize]
+            ^ t[0][p[4] as usize];
+    }
+    for w in pairs.remainder().chunks_exact(4) {
         for &b in [w[3], w[2], w[1], w[0]].iter() {
-            crc = (crc << 8) ^ TABLE[((crc >> 24) ^ b as u32) as usize];
+            crc = (crc << 8) ^ t[0][((crc >> 24) ^ b as u32) as usize];
         }
     }
     crc
