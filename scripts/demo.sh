@@ -9,7 +9,7 @@ scripts/install.sh
 echo "[demo] building (release)…" >&2
 cargo build --release --workspace --bins
 mkdir -p out
-weights="$root/../shared/peer_policy/unitree_g1_lstm/policy.safetensors"
+weights="${G1_SHARED_DIR:-$root/../shared}/peer_policy/unitree_g1_lstm/policy.safetensors"
 if [ -f "$weights" ]; then
   echo "[demo] peer policy found: walking the 29-dof G1 at vx 0.5 m/s for 20 s" >&2
   target/release/g1fw sim --model g1-29dof --spec specs/peer/unitree_g1_lstm.toml --cmd 0.5,0,0 \
