@@ -11,16 +11,6 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-const PEER_DESC: &str = r#"
-input = 47
-layers = [
-  { type = "lstm", weight_ih = "memory.weight_ih_l0", weight_hh = "memory.weight_hh_l0", bias_ih = "memory.bias_ih_l0", bias_hh = "memory.bias_hh_l0", initial_hidden = "hidden_state", initial_cell = "cell_state" },
-  { type = "linear", weight = "actor.0.weight", bias = "actor.0.bias" },
-  { type = "elu", alpha = 1.0 },
-  { type = "linear", weight = "actor.2.weight", bias = "actor.2.bias" },
-]
-"#;
-
 const WARMUP: usize = 20_000;
 const ITERS: usize = 200_000;
 
@@ -158,7 +148,11 @@ fn main() {
         .map(PathBuf::from)
         .unwrap_or_else(|| workspace_root().join("../shared"));
     let policy_dir = shared.join("peer_policy/unitree_g1_lstm");
-    let desc: NetworkDesc = toml::from_str(PEER_DESC).expect("peer description parses");
+    let spec = workspace_root().join("specs/peer/unitree_g1_lstm.toml");
+    let desc: NetworkDesc = firmware::spec::DeploySpec::load(&spec)
+        .expect("peer spec loads")
+        .policy
+        .network;
     let Ok(mut net) = Network::load(&desc, &policy_dir.join("policy.safetensors")) else {
         loud(&format!(
             "SKIP: policy_step needs ../shared: {} not loadable. Set G1_SHARED_DIR.",

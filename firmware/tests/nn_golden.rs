@@ -7,18 +7,6 @@ use safetensors::SafeTensors;
 use std::collections::HashMap;
 use std::path::PathBuf;
 
-/// The peer policy description, exactly as it goes into the deploy spec.
-const PEER_TOML: &str = r#"
-[policy.network]
-input = 47
-layers = [
-  { type = "lstm", weight_ih = "memory.weight_ih_l0", weight_hh = "memory.weight_hh_l0", bias_ih = "memory.bias_ih_l0", bias_hh = "memory.bias_hh_l0", initial_hidden = "hidden_state", initial_cell = "cell_state" },
-  { type = "linear", weight = "actor.0.weight", bias = "actor.0.bias" },
-  { type = "elu", alpha = 1.0 },
-  { type = "linear", weight = "actor.2.weight", bias = "actor.2.bias" },
-]
-"#;
-
 /// Same network as an array of tables; both TOML forms must parse to the same description.
 const PEER_TOML_TABLES: &str = r#"
 [policy.network]
@@ -57,8 +45,13 @@ struct PolicySection {
     network: NetworkDesc,
 }
 
+/// The peer policy description, read from the committed deploy spec (the one g1fw runs).
 fn peer_desc() -> NetworkDesc {
-    toml::from_str::<Spec>(PEER_TOML).unwrap().policy.network
+    let spec = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../specs/peer/unitree_g1_lstm.toml");
+    firmware::spec::DeploySpec::load(&spec)
+        .expect("peer spec loads")
+        .policy
+        .network
 }
 
 /// `../shared` relative to the workspace root, or `$G1_SHARED_DIR`. `None` (after a loud SKIP)
