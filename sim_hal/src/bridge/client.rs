@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
-use super::protocol::{read_msg, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
+use super::protocol::{read_expect, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
 use super::spin::SpinStream;
 
 #[derive(Debug, thiserror::Error)]
@@ -155,14 +155,7 @@ impl BridgeHal {
         hello[..4].copy_from_slice(&PROTOCOL_VERSION.to_le_bytes());
         hello[4] = want_truth as u8;
         write_msg(stream.get_mut(), Kind::Hello, &hello, &mut scratch)?;
-        let kind = read_msg(&mut stream, &mut payload)?;
-        if kind != Kind::Welcome {
-            return Err(ProtocolError::Unexpected {
-                expected: Kind::Welcome,
-                got: kind,
-            }
-            .into());
-        }
+        read_expect(&mut stream, &mut payload, Kind::Welcome)?;
         let welcome = Welcome::decode(&payload)?;
         if welcome.protocol_version != PROTOCOL_VERSION {
             return Err(BridgeError::Version {
@@ -190,27 +183,13 @@ impl BridgeHal {
     }
 
     fn receive_state(&mut self) -> Result<(), BridgeError> {
-        let kind = read_msg(&mut self.stream, &mut self.payload)?;
-        if kind != Kind::LowState {
-            return Err(ProtocolError::Unexpected {
-                expected: Kind::LowState,
-                got: kind,
-            }
-            .into());
-        }
+        read_expect(&mut self.stream, &mut self.payload, Kind::LowState)?;
         // Keep the raw bytes (for logs) even when they fail to decode.
         let n = self.payload.len().min(LOW_STATE_LEN);
         self.state_bytes[..n].copy_from_slice(&self.payload[..n]);
         let decoded = decode_low_state(&self.payload, &mut self.state);
         if self.want_truth {
-            let kind = read_msg(&mut self.stream, &mut self.payload)?;
-            if kind != Kind::Truth {
-                return Err(ProtocolError::Unexpected {
-                    expected: Kind::Truth,
-                    got: kind,
-                }
-                .into());
-            }
+            read_expect(&mut self.stream, &mut self.payload, Kind::Truth)?;
             self.truth = Truth::decode(&self.payload)?;
         }
         decoded?;

@@ -112,6 +112,14 @@ pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, Proto
     Ok(kind)
 }
 
+/// Reads one message that must be of kind `expected` (payload into `payload`).
+pub fn read_expect<R: Read>(r: &mut R, payload: &mut Vec<u8>, expected: Kind) -> Result<(), ProtocolError> {
+    match read_msg(r, payload)? {
+        got if got == expected => Ok(()),
+        got => Err(ProtocolError::Unexpected { expected, got }),
+    }
+}
+
 /// What the simulator tells the client once, after `Hello`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Welcome {
