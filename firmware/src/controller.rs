@@ -304,9 +304,11 @@ impl Controller {
     }
 
     fn write_command(&self, state: &LowState, out: &mut LowCommand) {
+        if matches!(self.mode, Mode::Damping(_)) {
+            return self.damping_command(state, out);
+        }
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
-        let damping = matches!(self.mode, Mode::Damping(_));
         let (kp, kd) = if self.mode == Mode::Startup {
             (&self.startup_kp, &self.startup_kd)
         } else {
@@ -315,8 +317,6 @@ impl Controller {
         for s in 0..NUM_MOTORS {
             out.motors[s] = if !self.enabled[s] {
                 MotorCommand::default()
-            } else if damping {
-                MotorCommand::damping(self.spec.safety.damping_kd)
             } else {
                 MotorCommand {
                     mode: MOTOR_MODE_ENABLED,
