@@ -10,3 +10,4 @@ pub mod nn;
 pub mod obs;
 pub mod sim_run;
 pub mod spec;
+pub mod plot;

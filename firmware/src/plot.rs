@@ -1,0 +1,1 @@
+//! Velocity-tracking plots (PNG). Filled in by the plot work.
