@@ -31,18 +31,12 @@ pub enum Mode {
     Startup,
     /// Policy in control.
     Policy,
-    /// Latched safe state: kp = 0, damping only. Left only by a restart.
+    /// Latched safe state: kp = 0, damping only. Left only by an explicit [`Controller::restart`]
+    /// (operator reset) or a restart of the firmware.
     Damping(DampingReason),
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DampingReason {
-    Tilt,
-    NonFiniteAction,
-    /// The HAL reported bad or missing data.
-    HalFault,
-    Requested,
-}
+pub use crate::supervisor::DampingReason;
 
 /// What happened in one tick (for logging and evaluation).
 #[derive(Clone, Copy, Debug, Default)]
@@ -72,10 +66,19 @@ pub struct Controller {
     startup_kd: [f32; NUM_MOTORS],
     target_q: [f32; NUM_MOTORS],
     start_q: [f32; NUM_MOTORS],
+    /// Target limits per slot (robot joint range shrunk by the spec's margin).
+    q_min: [f32; NUM_MOTORS],
+    q_max: [f32; NUM_MOTORS],
+    /// Policy targets clamped into range, total.
+    clamped_targets: u64,
+    /// Tick at which the current start-up began (0, or the tick of the last operator reset).
+    start_tick: u64,
     ramp_ticks: u64,
     engage_tick: u64,
     decimation: u64,
     policy_steps: u64,
+    /// Policy steps since the current start-up (drives the gait phase clock).
+    policy_steps_since_start: u64,
     mode: Mode,
 }
 
@@ -130,6 +133,13 @@ impl Controller {
                 startup_kd[slot] = v[i];
             }
         }
+        let (mut q_min, mut q_max) = ([f32::NEG_INFINITY; NUM_MOTORS], [f32::INFINITY; NUM_MOTORS]);
+        let margin = spec.safety.joint_range_margin_rad;
+        for s in 0..NUM_MOTORS {
+            if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[s] {
+                (q_min[s], q_max[s]) = (lo + margin, hi - margin);
+            }
+        }
         let hz = spec.rates.control_hz as f64;
         let ramp_ticks = (spec.startup.ramp_s * hz).round() as u64;
         let engage_tick = ramp_ticks + (spec.startup.hold_s * hz).round() as u64;
@@ -150,9 +160,14 @@ impl Controller {
             startup_kd,
             target_q: default_q,
             start_q: default_q,
+            q_min,
+            q_max,
+            clamped_targets: 0,
+            start_tick: 0,
             ramp_ticks,
             engage_tick,
             policy_steps: 0,
+            policy_steps_since_start: 0,
             mode: Mode::Startup,
             net,
             spec,
@@ -184,6 +199,18 @@ impl Controller {
     pub fn policy_steps(&self) -> u64 {
         self.policy_steps
     }
+    /// Slots the controller drives or holds (the supervisor watches these).
+    pub fn enabled_slots(&self) -> [bool; NUM_MOTORS] {
+        self.enabled
+    }
+    /// Policy targets clamped into the joint range so far.
+    pub fn clamped_targets(&self) -> u64 {
+        self.clamped_targets
+    }
+    /// PD position targets of the newest command, per slot.
+    pub fn target_q(&self) -> &[f32; NUM_MOTORS] {
+        &self.target_q
+    }
     /// The observation of the newest policy step.
     pub fn observation(&self) -> &[f32] {
         &self.obs_buf
@@ -199,53 +226,81 @@ impl Controller {
             .map_or_else(|| "none".into(), |n| n.weights_sha256().to_string())
     }
 
-    /// Latches the damping state.
+    /// Latches the damping state (the first reason is kept).
     pub fn enter_damping(&mut self, reason: DampingReason) {
         if !matches!(self.mode, Mode::Damping(_)) {
             self.mode = Mode::Damping(reason);
         }
     }
 
-    /// One control tick: `state` is the newest low-level state, `command` the operator's (vx, vy, wz).
-    pub fn tick(&mut self, state: &LowState, tick: TickTime, command: [f32; 3], out: &mut LowCommand) -> TickInfo {
-        let mut info = TickInfo::default();
-        let k = tick.index;
-        if k == 0 {
+    /// Operator reset: leave damping (or restart) with a fresh start-up from the pose measured at
+    /// tick `k`. Network memory, history and the last action start from zero again.
+    pub fn restart(&mut self, k: u64, state: &LowState) {
+        self.mode = Mode::Startup;
+        self.start_tick = k;
+        for s in 0..NUM_MOTORS {
+            self.start_q[s] = state.motors[s].q;
+        }
+        self.target_q = self.start_q;
+        self.last_action.iter_mut().for_each(|a| *a = 0.0);
+        self.policy_steps_since_start = 0;
+        self.obs.reset();
+        if let Some(net) = self.net.as_mut() {
+            net.reset();
+        }
+    }
+
+    /// Start-up bookkeeping for tick `k`: ramp, hold, and engaging the policy. Call once per tick
+    /// before [`Self::policy_due`].
+    pub fn advance(&mut self, k: u64, state: &LowState) {
+        if k == 0 && self.start_tick == 0 {
             for s in 0..NUM_MOTORS {
                 self.start_q[s] = state.motors[s].q;
             }
         }
-        if !matches!(self.mode, Mode::Damping(_))
-            && estimator::tilt_rad(state.imu.quaternion) > self.spec.safety.tilt_limit_rad
-        {
-            self.enter_damping(DampingReason::Tilt);
+        if self.mode != Mode::Startup {
+            return;
         }
-        match self.mode {
-            Mode::Damping(_) => {}
-            _ if k < self.ramp_ticks => {
-                let a = k as f32 / self.ramp_ticks as f32;
-                for s in 0..NUM_MOTORS {
-                    self.target_q[s] = self.start_q[s] + a * (self.default_q[s] - self.start_q[s]);
-                }
+        let r = k - self.start_tick;
+        if r < self.ramp_ticks {
+            let a = r as f32 / self.ramp_ticks as f32;
+            for s in 0..NUM_MOTORS {
+                self.target_q[s] = self.start_q[s] + a * (self.default_q[s] - self.start_q[s]);
             }
-            _ if k < self.engage_tick || self.net.is_none() => self.target_q = self.default_q,
-            _ if k == self.engage_tick => {
+        } else {
+            self.target_q = self.default_q;
+            if r >= self.engage_tick && self.net.is_some() {
                 // Policy gains from here; its first step comes one policy period later.
                 self.mode = Mode::Policy;
-                self.target_q = self.default_q;
             }
-            _ => {
-                if (k - self.engage_tick).is_multiple_of(self.decimation) {
-                    self.policy_step(state, command);
-                    info.policy_step = true;
-                }
+        }
+    }
+
+    /// Whether the policy group runs at tick `k`: in policy mode, every `decimation` ticks after
+    /// engaging (so the policy's phase is fixed by the start-up, not by wall-clock time).
+    pub fn policy_due(&self, k: u64) -> bool {
+        let engaged_at = self.start_tick + self.engage_tick;
+        self.mode == Mode::Policy && k > engaged_at && (k - engaged_at).is_multiple_of(self.decimation)
+    }
+
+    /// One control tick in one call (start-up, policy when due, command): what the runtime does,
+    /// minus supervision. `command` is the operator's (vx, vy, wz).
+    pub fn tick(&mut self, state: &LowState, tick: TickTime, command: [f32; 3], out: &mut LowCommand) -> TickInfo {
+        let mut info = TickInfo::default();
+        self.advance(tick.index, state);
+        if self.policy_due(tick.index) {
+            if let Err(reason) = self.policy_step(state, command) {
+                self.enter_damping(reason);
             }
+            info.policy_step = true;
         }
         self.write_command(state, out);
         info
     }
 
-    fn policy_step(&mut self, state: &LowState, command: [f32; 3]) {
+    /// Builds the observation, runs the network and sets PD targets. On NaN/Inf in the observation
+    /// or action it returns the reason and leaves the targets unchanged (the caller latches damping).
+    pub fn policy_step(&mut self, state: &LowState, command: [f32; 3]) -> Result<(), DampingReason> {
         let p = &self.spec.policy;
         for (i, &slot) in p.joint_ids_map.iter().enumerate() {
             self.joint_pos_rel[i] = state.motors[slot].q - p.default_pose[i];
@@ -260,7 +315,7 @@ impl Controller {
         }
         let phase = match &self.spec.phase {
             Some(ph) => {
-                let t = ph.first_step_time_s + self.policy_steps as f64 / self.spec.rates.policy_hz as f64;
+                let t = ph.first_step_time_s + self.policy_steps_since_start as f64 / self.spec.rates.policy_hz as f64;
                 (t.rem_euclid(ph.period_s) / ph.period_s) as f32
             }
             None => 0.0,
@@ -276,18 +331,25 @@ impl Controller {
         };
         self.obs.build(&inputs, &mut self.obs_buf);
         self.policy_steps += 1;
-        let Some(net) = self.net.as_mut() else { return };
+        self.policy_steps_since_start += 1;
+        if self.obs_buf.iter().any(|v| !v.is_finite()) {
+            return Err(DampingReason::NonFiniteObservation);
+        }
+        let Some(net) = self.net.as_mut() else { return Ok(()) };
         if net.step(&self.obs_buf, &mut self.action).is_err() || self.action.iter().any(|a| !a.is_finite()) {
-            self.enter_damping(DampingReason::NonFiniteAction);
-            return;
+            return Err(DampingReason::NonFiniteAction);
         }
         if let Some(c) = p.action_clip {
             self.action.iter_mut().for_each(|a| *a = a.clamp(-c, c));
         }
         self.last_action.copy_from_slice(&self.action);
         for (i, &slot) in p.joint_ids_map.iter().enumerate() {
-            self.target_q[slot] = p.default_pose[i] + self.action_scale[i] * self.action[i];
+            let q = p.default_pose[i] + self.action_scale[i] * self.action[i];
+            let clamped = q.clamp(self.q_min[slot], self.q_max[slot]);
+            self.clamped_targets += (clamped != q) as u64;
+            self.target_q[slot] = clamped;
         }
+        Ok(())
     }
 
     /// Writes the damping command (kp = 0, configured kd on every enabled motor) into `out`.
@@ -303,7 +365,8 @@ impl Controller {
         }
     }
 
-    fn write_command(&self, state: &LowState, out: &mut LowCommand) {
+    /// Writes this tick's command: PD targets with the mode's gains, or damping.
+    pub fn write_command(&self, state: &LowState, out: &mut LowCommand) {
         if matches!(self.mode, Mode::Damping(_)) {
             return self.damping_command(state, out);
         }

@@ -4,10 +4,25 @@
 //! - [`obs`]: observation builder (terms, scales, clips, history layouts).
 //! - [`nn`]: fixed-buffer network executor (Linear, ELU/ReLU/Tanh, stateful LSTM) over safetensors.
 //! - [`controller`]: start-up ramp, policy at its rate, PD targets, latched damping.
+//! - [`supervisor`]: safety checks on every frame; the reasons for latched damping.
+//! - [`runtime`]: the tick with its rate groups in a fixed order, and the loop over any HAL.
+//! - [`operator`]: velocity commands, e-stop and reset (constant or from a schedule file).
+//! - [`log`]: MCAP logging through a fixed pool and a writer thread; reading logs back.
+//! - [`replay`]: `g1fw replay`, recorded inputs through the same runtime, outputs compared bit for bit.
+//! - [`rt`]: real-time process set-up (SCHED_FIFO, CPU pinning, mlockall).
+//! - [`robot`]: the G1's joint ranges.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 pub mod controller;
+pub mod log;
+pub mod log_tools;
 pub mod nn;
 pub mod obs;
+pub mod operator;
+pub mod plot;
+pub mod replay;
+pub mod robot;
+pub mod rt;
+pub mod runtime;
 pub mod sim_run;
 pub mod spec;
-pub mod plot;
+pub mod supervisor;

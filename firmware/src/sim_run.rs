@@ -5,20 +5,33 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use hal::{LowCommand, LowLevel, LowState, TimeBase};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use sim_hal::bridge::{BridgeHal, Truth};
 
-use crate::controller::{Controller, DampingReason};
+use crate::controller::{Controller, Mode};
+use crate::log::{LogOptions, LogStats, Logger, RunMeta};
+use crate::operator::CommandSchedule;
+use crate::replay::key;
+use crate::runtime::{run_loop, FrameSource, LatencySummary, LoopEnd, Overruns, Runtime, TickView};
 use crate::spec::DeploySpec;
+
+impl FrameSource for BridgeHal {
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.frame_received().then(|| &self.state_bytes()[..])
+    }
+    fn truth(&self) -> Option<&Truth> {
+        Some(BridgeHal::truth(self))
+    }
+}
 
 /// Everything `g1fw sim` needs besides the spec.
 #[derive(Clone, Debug)]
 pub struct SimOptions {
     /// `g1-29dof`, `g1-12dof` or a path to an MJCF file (passed to the simulator).
     pub model: String,
-    pub command: [f32; 3],
+    /// Operator commands over time (a constant command is a one-line schedule).
+    pub schedule: CommandSchedule,
     pub duration_s: f64,
     pub seed: u64,
     pub physics_dt: f64,
@@ -33,13 +46,20 @@ pub struct SimOptions {
     /// Do not load the policy; ramp to the default pose and hold.
     pub hold_only: bool,
     pub progress: bool,
+    /// Faults for the simulator to inject (`g1-sim --fault` grammar).
+    pub faults: Vec<String>,
+    /// Record an MCAP log here.
+    pub log: Option<PathBuf>,
+    pub log_options: LogOptions,
+    /// Real-time set-up of the control thread.
+    pub rt: crate::rt::RtOptions,
 }
 
 impl Default for SimOptions {
     fn default() -> Self {
         Self {
             model: "g1-29dof".into(),
-            command: [0.0; 3],
+            schedule: CommandSchedule::constant([0.0; 3]),
             duration_s: 10.0,
             seed: 0,
             physics_dt: 0.002,
@@ -49,6 +69,10 @@ impl Default for SimOptions {
             stop_on_fall: true,
             hold_only: false,
             progress: false,
+            faults: Vec::new(),
+            log: None,
+            log_options: LogOptions::default(),
+            rt: crate::rt::RtOptions::default(),
         }
     }
 }
@@ -78,28 +102,66 @@ pub struct Report {
     pub model: String,
     pub spec: String,
     pub weights_sha256: String,
+    /// The command of the first schedule step (the whole run's, for a constant command).
     pub command: [f32; 3],
     pub seed: u64,
+    /// Velocity tracking against the operator's commands (body frame, from ground truth).
+    pub tracking: Tracking,
+    /// The first latched damping: tick, time and reason.
+    pub trip: Option<TripReport>,
+    pub safety: SafetyReport,
+    /// How the run ended: `completed`, `fell`, or the HAL failure.
+    pub end: String,
+    pub log: Option<LogStats>,
     #[serde(flatten)]
     pub timing: Timing,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct TripReport {
+    pub tick: u64,
+    pub time_s: f64,
+    pub reason: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct SafetyReport {
+    pub crc_failures: u64,
+    pub missing_frames: u64,
+    pub stale_frames: u64,
+    pub malformed_frames: u64,
+    pub clamped_targets: u64,
+    pub overruns: Overruns,
+}
+
+/// Tracking error of one command segment, measured after `settle_s` (the robot needs time to reach
+/// a new command) while the policy is in control.
+#[derive(Clone, Debug, Serialize)]
+pub struct SegmentTracking {
+    pub start_s: f64,
+    pub end_s: f64,
+    pub command: [f32; 3],
+    pub samples: u64,
+    pub mean_measured: [f64; 3],
+    pub rmse: [f64; 3],
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Tracking {
+    pub settle_s: f64,
+    pub segments: Vec<SegmentTracking>,
+    /// Over all segments' settled samples: vx, vy (m/s), wz (rad/s).
+    pub rmse: [f64; 3],
 }
 
 /// Wall-clock figures: measured, never used by control, not part of determinism.
 #[derive(Clone, Debug, Serialize)]
 pub struct Timing {
     pub sim_seconds_per_wall_second: f64,
-    pub max_tick_compute_us: f64,
-    pub mean_tick_compute_us: f64,
-}
-
-/// Per-tick record handed to an observer (tests and tools).
-pub struct TickRecord<'a> {
-    pub index: u64,
-    pub state: &'a LowState,
-    pub command: &'a LowCommand,
-    pub truth: &'a Truth,
-    pub controller: &'a Controller,
-    pub policy_step: bool,
+    /// Fast-group compute per tick (read, estimate, safety, command).
+    pub fast_group_us: LatencySummary,
+    /// Whole-tick compute (fast plus whichever groups ran).
+    pub tick_compute_us: LatencySummary,
 }
 
 /// A running simulator child process; killed if dropped before `finish`.
@@ -172,6 +234,7 @@ fn spawn_sim(opts: &SimOptions, control_dt: f64) -> Result<SimChild> {
         .args(["--seed", &opts.seed.to_string()])
         .args(["--physics-dt", &opts.physics_dt.to_string()])
         .args(["--control-dt", &control_dt.to_string()])
+        .args(opts.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
         .arg("--quiet")
         .stdin(Stdio::null())
         .spawn()
@@ -197,18 +260,23 @@ fn yaw(q: [f64; 4]) -> f64 {
 }
 
 /// Runs the firmware against the simulator. `observe` sees every tick (evaluation only).
-pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(&TickRecord)) -> Result<Report> {
+pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(&TickView)) -> Result<Report> {
     if let Some((ramp, hold)) = opts.ramp_override {
         spec.startup.ramp_s = ramp;
         spec.startup.hold_s = hold;
     }
     let spec_name = spec.path.display().to_string();
     let control_dt = spec.control_dt();
-    let mut controller = if opts.hold_only {
+    let meta = run_meta(&spec, opts);
+    let controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
         Controller::new(spec)?
     };
+    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
+    let weights_sha256 = controller.weights_sha256();
+    let mut meta = meta;
+    meta.set(key::WEIGHTS_SHA256, &weights_sha256);
 
     let mut child = None;
     let mut hal = match &opts.connect {
@@ -244,90 +312,87 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             missing.join(", ")
         );
     }
+    let mut logger = match &opts.log {
+        Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
+        None => None,
+    };
+    crate::rt::apply(&opts.rt)?;
 
     let total_ticks = (opts.duration_s / control_dt).round() as u64;
     let progress = opts.progress.then(|| progress_bar(opts.duration_s));
-    let mut state = LowState::default();
-    let mut cmd = LowCommand::default();
     let mut hasher = Sha256::new();
-    let mut agg = Aggregate::default();
+    let mut agg = Aggregate::new(&opts.schedule, total_ticks as usize);
+    let mut runtime = Runtime::new(controller);
+    let mut operator = opts.schedule.source(welcome.control_dt_ns);
     let wall = Instant::now();
-    let (mut max_compute, mut sum_compute) = (Duration::ZERO, Duration::ZERO);
     let mut ticks = 0u64;
 
-    let result: Result<()> = (|| {
-        loop {
-            let tick = match hal.wait_tick() {
-                Ok(t) => t,
-                Err(e) => {
-                    // Best effort: command damping before giving up (the link may still carry it).
-                    controller.enter_damping(DampingReason::HalFault);
-                    controller.damping_command(&state, &mut cmd);
-                    let _ = hal.write_command(&cmd);
-                    let at = format!("at tick {}", ticks + 1);
-                    return Err(match hal::Error::kind(&e) {
-                        hal::ErrorKind::Disconnected => {
-                            anyhow::Error::new(e).context(format!("{} {at}", simulator_gone(&mut child)))
-                        }
-                        _ => anyhow::Error::new(e)
-                            .context(format!("bad data from the simulator {at}; motors commanded to damping")),
-                    });
-                }
-            };
-            let t0 = Instant::now();
-            hal.read_state(&mut state)?;
-            let info = controller.tick(&state, tick, opts.command, &mut cmd);
-            let last = tick.index >= total_ticks;
-            if !last {
-                hal.write_command(&cmd).with_context(|| simulator_gone(&mut child))?;
-            }
-            let compute = t0.elapsed();
-            max_compute = max_compute.max(compute);
-            sum_compute += compute;
-
-            // Everything below is evaluation: it runs while the simulator steps.
-            hasher.update(hal.state_bytes());
-            if !last {
-                hasher.update(hal.command_bytes());
-            }
-            let truth = *hal.truth();
-            agg.add(&truth, tick.index as f64 * control_dt, opts.duration_s);
-            observe(&TickRecord {
-                index: tick.index,
-                state: &state,
-                command: &cmd,
-                truth: &truth,
-                controller: &controller,
-                policy_step: info.policy_step,
-            });
-            ticks = tick.index;
-            if let Some(pb) = &progress {
-                if tick.index % 50 == 0 {
-                    pb.set_position((tick.index as f64 * control_dt * 1000.0) as u64);
-                    pb.set_message(format!(
-                        "x {:+.2} m  z {:.2} m  {:?}",
-                        truth.base_pos[0] - agg.start[0],
-                        truth.base_pos[2],
-                        controller.mode()
-                    ));
-                }
-            }
-            if last || (opts.stop_on_fall && agg.fell_at.is_some()) {
-                break;
+    let end = run_loop(&mut hal, &mut runtime, &mut operator, total_ticks, |v| {
+        if let Some(l) = logger.as_mut() {
+            l.push(v);
+        }
+        // Everything below is evaluation: it runs while the simulator steps.
+        if let Some(raw) = v.raw_state {
+            hasher.update(raw);
+        }
+        if v.command_sent {
+            let mut b = [0u8; sensor_io::unitree_hg::LOW_CMD_LEN];
+            sensor_io::unitree_hg::encode_low_cmd(v.command, &mut b);
+            hasher.update(b);
+        }
+        let k = v.summary.tick.index;
+        ticks = k;
+        if let Some(truth) = v.truth {
+            agg.add(truth, k as f64 * control_dt, opts.duration_s, v);
+        }
+        observe(v);
+        if let Some(pb) = &progress {
+            if k % 50 == 0 {
+                pb.set_position((k as f64 * control_dt * 1000.0) as u64);
+                pb.set_message(format!(
+                    "x {:+.2} m  z {:.2} m  {:?}",
+                    agg.last[0] - agg.start[0],
+                    agg.last[2],
+                    v.summary.mode
+                ));
             }
         }
-        Ok(())
-    })();
+        !(opts.stop_on_fall && agg.fell_at.is_some())
+    });
     if let Some(pb) = progress {
         pb.finish_and_clear();
     }
+    let wall_s = wall.elapsed().as_secs_f64();
     let repeated = hal.repeated_commands();
     hal.close();
+    let gone = simulator_gone(&mut child);
     drop(child);
-    result?;
+    // The log is closed on every path, so a failed run keeps everything it recorded.
+    let log_stats = match logger {
+        Some(l) => Some(l.finish()?),
+        None => None,
+    };
+    let end_text = match &end {
+        LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { .. } => "fell".to_string(),
+        LoopEnd::HalError { tick, kind, message } => {
+            let what = match kind {
+                hal::ErrorKind::Disconnected => {
+                    format!("{gone} at tick {tick}: {message}; motors commanded to damping")
+                }
+                _ => format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping"),
+            };
+            if !opts.faults.is_empty() {
+                // An injected disconnect ends the run by design; report it rather than fail.
+                what
+            } else {
+                bail!("{what}{}", log_note(&opts.log));
+            }
+        }
+    };
 
-    let wall_s = wall.elapsed().as_secs_f64();
     let time_s = ticks as f64 * control_dt;
+    let counters = runtime.counters();
     Ok(Report {
         fell: agg.fell_at.is_some(),
         fell_at_s: agg.fell_at,
@@ -342,23 +407,74 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         base_z_max: agg.z_max,
         tilt_max_deg: agg.tilt_max,
         ticks,
-        policy_steps: controller.policy_steps(),
-        final_mode: format!("{:?}", controller.mode()),
+        policy_steps: runtime.controller().policy_steps(),
+        final_mode: format!("{:?}", runtime.mode()),
         repeated_commands: repeated,
         state_trace_sha256: format!("{:x}", hasher.finalize()),
         model: opts.model.clone(),
         spec: spec_name,
-        weights_sha256: controller.weights_sha256(),
-        command: opts.command,
+        weights_sha256,
+        command: opts.schedule.velocity_at(0.0),
         seed: opts.seed,
+        tracking: agg.tracking(&opts.schedule, opts.duration_s),
+        trip: runtime.trip().map(|(tick, reason)| TripReport {
+            tick,
+            time_s: tick as f64 * control_dt,
+            reason: reason.to_string(),
+        }),
+        safety: SafetyReport {
+            crc_failures: counters.crc_failures,
+            missing_frames: counters.missing_frames,
+            stale_frames: counters.stale_frames,
+            malformed_frames: counters.malformed_frames,
+            clamped_targets: runtime.controller().clamped_targets(),
+            overruns: runtime.overruns(),
+        },
+        end: end_text,
+        log: log_stats,
         timing: Timing {
             sim_seconds_per_wall_second: time_s / wall_s.max(1e-9),
-            max_tick_compute_us: max_compute.as_secs_f64() * 1e6,
-            mean_tick_compute_us: sum_compute.as_secs_f64() * 1e6 / (ticks.max(1) as f64),
+            fast_group_us: runtime.timing_stats().fast(),
+            tick_compute_us: runtime.timing_stats().tick(),
         },
     })
 }
 
+fn log_note(log: &Option<PathBuf>) -> String {
+    match log {
+        Some(p) => format!(" (the log {} holds everything up to the failure)", p.display()),
+        None => String::new(),
+    }
+}
+
+/// What pins a run in its log: the spec text and hash, the start-up, the simulator settings.
+fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
+    let mut m = RunMeta::default();
+    m.set("firmware_version", env!("CARGO_PKG_VERSION"))
+        .set(key::SPEC_PATH, spec.path.display())
+        .set(
+            key::SPEC_SHA256,
+            format!("{:x}", Sha256::digest(spec.source_text.as_bytes())),
+        )
+        .set(key::SPEC_TOML, &spec.source_text)
+        .set(key::HOLD_ONLY, opts.hold_only)
+        .set(key::RAMP_S, spec.startup.ramp_s)
+        .set(key::HOLD_S, spec.startup.hold_s)
+        .set("control_hz", spec.rates.control_hz)
+        .set("model", &opts.model)
+        .set("seed", opts.seed)
+        .set("physics_dt", opts.physics_dt)
+        .set("duration_s", opts.duration_s)
+        .set("faults", opts.faults.join(" "))
+        .set(
+            "command_schedule",
+            opts.schedule
+                .source
+                .as_ref()
+                .map_or("constant".to_string(), |p| p.display().to_string()),
+        );
+    m
+}
 fn simulator_gone(child: &mut Option<SimChild>) -> String {
     match child.as_mut().map(|c| c.child.try_wait()) {
         Some(Ok(Some(status))) => format!("the simulator exited mid-run ({status})"),
@@ -377,7 +493,6 @@ fn progress_bar(duration_s: f64) -> indicatif::ProgressBar {
 }
 
 /// Running evaluation figures from ground truth.
-#[derive(Default)]
 struct Aggregate {
     started: bool,
     start: [f64; 3],
@@ -391,18 +506,39 @@ struct Aggregate {
     fell_at: Option<f64>,
     sum_second_half: [f64; 3],
     n_second_half: u64,
+    /// (time, command, measured body velocity) of ticks under policy control.
+    samples: Vec<(f64, [f32; 3], [f64; 3])>,
 }
 
+/// Seconds after a command change that tracking errors ignore.
+const SETTLE_S: f64 = 1.0;
+
 impl Aggregate {
-    fn add(&mut self, t: &Truth, time_s: f64, duration_s: f64) {
+    fn new(_schedule: &CommandSchedule, ticks: usize) -> Self {
+        Self {
+            started: false,
+            start: [0.0; 3],
+            last: [0.0; 3],
+            start_yaw: 0.0,
+            heading_change: 0.0,
+            prev_yaw: 0.0,
+            z_min: f64::INFINITY,
+            z_max: f64::NEG_INFINITY,
+            tilt_max: 0.0,
+            fell_at: None,
+            sum_second_half: [0.0; 3],
+            n_second_half: 0,
+            samples: Vec::with_capacity(ticks + 1),
+        }
+    }
+
+    fn add(&mut self, t: &Truth, time_s: f64, duration_s: f64, v: &TickView) {
         let y = yaw(t.base_quat);
         if !self.started {
             self.started = true;
             self.start = t.base_pos;
             self.start_yaw = y;
             self.prev_yaw = y;
-            self.z_min = f64::INFINITY;
-            self.z_max = f64::NEG_INFINITY;
         }
         // Unwrap yaw so turning in place accumulates past ±π.
         let mut dy = y - self.prev_yaw;
@@ -418,14 +554,52 @@ impl Aggregate {
         if self.fell_at.is_none() && (z < 0.5 || tilt > 60.0) {
             self.fell_at = Some(time_s);
         }
+        let meas = [t.base_lin_vel_body[0], t.base_lin_vel_body[1], t.base_ang_vel_body[2]];
         if time_s >= duration_s / 2.0 {
-            self.sum_second_half[0] += t.base_lin_vel_body[0];
-            self.sum_second_half[1] += t.base_lin_vel_body[1];
-            self.sum_second_half[2] += t.base_ang_vel_body[2];
+            (0..3).for_each(|i| self.sum_second_half[i] += meas[i]);
             self.n_second_half += 1;
         }
+        if v.summary.mode == Mode::Policy {
+            self.samples.push((time_s, v.summary.operator.velocity, meas));
+        }
     }
+
     fn mean(&self, i: usize) -> f64 {
         self.sum_second_half[i] / self.n_second_half.max(1) as f64
+    }
+
+    fn tracking(&self, schedule: &CommandSchedule, duration_s: f64) -> Tracking {
+        let segs = schedule.velocity_segments();
+        let mut out = Vec::new();
+        let (mut all_sq, mut all_n) = ([0.0f64; 3], 0u64);
+        for (i, &(start, cmd)) in segs.iter().enumerate() {
+            let end = segs.get(i + 1).map_or(duration_s, |s| s.0);
+            let (mut sum, mut sq, mut n) = ([0.0f64; 3], [0.0f64; 3], 0u64);
+            for &(t, c, m) in &self.samples {
+                if t >= start + SETTLE_S && t < end && c == cmd {
+                    for a in 0..3 {
+                        sum[a] += m[a];
+                        sq[a] += (m[a] - c[a] as f64).powi(2);
+                    }
+                    n += 1;
+                }
+            }
+            (0..3).for_each(|a| all_sq[a] += sq[a]);
+            all_n += n;
+            let nf = n.max(1) as f64;
+            out.push(SegmentTracking {
+                start_s: start,
+                end_s: end,
+                command: cmd,
+                samples: n,
+                mean_measured: sum.map(|x| x / nf),
+                rmse: sq.map(|x| (x / nf).sqrt()),
+            });
+        }
+        Tracking {
+            settle_s: SETTLE_S,
+            segments: out,
+            rmse: all_sq.map(|x| (x / all_n.max(1) as f64).sqrt()),
+        }
     }
 }

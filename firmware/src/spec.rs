@@ -47,6 +47,9 @@ pub struct DeploySpec {
     /// Where the spec was loaded from (for messages and logs).
     #[serde(skip)]
     pub path: PathBuf,
+    /// The TOML text it was parsed from (pinned in run logs).
+    #[serde(skip)]
+    pub source_text: String,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -64,6 +67,38 @@ pub struct Rates {
     pub control_hz: u32,
     /// Policy rate, Hz; must divide `control_hz`.
     pub policy_hz: u32,
+    /// Perception rate, Hz; must divide `control_hz`.
+    #[serde(default = "Rates::default_perception_hz")]
+    pub perception_hz: u32,
+    /// Compute budget per rate group, µs. Overruns are counted and logged, never acted on (acting
+    /// on wall-clock time would break determinism).
+    #[serde(default)]
+    pub budget_us: Budgets,
+}
+
+impl Rates {
+    fn default_perception_hz() -> u32 {
+        10
+    }
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Budgets {
+    pub fast: u32,
+    pub policy: u32,
+    pub perception: u32,
+}
+
+impl Default for Budgets {
+    fn default() -> Self {
+        // Of a 2000 µs tick: the fast group must leave room for policy and perception ticks.
+        Self {
+            fast: 200,
+            policy: 1000,
+            perception: 1000,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -156,31 +191,47 @@ pub struct Phase {
     pub first_step_time_s: f64,
 }
 
+/// Safety supervisor limits. Defaults follow Unitree's own runtime guards (../shared/facts/g1_low_level.md)
+/// except where a 500 Hz loop can afford to be stricter (state timeout).
 #[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct Safety {
     /// Damping applied to every enabled motor in the safe state (kp = 0).
-    #[serde(default = "Safety::default_kd")]
     pub damping_kd: f32,
     /// Tilt from upright beyond which the robot is considered fallen, rad.
-    #[serde(default = "Safety::default_tilt")]
     pub tilt_limit_rad: f32,
-}
-
-impl Safety {
-    fn default_kd() -> f32 {
-        5.0
-    }
-    fn default_tilt() -> f32 {
-        1.0
-    }
+    /// Any supervised joint faster than this trips, rad/s (Unitree: 10).
+    pub joint_speed_limit_rad_s: f32,
+    /// Base angular speed (gyro norm) limit, rad/s (Unitree: 6).
+    pub base_ang_speed_limit_rad_s: f32,
+    /// Motor winding / casing temperature limits, °C (Unitree: 120 / 85).
+    pub motor_winding_limit_c: i16,
+    pub motor_casing_limit_c: i16,
+    /// No valid, newer LowState for this long trips, s.
+    pub state_timeout_s: f64,
+    /// This many consecutive frames failing their CRC trip (single failures are counted, not fatal).
+    pub crc_failure_streak: u32,
+    /// A policy joint whose reported state (q, dq, tau_est) stays bit-identical for this many fresh
+    /// frames is frozen (stuck encoder or a motor that stopped answering). Real encoders and current
+    /// sensors are never that still, and neither is a simulated joint under load.
+    pub frozen_state_frames: u32,
+    /// Policy targets are clamped to the joint range shrunk by this margin, rad.
+    pub joint_range_margin_rad: f32,
 }
 
 impl Default for Safety {
     fn default() -> Self {
         Self {
-            damping_kd: Self::default_kd(),
-            tilt_limit_rad: Self::default_tilt(),
+            damping_kd: 5.0,
+            tilt_limit_rad: 1.0,
+            joint_speed_limit_rad_s: 10.0,
+            base_ang_speed_limit_rad_s: 6.0,
+            motor_winding_limit_c: 120,
+            motor_casing_limit_c: 85,
+            state_timeout_s: 0.02,
+            crc_failure_streak: 3,
+            frozen_state_frames: 10,
+            joint_range_margin_rad: 0.0,
         }
     }
 }
@@ -291,9 +342,33 @@ impl DeploySpec {
             message: e.to_string(),
         })?;
         spec.path = path.to_path_buf();
+        spec.source_text = text.to_string();
         spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         spec.validate()?;
         Ok(spec)
+    }
+
+    fn validate_safety(&self) -> Result<(), SpecError> {
+        let s = &self.safety;
+        let positive = [
+            ("safety.damping_kd", s.damping_kd as f64),
+            ("safety.tilt_limit_rad", s.tilt_limit_rad as f64),
+            ("safety.joint_speed_limit_rad_s", s.joint_speed_limit_rad_s as f64),
+            ("safety.base_ang_speed_limit_rad_s", s.base_ang_speed_limit_rad_s as f64),
+            ("safety.state_timeout_s", s.state_timeout_s),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(self.invalid(field, format!("must be a positive number, got {v}")));
+            }
+        }
+        if s.crc_failure_streak == 0 || s.frozen_state_frames < 2 {
+            return Err(self.invalid("safety", "crc_failure_streak must be >= 1 and frozen_state_frames >= 2"));
+        }
+        if !(s.joint_range_margin_rad.is_finite() && s.joint_range_margin_rad >= 0.0) {
+            return Err(self.invalid("safety.joint_range_margin_rad", "must be >= 0"));
+        }
+        Ok(())
     }
 
     fn invalid(&self, field: &str, message: impl Into<String>) -> SpecError {
@@ -313,6 +388,11 @@ impl DeploySpec {
         self.policy.joint_ids_map.len()
     }
 
+    /// Control ticks per perception step.
+    pub fn perception_decimation(&self) -> u32 {
+        self.rates.control_hz / self.rates.perception_hz
+    }
+
     /// Control ticks per policy step.
     pub fn decimation(&self) -> u32 {
         self.rates.control_hz / self.rates.policy_hz
@@ -329,7 +409,17 @@ impl DeploySpec {
     }
 
     fn validate(&self) -> Result<(), SpecError> {
+        self.validate_safety()?;
         let r = &self.rates;
+        if r.perception_hz == 0 || !r.control_hz.is_multiple_of(r.perception_hz) {
+            return Err(self.invalid(
+                "rates.perception_hz",
+                format!(
+                    "must be positive and divide control_hz ({}), got {}",
+                    r.control_hz, r.perception_hz
+                ),
+            ));
+        }
         if r.control_hz == 0 || r.policy_hz == 0 || !r.control_hz.is_multiple_of(r.policy_hz) {
             return Err(self.invalid(
                 "rates",

@@ -1,18 +1,25 @@
-//! Fixed allocation: after start-up, 10,000+ control ticks including policy steps, ramp, hold and
-//! the damping path allocate and free nothing (counted per thread by a wrapping global allocator).
+//! Fixed allocation: after start-up, 12,000 control ticks through the full loop — HAL decode,
+//! supervisor, policy, command, and the logger's copy into its pool — allocate and free nothing on
+//! the control thread (counted per thread by a wrapping global allocator). The run includes ramp,
+//! hold, policy, an operator e-stop (damping) and a reset back through start-up.
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
 
-use firmware::controller::{Controller, DampingReason, Mode};
+use firmware::controller::{Controller, Mode};
+use firmware::log::{LogOptions, Logger, RunMeta};
+use firmware::operator::{CommandSchedule, OperatorSource};
+use firmware::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
 use firmware::spec::DeploySpec;
-use hal::{LowCommand, LowState, TickTime};
+use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use sensor_io::unitree_hg::{decode_low_state, encode_low_state, DecodeError, LOW_STATE_LEN};
 
 thread_local! {
     static COUNT: Cell<(usize, usize)> = const { Cell::new((0, 0)) };
 }
 
-/// Counts allocations and deallocations per thread (parallel tests do not interfere).
+/// Counts allocations and deallocations per thread (parallel tests and the log writer thread do
+/// not interfere).
 struct Counting;
 
 unsafe impl GlobalAlloc for Counting {
@@ -36,40 +43,132 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// A HAL that synthesises valid, changing LowState frames and decodes them like a real one.
+struct SyntheticHal {
+    k: u64,
+    started: bool,
+    frame: [u8; LOW_STATE_LEN],
+    state: LowState,
+    scratch: LowState,
+    fresh: bool,
+}
+
+impl SyntheticHal {
+    fn new() -> Self {
+        Self {
+            k: 0,
+            started: false,
+            frame: [0; LOW_STATE_LEN],
+            state: LowState::default(),
+            scratch: LowState::default(),
+            fresh: false,
+        }
+    }
+    fn synthesise(&mut self) {
+        let k = self.k as f32;
+        let mut s = LowState {
+            tick: self.k as u32,
+            ..Default::default()
+        };
+        s.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
+        s.imu.gyroscope = [(k * 0.05).sin() * 0.1, 0.0, 0.0];
+        for (i, m) in s.motors.iter_mut().enumerate() {
+            m.q = (k * 0.01 + i as f32).sin() * 0.2;
+            m.dq = (k * 0.02 + i as f32).cos() * 0.5;
+            m.tau_est = (k * 0.03 + i as f32).sin();
+            m.temperature = [40, 45];
+        }
+        encode_low_state(&s, &mut self.frame);
+    }
+}
+
+impl TimeBase for SyntheticHal {
+    type Error = DecodeError;
+    fn wait_tick(&mut self) -> Result<TickTime, DecodeError> {
+        if self.started {
+            self.k += 1;
+        }
+        self.started = true;
+        self.synthesise();
+        self.fresh = true;
+        Ok(TickTime {
+            index: self.k,
+            time_ns: self.k * 2_000_000,
+        })
+    }
+    fn period_ns(&self) -> u64 {
+        2_000_000
+    }
+}
+
+impl LowLevel for SyntheticHal {
+    type Error = DecodeError;
+    fn read_state(&mut self, out: &mut LowState) -> Result<bool, DecodeError> {
+        let fresh = std::mem::take(&mut self.fresh);
+        if fresh {
+            decode_low_state(&self.frame, &mut self.scratch)?;
+            self.state = self.scratch;
+        }
+        *out = self.state;
+        Ok(fresh)
+    }
+    fn write_command(&mut self, _cmd: &LowCommand) -> Result<(), DecodeError> {
+        Ok(())
+    }
+}
+
+impl FrameSource for SyntheticHal {
+    fn received_frame(&self) -> Option<&[u8]> {
+        Some(&self.frame)
+    }
+}
+
+fn count() -> (usize, usize) {
+    COUNT.with(|c| c.get())
+}
+
 fn run_ticks(spec_path: &Path) {
     let spec = DeploySpec::load(spec_path).expect("spec loads");
-    let mut c = Controller::new(spec).expect("controller builds");
-    let mut state = LowState::default();
-    let mut cmd = LowCommand::default();
-    let before = COUNT.with(|c| c.get());
+    let (obs, act) = (spec.observation_dim(), spec.num_joints());
+    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log_path = dir.join(format!("{}.mcap", spec.meta.name));
+    let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
+    let mut logger = Logger::create(&log_path, &RunMeta::default(), obs, act, LogOptions::default()).unwrap();
+    let schedule =
+        CommandSchedule::parse("0 0.5 0 0.2\n10 0.3 0 0\n21 estop\n22 reset\n", Path::new("inline")).unwrap();
+    let mut operator = schedule.source(2_000_000);
+    let mut hal = SyntheticHal::new();
     let n = 12_000u64;
-    for k in 0..n {
-        // Deterministic, varying joint readings so the policy sees changing inputs.
-        for (i, m) in state.motors.iter_mut().enumerate() {
-            m.q = ((k as f32 * 0.01 + i as f32).sin()) * 0.2;
-            m.dq = ((k as f32 * 0.02 + i as f32).cos()) * 0.5;
-        }
-        if k == n - 1000 {
-            c.enter_damping(DampingReason::Requested);
-        }
-        c.tick(
-            &state,
-            TickTime {
-                index: k,
-                time_ns: k * 2_000_000,
-            },
-            [0.5, 0.0, 0.2],
-            &mut cmd,
-        );
-    }
-    let after = COUNT.with(|c| c.get());
-    assert!(c.policy_steps() > 1000, "policy ran {} times", c.policy_steps());
-    assert!(matches!(c.mode(), Mode::Damping(_)));
+    // Start-up (first tick, lazily initialised statics) is allowed to allocate: warm up one
+    // operator query and one encode outside the counted window.
+    let _ = operator.at(TickTime::default());
+    let mut operator = schedule.source(2_000_000);
+
+    let (mut policy_ticks, mut damping_ticks, mut reset_seen, mut pushed) = (0u64, 0u64, false, 0u64);
+    let before = count();
+    let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
+        policy_ticks += v.summary.policy_step as u64;
+        damping_ticks += matches!(v.summary.mode, Mode::Damping(_)) as u64;
+        reset_seen |= v.summary.reset;
+        pushed += logger.push(v) as u64;
+        true
+    });
+    let after = count();
+    assert!(matches!(end, LoopEnd::Completed { ticks } if ticks == n), "{end:?}");
+    assert!(policy_ticks > 1000, "policy ran {policy_ticks} times");
+    assert!(damping_ticks >= 400, "damping for {damping_ticks} ticks");
+    assert!(reset_seen, "the operator reset left damping");
+    assert_eq!(rt.mode(), Mode::Policy, "back under policy control after the reset");
+    assert_eq!(pushed, n + 1, "every tick was logged");
     assert_eq!(
         after, before,
-        "allocations/deallocations during {n} ticks: {:?} -> {:?}",
-        before, after
+        "allocations/deallocations on the control thread during {n} ticks: {before:?} -> {after:?}"
     );
+    let stats = logger.finish().unwrap();
+    assert_eq!(stats.records, n + 1);
+    assert_eq!(stats.dropped_records, 0);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

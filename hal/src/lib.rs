@@ -23,10 +23,12 @@ pub enum ErrorKind {
     Disconnected,
     /// Nothing arrived within the allowed time.
     Timeout,
-    /// A frame arrived but could not be decoded (short, wrong type, non-finite fields).
+    /// A frame arrived but could not be decoded (short, wrong type).
     Malformed,
     /// A frame arrived with a checksum that does not match its contents.
     Checksum,
+    /// A frame arrived intact but carries NaN or infinite values (a sensor fault).
+    NonFinite,
     /// Anything else (I/O error, misconfiguration).
     Other,
 }

@@ -4,6 +4,8 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
+use firmware::operator::CommandSchedule;
+use firmware::replay::{replay, ReplayOptions};
 use firmware::sim_run::{run_sim, SimOptions};
 use firmware::spec::DeploySpec;
 
@@ -29,6 +31,40 @@ enum Cmd {
         #[arg(long)]
         spec: PathBuf,
     },
+    /// Feed a recorded log's inputs through the same firmware code and compare every output bit for
+    /// bit. Exit 0: identical; 1: diverged (the first divergent tick, channel and field are printed);
+    /// 2: could not replay (missing or mismatched spec/weights, unreadable log).
+    Replay(ReplayArgs),
+    /// Render commanded vs measured base velocity of a logged simulation run to a PNG.
+    Plot {
+        /// A log written by `g1fw sim --log`.
+        log: PathBuf,
+        /// Output PNG.
+        #[arg(long, short)]
+        out: PathBuf,
+    },
+    /// Summarise a log: run metadata, messages per channel, safety events, whether it was cut short.
+    LogInfo { log: PathBuf },
+}
+
+#[derive(clap::Args)]
+struct ReplayArgs {
+    /// The MCAP log to replay.
+    log: PathBuf,
+    /// Spec file to use instead of the one the log names (must match the pinned hash unless
+    /// --allow-mismatch).
+    #[arg(long)]
+    spec: Option<PathBuf>,
+    /// Weights file to use instead of the spec's (must match the pinned hash unless --allow-mismatch).
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// Replay even if the spec or weights differ from the log's pinned hashes, to see where the
+    /// outputs diverge.
+    #[arg(long)]
+    allow_mismatch: bool,
+    /// Write the JSON replay report here.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -41,8 +77,32 @@ struct SimArgs {
     #[arg(long, default_value = "g1-29dof")]
     model: String,
     /// Velocity command vx,vy,wz (m/s, m/s, rad/s), held for the whole run.
-    #[arg(long, default_value = "0.5,0,0", value_parser = parse_cmd, allow_hyphen_values = true)]
+    #[arg(long, default_value = "0.5,0,0", value_parser = parse_cmd, allow_hyphen_values = true, conflicts_with = "cmd_schedule")]
     cmd: [f32; 3],
+    /// Piecewise-constant operator commands over time: lines `T VX VY WZ`, `T estop`, `T reset`
+    /// (see specs/schedules/velocity_steps.txt).
+    #[arg(long)]
+    cmd_schedule: Option<PathBuf>,
+    /// Record every HAL input and output and the firmware's derived products to this MCAP file
+    /// (opens in Foxglove; replay with `g1fw replay`).
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// Render commanded vs measured velocity to this PNG after the run.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Inject a fault in the simulator (repeatable): KIND@START_S[+DURATION_S][:ARG], KIND one of
+    /// drop, delay:N, corrupt, imu-nan, freeze-joint:SLOT, motor-dead:SLOT, overheat:SLOT, disconnect.
+    #[arg(long = "fault")]
+    faults: Vec<String>,
+    /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
+    #[arg(long)]
+    rt_priority: Option<i32>,
+    /// Pin the control thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Lock all memory (mlockall) so the control loop never page-faults.
+    #[arg(long)]
+    mlockall: bool,
     /// Simulated seconds to run.
     #[arg(long, default_value_t = 20.0)]
     duration: f64,
@@ -121,45 +181,117 @@ fn run(cli: Cli) -> Result<ExitCode> {
             );
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Sim(a) => {
-            if !(a.duration > 0.0 && a.duration.is_finite()) {
-                bail!("--duration must be a positive number of seconds");
-            }
-            if a.ramp.is_some_and(|r| !(r >= 0.0 && r.is_finite())) {
-                bail!("--ramp must be a non-negative number of seconds");
-            }
-            let spec = DeploySpec::load(&a.spec)?;
-            let opts = SimOptions {
-                model: a.model,
-                command: a.cmd,
-                duration_s: a.duration,
-                seed: a.seed,
-                physics_dt: a.physics_dt,
-                ramp_override: if a.no_ramp {
-                    Some((0.0, 0.0))
-                } else {
-                    a.ramp.map(|r| (r, spec.startup.hold_s))
+        Cmd::Sim(a) => sim(a),
+        Cmd::Replay(a) => {
+            let report = replay(
+                &a.log,
+                &ReplayOptions {
+                    spec: a.spec,
+                    weights: a.weights,
+                    allow_mismatch: a.allow_mismatch,
                 },
-                sim_bin: a.sim_bin,
-                connect: a.connect,
-                stop_on_fall: !a.keep_going,
-                hold_only: a.hold,
-                progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
-            };
-            let report = run_sim(spec, &opts, |_| {})?;
+            )?;
             let json = serde_json::to_string_pretty(&report)?;
-            println!("{json}");
-            if let Some(path) = a.report {
-                std::fs::write(&path, format!("{json}\n"))
-                    .with_context(|| format!("writing report {}", path.display()))?;
+            if let Some(path) = &a.report {
+                std::fs::write(path, format!("{json}\n")).with_context(|| format!("writing {}", path.display()))?;
             }
-            tracing::info!(
-                fell = report.fell,
-                distance_x_m = format!("{:.2}", report.distance_x_m),
-                rt = format!("{:.1}x", report.timing.sim_seconds_per_wall_second),
-                "run finished"
-            );
+            for n in &report.notes {
+                eprintln!("note: {n}");
+            }
+            if let Some(t) = &report.truncated {
+                eprintln!(
+                    "note: the log ends early ({t}); replayed its {} complete ticks",
+                    report.ticks
+                );
+            }
+            match &report.divergence {
+                Some(d) => {
+                    println!("{json}");
+                    eprintln!("REPLAY DIVERGED: {d}");
+                    Ok(ExitCode::from(1))
+                }
+                None => {
+                    println!("{json}");
+                    eprintln!(
+                        "replay identical: {} ticks, {} commands and {} policy steps bit-exact, {:.0}x real time",
+                        report.ticks,
+                        report.compared_commands,
+                        report.compared_policy_steps,
+                        report.sim_seconds_per_wall_second
+                    );
+                    Ok(ExitCode::SUCCESS)
+                }
+            }
+        }
+        Cmd::Plot { log, out } => {
+            firmware::log_tools::plot_log(&log, &out)?;
+            eprintln!("wrote {}", out.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::LogInfo { log } => {
+            let info = firmware::log_tools::log_info(&log)?;
+            println!("{}", serde_json::to_string_pretty(&info)?);
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+fn sim(a: SimArgs) -> Result<ExitCode> {
+    if !(a.duration > 0.0 && a.duration.is_finite()) {
+        bail!("--duration must be a positive number of seconds");
+    }
+    if a.ramp.is_some_and(|r| !(r >= 0.0 && r.is_finite())) {
+        bail!("--ramp must be a non-negative number of seconds");
+    }
+    let spec = DeploySpec::load(&a.spec)?;
+    let schedule = match &a.cmd_schedule {
+        Some(p) => CommandSchedule::load(p)?,
+        None => CommandSchedule::constant(a.cmd),
+    };
+    let opts = SimOptions {
+        model: a.model,
+        schedule,
+        duration_s: a.duration,
+        seed: a.seed,
+        physics_dt: a.physics_dt,
+        ramp_override: if a.no_ramp {
+            Some((0.0, 0.0))
+        } else {
+            a.ramp.map(|r| (r, spec.startup.hold_s))
+        },
+        sim_bin: a.sim_bin,
+        connect: a.connect,
+        stop_on_fall: !a.keep_going,
+        hold_only: a.hold,
+        progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        faults: a.faults,
+        log: a.log.clone(),
+        log_options: Default::default(),
+        rt: firmware::rt::RtOptions {
+            fifo_priority: a.rt_priority,
+            cpu: a.cpu,
+            mlockall: a.mlockall,
+        },
+    };
+    let report = run_sim(spec, &opts, |_| {})?;
+    let json = serde_json::to_string_pretty(&report)?;
+    println!("{json}");
+    if let Some(path) = a.report {
+        std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+    }
+    if let Some(png) = &a.plot {
+        let Some(log) = &a.log else {
+            bail!("--plot draws from the run's log: add --log FILE.mcap");
+        };
+        firmware::log_tools::plot_log(log, png)?;
+        tracing::info!(plot = %png.display(), "velocity plot written");
+    }
+    tracing::info!(
+        fell = report.fell,
+        distance_x_m = format!("{:.2}", report.distance_x_m),
+        rt = format!("{:.1}x", report.timing.sim_seconds_per_wall_second),
+        end = report.end,
+        "run finished"
+    );
+    Ok(ExitCode::SUCCESS)
 }

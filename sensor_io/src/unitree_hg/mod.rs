@@ -38,6 +38,18 @@ pub enum DecodeError {
     },
 }
 
+/// Every HAL that decodes unitree_hg frames (bridge, replay, DDS) classifies failures the same way,
+/// so the safety supervisor reacts the same to the same bytes.
+impl hal::Error for DecodeError {
+    fn kind(&self) -> hal::ErrorKind {
+        match self {
+            DecodeError::Length { .. } => hal::ErrorKind::Malformed,
+            DecodeError::Crc { .. } => hal::ErrorKind::Checksum,
+            DecodeError::NonFinite { .. } => hal::ErrorKind::NonFinite,
+        }
+    }
+}
+
 struct Writer<'a> {
     buf: &'a mut [u8],
 }

@@ -1,0 +1,713 @@
+//! The MCAP logger: the control tick copies a fixed-size record into a preallocated pool; a writer
+//! thread encodes, compresses and writes chunks.
+//!
+//! Crash safety: the run metadata is written before the first message, and the writer closes a
+//! chunk and hands it to the OS every `flush_every_ticks` ticks, so after `kill -9` every chunk
+//! written before the kill reads back (only the summary at the end is missing).
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_queue::ArrayQueue;
+use hal::LowCommand;
+use serde::Serialize;
+use sim_hal::bridge::Truth;
+
+use super::channels::{self as ch, encode_low_cmd_frame, encode_low_state_frame};
+use crate::controller::Mode;
+use crate::runtime::{HalFailure, TickSummary, TickView};
+
+/// Largest observation / action the log record holds.
+pub const MAX_OBS: usize = 1024;
+pub const MAX_ACT: usize = 64;
+const FRAME_CAP: usize = sensor_io::unitree_hg::LOW_STATE_LEN;
+
+#[derive(Debug, thiserror::Error)]
+pub enum LogError {
+    #[error("cannot create log {path}: {source}")]
+    Create { path: PathBuf, source: std::io::Error },
+    #[error("writing log {path}: {source}")]
+    Mcap { path: PathBuf, source: mcap::McapError },
+    #[error("writing log {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("the log holds observations up to {MAX_OBS} values and actions up to {MAX_ACT}; this policy has {obs} and {act}")]
+    TooLarge { obs: usize, act: usize },
+    #[error("the log writer thread panicked")]
+    WriterPanicked,
+}
+
+/// One tick, as copied by the control thread. Fixed size: no allocation on the tick path.
+#[derive(Clone)]
+pub struct Record {
+    pub summary: TickSummary,
+    pub frame_len: usize,
+    pub frame_received: bool,
+    pub frame: [u8; FRAME_CAP],
+    pub command: LowCommand,
+    pub command_sent: bool,
+    pub obs_len: usize,
+    pub obs: [f32; MAX_OBS],
+    pub act_len: usize,
+    pub action: [f32; MAX_ACT],
+    pub target_q: [f32; hal::NUM_MOTORS],
+    pub truth: Option<Truth>,
+    pub hal_error: Option<HalFailure>,
+    /// Records dropped (pool full) since the previous record.
+    pub dropped_before: u64,
+}
+
+impl Record {
+    fn boxed() -> Box<Record> {
+        Box::new(Record {
+            summary: TickSummary::empty(),
+            frame_len: 0,
+            frame_received: false,
+            frame: [0; FRAME_CAP],
+            command: LowCommand::default(),
+            command_sent: false,
+            obs_len: 0,
+            obs: [0.0; MAX_OBS],
+            act_len: 0,
+            action: [0.0; MAX_ACT],
+            target_q: [0.0; hal::NUM_MOTORS],
+            truth: None,
+            hal_error: None,
+            dropped_before: 0,
+        })
+    }
+
+    fn fill(&mut self, v: &TickView, dropped_before: u64) {
+        self.summary = *v.summary;
+        self.frame_received = v.raw_state.is_some();
+        let raw = v.raw_state.unwrap_or(&[]);
+        self.frame_len = raw.len().min(FRAME_CAP);
+        self.frame[..self.frame_len].copy_from_slice(&raw[..self.frame_len]);
+        self.command = *v.command;
+        self.command_sent = v.command_sent;
+        if v.summary.policy_step {
+            let c = v.runtime.controller();
+            let (o, a) = (c.observation(), c.last_action());
+            self.obs_len = o.len();
+            self.obs[..o.len()].copy_from_slice(o);
+            self.act_len = a.len();
+            self.action[..a.len()].copy_from_slice(a);
+            self.target_q = *c.target_q();
+        } else {
+            self.obs_len = 0;
+            self.act_len = 0;
+        }
+        self.truth = v.truth.copied();
+        self.hal_error = v.hal_error;
+        self.dropped_before = dropped_before;
+    }
+}
+
+/// What pins a run: everything replay needs besides the recorded inputs.
+#[derive(Clone, Debug, Default)]
+pub struct RunMeta {
+    pub entries: BTreeMap<String, String>,
+}
+
+impl RunMeta {
+    pub fn set(&mut self, key: &str, value: impl ToString) -> &mut Self {
+        self.entries.insert(key.into(), value.to_string());
+        self
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct LogOptions {
+    /// Close a chunk at least this often (ticks), bounding what a crash can lose.
+    pub flush_every_ticks: u64,
+    /// Records in the pool between the control thread and the writer.
+    pub pool: usize,
+    /// When the pool is full: wait for the writer (simulation and replay, where time is virtual) or
+    /// drop the record and count it (hardware, where the tick must not wait).
+    pub block_when_full: bool,
+}
+
+impl Default for LogOptions {
+    fn default() -> Self {
+        Self {
+            flush_every_ticks: 250,
+            pool: 512,
+            block_when_full: true,
+        }
+    }
+}
+
+/// Totals after the log is closed.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct LogStats {
+    pub records: u64,
+    pub messages: u64,
+    pub dropped_records: u64,
+    pub chunks_flushed: u64,
+    pub bytes: u64,
+}
+
+pub struct Logger {
+    free: Arc<ArrayQueue<Box<Record>>>,
+    full: Arc<ArrayQueue<Box<Record>>>,
+    stop: Arc<AtomicBool>,
+    flushed_ticks: Arc<AtomicU64>,
+    thread: Option<JoinHandle<Result<LogStats, LogError>>>,
+    block_when_full: bool,
+    dropped: u64,
+    dropped_total: u64,
+    path: PathBuf,
+}
+
+impl Logger {
+    /// Creates the file, writes the run metadata and starts the writer thread. Allocates the pool.
+    pub fn create(
+        path: &Path,
+        meta: &RunMeta,
+        obs_dim: usize,
+        act_dim: usize,
+        opts: LogOptions,
+    ) -> Result<Self, LogError> {
+        if obs_dim > MAX_OBS || act_dim > MAX_ACT {
+            return Err(LogError::TooLarge {
+                obs: obs_dim,
+                act: act_dim,
+            });
+        }
+        let file = File::create(path).map_err(|source| LogError::Create {
+            path: path.into(),
+            source,
+        })?;
+        let w = McapSink::new(BufWriter::with_capacity(1 << 20, file), path, meta)?;
+        let free = Arc::new(ArrayQueue::new(opts.pool));
+        for _ in 0..opts.pool {
+            let _ = free.push(Record::boxed());
+        }
+        let full = Arc::new(ArrayQueue::new(opts.pool));
+        let stop = Arc::new(AtomicBool::new(false));
+        let flushed_ticks = Arc::new(AtomicU64::new(0));
+        let thread = {
+            let (free, full, stop, flushed) = (free.clone(), full.clone(), stop.clone(), flushed_ticks.clone());
+            let every = opts.flush_every_ticks.max(1);
+            std::thread::Builder::new()
+                .name("g1fw-log".into())
+                .spawn(move || writer_loop(w, &free, &full, &stop, &flushed, every))
+                .map_err(|source| LogError::Io {
+                    path: path.into(),
+                    source,
+                })?
+        };
+        Ok(Self {
+            free,
+            full,
+            stop,
+            flushed_ticks,
+            thread: Some(thread),
+            block_when_full: opts.block_when_full,
+            dropped: 0,
+            dropped_total: 0,
+            path: path.into(),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Ticks whose messages are in closed chunks on disk (crash-safe).
+    pub fn flushed_ticks(&self) -> u64 {
+        self.flushed_ticks.load(Ordering::Acquire)
+    }
+
+    /// Copies one tick into the pool. Never allocates. Returns false if the record was dropped.
+    pub fn push(&mut self, view: &TickView) -> bool {
+        let mut rec = loop {
+            match self.free.pop() {
+                Some(r) => break r,
+                None if self.block_when_full && !self.writer_gone() => std::thread::yield_now(),
+                None => {
+                    self.dropped += 1;
+                    self.dropped_total += 1;
+                    return false;
+                }
+            }
+        };
+        rec.fill(view, self.dropped);
+        self.dropped = 0;
+        // Cannot fail: the pool and the queue have the same capacity.
+        let _ = self.full.push(rec);
+        true
+    }
+
+    fn writer_gone(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Drains the pool, writes the summary and closes the file.
+    pub fn finish(mut self) -> Result<LogStats, LogError> {
+        self.stop.store(true, Ordering::Release);
+        let t = self.thread.take().expect("finish runs once");
+        let mut stats = t.join().map_err(|_| LogError::WriterPanicked)??;
+        stats.dropped_records = self.dropped_total;
+        Ok(stats)
+    }
+}
+
+impl Drop for Logger {
+    fn drop(&mut self) {
+        // An error path that did not call finish still closes the log properly.
+        self.stop.store(true, Ordering::Release);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn writer_loop(
+    mut w: McapSink,
+    free: &ArrayQueue<Box<Record>>,
+    full: &ArrayQueue<Box<Record>>,
+    stop: &AtomicBool,
+    flushed: &AtomicU64,
+    every: u64,
+) -> Result<LogStats, LogError> {
+    let mut since_flush = 0u64;
+    let result = loop {
+        match full.pop() {
+            Some(rec) => {
+                let r = w.record(&rec);
+                let last_tick = rec.summary.tick.index;
+                let _ = free.push(rec);
+                if let Err(e) = r {
+                    break Err(e);
+                }
+                since_flush += 1;
+                if since_flush >= every {
+                    since_flush = 0;
+                    if let Err(e) = w.flush() {
+                        break Err(e);
+                    }
+                    flushed.store(last_tick + 1, Ordering::Release);
+                }
+            }
+            None if stop.load(Ordering::Acquire) => {
+                // The control thread pushes before it sets `stop`, so the queue is drained.
+                if full.is_empty() {
+                    break Ok(());
+                }
+            }
+            None => std::thread::sleep(Duration::from_micros(200)),
+        }
+    };
+    let stats = w.finish()?;
+    result.map(|_| stats)
+}
+
+/// The MCAP file with its channels.
+struct McapSink {
+    w: mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+    low_state: u16,
+    low_cmd: u16,
+    json: BTreeMap<&'static str, u16>,
+    seq: u32,
+    buf: Vec<u8>,
+    cmd_bytes: [u8; sensor_io::unitree_hg::LOW_CMD_LEN],
+    last_operator: Option<crate::operator::OperatorInput>,
+    last_mode: Option<Mode>,
+    stats: LogStats,
+}
+
+impl McapSink {
+    fn new(out: BufWriter<File>, path: &Path, meta: &RunMeta) -> Result<Self, LogError> {
+        let mk = |source| LogError::Mcap {
+            path: path.into(),
+            source,
+        };
+        let opts = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Lz4))
+            .chunk_size(Some(4 << 20))
+            .profile("")
+            .library(format!("g1fw {}", env!("CARGO_PKG_VERSION")));
+        let mut w = opts.create(out).map_err(mk)?;
+        // Metadata first, outside any chunk: a reader finds it even in a crash-truncated file.
+        w.write_metadata(&mcap::records::Metadata {
+            name: ch::RUN_METADATA.into(),
+            metadata: meta.entries.clone(),
+        })
+        .map_err(mk)?;
+        let none = BTreeMap::new();
+        let s = w
+            .add_schema("g1fw/msg/LowStateFrame", "ros2msg", ch::LOW_STATE_MSG.as_bytes())
+            .map_err(mk)?;
+        let low_state = w.add_channel(s, ch::LOW_STATE, "cdr", &none).map_err(mk)?;
+        let s = w
+            .add_schema("g1fw/msg/LowCmdFrame", "ros2msg", ch::LOW_CMD_MSG.as_bytes())
+            .map_err(mk)?;
+        let low_cmd = w.add_channel(s, ch::LOW_CMD, "cdr", &none).map_err(mk)?;
+        let mut json = BTreeMap::new();
+        for &(topic, name, schema) in ch::JSON_CHANNELS {
+            let s = w.add_schema(name, "jsonschema", schema.as_bytes()).map_err(mk)?;
+            json.insert(topic, w.add_channel(s, topic, "json", &none).map_err(mk)?);
+        }
+        Ok(Self {
+            w,
+            path: path.into(),
+            low_state,
+            low_cmd,
+            json,
+            seq: 0,
+            buf: Vec::with_capacity(8192),
+            cmd_bytes: [0; sensor_io::unitree_hg::LOW_CMD_LEN],
+            last_operator: None,
+            last_mode: None,
+            stats: LogStats::default(),
+        })
+    }
+
+    fn err(&self, source: mcap::McapError) -> LogError {
+        LogError::Mcap {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    fn put(&mut self, channel: u16, time_ns: u64) -> Result<(), LogError> {
+        self.seq = self.seq.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: self.seq,
+            log_time: time_ns,
+            publish_time: time_ns,
+        };
+        self.stats.messages += 1;
+        let r = self.w.write_to_known_channel(&header, &self.buf);
+        r.map_err(|e| self.err(e))
+    }
+
+    fn put_json(&mut self, topic: &'static str, time_ns: u64, value: &impl Serialize) -> Result<(), LogError> {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, value).expect("serializing to memory cannot fail");
+        let id = self.json[topic];
+        self.put(id, time_ns)
+    }
+
+    fn record(&mut self, r: &Record) -> Result<(), LogError> {
+        let s = &r.summary;
+        let (k, t) = (s.tick.index, s.tick.time_ns);
+        self.stats.records += 1;
+
+        encode_low_state_frame(
+            &mut self.buf,
+            k,
+            t,
+            s.frame.code(),
+            r.frame_received,
+            &r.frame[..r.frame_len],
+        );
+        self.put(self.low_state, t)?;
+        sensor_io::unitree_hg::encode_low_cmd(&r.command, &mut self.cmd_bytes);
+        let cmd = self.cmd_bytes;
+        encode_low_cmd_frame(&mut self.buf, k, t, r.command_sent, &cmd);
+        self.put(self.low_cmd, t)?;
+
+        if let Some(f) = r.hal_error {
+            self.put_json(
+                ch::HAL_EVENT,
+                t,
+                &HalEventMsg {
+                    tick: k,
+                    kind: format!("{:?}", f.kind),
+                    phase: if f.in_write { "write" } else { "wait" },
+                },
+            )?;
+        }
+        if self.last_operator != Some(s.operator) {
+            self.last_operator = Some(s.operator);
+            let o = s.operator;
+            self.put_json(
+                ch::OPERATOR,
+                t,
+                &OperatorMsg {
+                    tick: k,
+                    vx: o.velocity[0],
+                    vy: o.velocity[1],
+                    wz: o.velocity[2],
+                    estop: o.estop,
+                    reset: o.reset,
+                },
+            )?;
+        }
+        if s.policy_step {
+            self.put_json(
+                ch::OBSERVATION,
+                t,
+                &ValuesMsg {
+                    tick: k,
+                    values: &r.obs[..r.obs_len],
+                    target_q: None,
+                },
+            )?;
+            self.put_json(
+                ch::ACTION,
+                t,
+                &ValuesMsg {
+                    tick: k,
+                    values: &r.action[..r.act_len],
+                    target_q: Some(&r.target_q[..]),
+                },
+            )?;
+        }
+        let e = s.estimate;
+        self.put_json(
+            ch::ESTIMATOR,
+            t,
+            &EstimatorMsg {
+                tick: k,
+                projected_gravity: Xyz::from(e.projected_gravity),
+                rpy: Rpy {
+                    roll: e.rpy[0],
+                    pitch: e.rpy[1],
+                    yaw: e.rpy[2],
+                },
+            },
+        )?;
+        // Safety state at 50 Hz and on every change of mode; events on trips and resets.
+        if k.is_multiple_of(10) || self.last_mode != Some(s.mode) || r.dropped_before > 0 {
+            self.last_mode = Some(s.mode);
+            let c = s.counters;
+            self.put_json(
+                ch::SAFETY_STATE,
+                t,
+                &SafetyMsg {
+                    tick: k,
+                    mode: mode_name(s.mode),
+                    reason: match s.mode {
+                        Mode::Damping(r) => r.to_string(),
+                        _ => String::new(),
+                    },
+                    frame: s.frame.code(),
+                    crc_failures: c.crc_failures,
+                    crc_streak: c.crc_streak,
+                    missing_frames: c.missing_frames,
+                    stale_frames: c.stale_frames,
+                    state_age_ticks: c.state_age_ticks,
+                    clamped_targets: s.clamped_targets,
+                    dropped_log_records: r.dropped_before,
+                },
+            )?;
+        }
+        if let Some(reason) = s.tripped {
+            tracing::warn!(tick = k, reason = %reason, "safety: damping latched");
+            self.put_json(
+                ch::SAFETY_EVENT,
+                t,
+                &SafetyEventMsg {
+                    tick: k,
+                    time_s: t as f64 * 1e-9,
+                    event: "trip",
+                    reason: reason.name(),
+                    joint: reason.slot().map_or("", |s| hal::G1_MOTOR_NAMES[s as usize]),
+                },
+            )?;
+        }
+        if s.reset {
+            self.put_json(
+                ch::SAFETY_EVENT,
+                t,
+                &SafetyEventMsg {
+                    tick: k,
+                    time_s: t as f64 * 1e-9,
+                    event: "reset",
+                    reason: "operator",
+                    joint: "",
+                },
+            )?;
+        }
+        let tm = s.timing;
+        self.put_json(
+            ch::TIMING,
+            t,
+            &TimingMsg {
+                tick: k,
+                fast_ns: tm.fast_ns,
+                perception_ns: tm.perception_ns,
+                policy_ns: tm.policy_ns,
+                overruns: s.overruns,
+            },
+        )?;
+        if let Some(tr) = &r.truth {
+            self.put_json(
+                ch::TRUTH,
+                t,
+                &TruthMsg {
+                    tick: k,
+                    base_pos: Xyz64::from(tr.base_pos),
+                    base_quat: Quat {
+                        w: tr.base_quat[0],
+                        x: tr.base_quat[1],
+                        y: tr.base_quat[2],
+                        z: tr.base_quat[3],
+                    },
+                    lin_vel_body: Xyz64::from(tr.base_lin_vel_body),
+                    ang_vel_body: Xyz64::from(tr.base_ang_vel_body),
+                    foot_contact: tr.foot_contact,
+                },
+            )?;
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), LogError> {
+        self.w.flush().map_err(|e| self.err(e))?;
+        self.stats.chunks_flushed += 1;
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<LogStats, LogError> {
+        self.w.finish().map_err(|e| self.err(e))?;
+        let mut out = self.w.into_inner();
+        out.flush().map_err(|source| LogError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.stats.bytes = out.get_ref().metadata().map(|m| m.len()).unwrap_or(0);
+        Ok(self.stats)
+    }
+}
+
+pub fn mode_name(m: Mode) -> &'static str {
+    match m {
+        Mode::Startup => "startup",
+        Mode::Policy => "policy",
+        Mode::Damping(_) => "damping",
+    }
+}
+
+#[derive(Serialize)]
+struct HalEventMsg {
+    tick: u64,
+    kind: String,
+    phase: &'static str,
+}
+
+#[derive(Serialize)]
+struct OperatorMsg {
+    tick: u64,
+    vx: f32,
+    vy: f32,
+    wz: f32,
+    estop: bool,
+    reset: bool,
+}
+
+#[derive(Serialize)]
+struct ValuesMsg<'a> {
+    tick: u64,
+    values: &'a [f32],
+    #[serde(skip_serializing_if = "Option::is_none")]
+    target_q: Option<&'a [f32]>,
+}
+
+#[derive(Serialize)]
+struct Xyz {
+    x: f32,
+    y: f32,
+    z: f32,
+}
+
+impl From<[f32; 3]> for Xyz {
+    fn from(v: [f32; 3]) -> Self {
+        Self {
+            x: v[0],
+            y: v[1],
+            z: v[2],
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct Xyz64 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+impl From<[f64; 3]> for Xyz64 {
+    fn from(v: [f64; 3]) -> Self {
+        Self {
+            x: v[0],
+            y: v[1],
+            z: v[2],
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct Quat {
+    w: f64,
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+#[derive(Serialize)]
+struct Rpy {
+    roll: f32,
+    pitch: f32,
+    yaw: f32,
+}
+
+#[derive(Serialize)]
+struct EstimatorMsg {
+    tick: u64,
+    projected_gravity: Xyz,
+    rpy: Rpy,
+}
+
+#[derive(Serialize)]
+struct SafetyMsg {
+    tick: u64,
+    mode: &'static str,
+    reason: String,
+    frame: u8,
+    crc_failures: u64,
+    crc_streak: u32,
+    missing_frames: u64,
+    stale_frames: u64,
+    state_age_ticks: u64,
+    clamped_targets: u64,
+    dropped_log_records: u64,
+}
+
+#[derive(Serialize)]
+struct SafetyEventMsg {
+    tick: u64,
+    time_s: f64,
+    event: &'static str,
+    reason: &'static str,
+    joint: &'static str,
+}
+
+#[derive(Serialize)]
+struct TimingMsg {
+    tick: u64,
+    fast_ns: u32,
+    perception_ns: u32,
+    policy_ns: u32,
+    overruns: u8,
+}
+
+#[derive(Serialize)]
+struct TruthMsg {
+    tick: u64,
+    base_pos: Xyz64,
+    base_quat: Quat,
+    lin_vel_body: Xyz64,
+    ang_vel_body: Xyz64,
+    foot_contact: [bool; 2],
+}

@@ -1,0 +1,246 @@
+//! Operator commands: the velocity command, emergency stop and reset, per control tick.
+//!
+//! A schedule file gives piecewise-constant commands over simulated time (the paper's
+//! velocity-tracking experiment), one line per change:
+//!
+//! ```text
+//! # t_s   vx    vy    wz        (m/s, m/s, rad/s; '#' starts a comment)
+//! 0.0     0.0   0.0   0.0
+//! 2.0     0.5   0.0   0.0
+//! 8.0     estop                 # latch damping
+//! 9.0     reset                 # leave damping: fresh start-up from the current pose
+//! ```
+//! Times must increase. A command holds until the next line; `estop`/`reset` act on one tick.
+use std::path::{Path, PathBuf};
+
+use hal::TickTime;
+
+/// What the operator asks for on one tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct OperatorInput {
+    /// vx, vy (m/s), wz (rad/s) in the body frame.
+    pub velocity: [f32; 3],
+    pub estop: bool,
+    pub reset: bool,
+}
+
+/// A source of operator input, asked once per tick.
+pub trait OperatorSource {
+    fn at(&mut self, tick: TickTime) -> OperatorInput;
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ScheduleError {
+    #[error("cannot read command schedule {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("command schedule {path}, line {line}: {message}")]
+    Line {
+        path: PathBuf,
+        line: usize,
+        message: String,
+    },
+    #[error("command schedule {path} has no command lines")]
+    Empty { path: PathBuf },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Step {
+    Velocity([f32; 3]),
+    EStop,
+    Reset,
+}
+
+/// Piecewise-constant operator commands over time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CommandSchedule {
+    /// (start time in s, step), times increasing.
+    pub steps: Vec<(f64, Step)>,
+    /// Where it came from (for logs); `None` for a constant command.
+    pub source: Option<PathBuf>,
+}
+
+impl CommandSchedule {
+    /// The same velocity command for the whole run.
+    pub fn constant(velocity: [f32; 3]) -> Self {
+        Self {
+            steps: vec![(0.0, Step::Velocity(velocity))],
+            source: None,
+        }
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ScheduleError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ScheduleError::Read {
+            path: path.into(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ScheduleError> {
+        let err = |line: usize, message: String| ScheduleError::Line {
+            path: path.into(),
+            line,
+            message,
+        };
+        let mut steps: Vec<(f64, Step)> = Vec::new();
+        for (i, raw) in text.lines().enumerate() {
+            let line = raw.split('#').next().unwrap_or("").trim();
+            if line.is_empty() {
+                continue;
+            }
+            let fields: Vec<&str> = line.split([' ', '\t', ',']).filter(|f| !f.is_empty()).collect();
+            let t: f64 = fields[0]
+                .parse()
+                .map_err(|e| err(i + 1, format!("time '{}': {e}", fields[0])))?;
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(err(i + 1, format!("time must be a non-negative number, got {t}")));
+            }
+            if let Some(&(prev, _)) = steps.last() {
+                if t <= prev {
+                    return Err(err(i + 1, format!("time {t} s does not come after {prev} s")));
+                }
+            }
+            let step = match &fields[1..] {
+                ["estop"] => Step::EStop,
+                ["reset"] => Step::Reset,
+                [vx, vy, wz] => {
+                    let mut v = [0f32; 3];
+                    for (k, s) in [vx, vy, wz].iter().enumerate() {
+                        v[k] = s.parse().map_err(|e| err(i + 1, format!("'{s}': {e}")))?;
+                        if !v[k].is_finite() {
+                            return Err(err(i + 1, format!("'{s}' is not a finite number")));
+                        }
+                    }
+                    Step::Velocity(v)
+                }
+                _ => {
+                    return Err(err(
+                        i + 1,
+                        format!("expected 'T VX VY WZ', 'T estop' or 'T reset', got '{line}'"),
+                    ))
+                }
+            };
+            steps.push((t, step));
+        }
+        if steps.is_empty() {
+            return Err(ScheduleError::Empty { path: path.into() });
+        }
+        Ok(Self {
+            steps,
+            source: Some(path.into()),
+        })
+    }
+
+    /// The velocity commanded at time `t` (zero before the first command).
+    pub fn velocity_at(&self, t: f64) -> [f32; 3] {
+        let mut v = [0.0; 3];
+        for &(ts, step) in &self.steps {
+            if ts > t + 1e-12 {
+                break;
+            }
+            if let Step::Velocity(c) = step {
+                v = c;
+            }
+        }
+        v
+    }
+
+    /// Start times of velocity changes (for per-segment evaluation).
+    pub fn velocity_segments(&self) -> Vec<(f64, [f32; 3])> {
+        self.steps
+            .iter()
+            .filter_map(|&(t, s)| match s {
+                Step::Velocity(v) => Some((t, v)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// A per-tick source over this schedule (no allocation per tick).
+    pub fn source(&self, control_dt_ns: u64) -> ScheduleSource<'_> {
+        ScheduleSource {
+            schedule: self,
+            next: 0,
+            control_dt_ns,
+            current: OperatorInput::default(),
+        }
+    }
+}
+
+/// Walks a schedule tick by tick. A step applies from the first tick whose time is at or after its
+/// start time (tick times are integers of nanoseconds, so the rule is exact).
+pub struct ScheduleSource<'a> {
+    schedule: &'a CommandSchedule,
+    next: usize,
+    control_dt_ns: u64,
+    current: OperatorInput,
+}
+
+impl OperatorSource for ScheduleSource<'_> {
+    fn at(&mut self, tick: TickTime) -> OperatorInput {
+        self.current.estop = false;
+        self.current.reset = false;
+        let t_ns = tick.index * self.control_dt_ns;
+        while let Some(&(ts, step)) = self.schedule.steps.get(self.next) {
+            if ((ts * 1e9).round() as u64) > t_ns {
+                break;
+            }
+            match step {
+                Step::Velocity(v) => self.current.velocity = v,
+                Step::EStop => self.current.estop = true,
+                Step::Reset => self.current.reset = true,
+            }
+            self.next += 1;
+        }
+        self.current
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tick(index: u64) -> TickTime {
+        TickTime {
+            index,
+            time_ns: index * 2_000_000,
+        }
+    }
+
+    #[test]
+    fn parses_and_walks() {
+        let s = CommandSchedule::parse(
+            "# header\n0 0 0 0\n1.0 0.5, 0, 0.1  # walk\n2.0 estop\n2.004 reset\n",
+            Path::new("x"),
+        )
+        .unwrap();
+        assert_eq!(s.steps.len(), 4);
+        let mut src = s.source(2_000_000);
+        assert_eq!(src.at(tick(0)).velocity, [0.0; 3]);
+        assert_eq!(src.at(tick(499)).velocity, [0.0; 3]);
+        assert_eq!(src.at(tick(500)).velocity, [0.5, 0.0, 0.1]);
+        assert!(!src.at(tick(999)).estop);
+        let at = src.at(tick(1000));
+        assert!(at.estop && !at.reset && at.velocity == [0.5, 0.0, 0.1]);
+        assert!(!src.at(tick(1001)).estop);
+        assert!(src.at(tick(1002)).reset);
+        assert!(!src.at(tick(1003)).reset);
+        assert_eq!(s.velocity_at(1.5), [0.5, 0.0, 0.1]);
+    }
+
+    #[test]
+    fn rejects_bad_lines_with_line_numbers() {
+        for (text, want) in [
+            ("1 0 0 0\n0.5 0 0 0\n", "line 2"),
+            ("0 0 0\n", "expected"),
+            ("0 nan 0 0\n", "finite"),
+            ("x 0 0 0\n", "time 'x'"),
+            ("# nothing\n", "no command lines"),
+        ] {
+            let e = CommandSchedule::parse(text, Path::new("s.txt"))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(want), "{text:?}: {e}");
+        }
+    }
+}

@@ -1,0 +1,641 @@
+//! `g1fw replay`: feed a log's recorded inputs through the same runtime and compare every output
+//! bit for bit.
+//!
+//! The recorded LowState bytes go through the same decoder the live HAL used ([`ReplayHal`]), the
+//! recorded operator input is replayed per tick, and the spec and weights are the ones the log pins
+//! by content hash. Compared per tick: the LowCmd bytes (named down to the motor field), the policy
+//! step schedule, observation and action values, and safety trips.
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use sensor_io::unitree_hg::{decode_low_cmd, decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN};
+use sha2::{Digest, Sha256};
+
+use crate::controller::Controller;
+use crate::log::channels as ch;
+use crate::log::reader::LogFile;
+use crate::operator::{OperatorInput, OperatorSource};
+use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
+use crate::spec::DeploySpec;
+use crate::supervisor::FrameStatus;
+
+/// Metadata keys of the run record (see [`crate::log::writer::RunMeta`]).
+pub mod key {
+    pub const SPEC_PATH: &str = "spec_path";
+    pub const SPEC_SHA256: &str = "spec_sha256";
+    pub const SPEC_TOML: &str = "spec_toml";
+    pub const WEIGHTS_SHA256: &str = "weights_sha256";
+    pub const HOLD_ONLY: &str = "hold_only";
+    pub const RAMP_S: &str = "ramp_s";
+    pub const HOLD_S: &str = "hold_s";
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct ReplayOptions {
+    /// Use this spec file instead of the one the log names (its hash must still match unless
+    /// `allow_mismatch`).
+    pub spec: Option<PathBuf>,
+    /// Use this weights file instead of the spec's.
+    pub weights: Option<PathBuf>,
+    /// Run even when the spec or weights differ from the pinned hashes (to see where outputs diverge).
+    pub allow_mismatch: bool,
+}
+
+/// The first output that differs.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Divergence {
+    pub tick: u64,
+    pub time_s: f64,
+    pub channel: String,
+    pub field: String,
+    pub recorded: String,
+    pub replayed: String,
+}
+
+impl std::fmt::Display for Divergence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "first divergence at tick {} (t = {:.3} s), channel {}, field {}: recorded {}, replayed {}",
+            self.tick, self.time_s, self.channel, self.field, self.recorded, self.replayed
+        )
+    }
+}
+
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ReplayReport {
+    pub log: String,
+    pub ticks: u64,
+    pub sim_seconds: f64,
+    pub wall_seconds: f64,
+    pub sim_seconds_per_wall_second: f64,
+    /// Seconds spent reading and decompressing the log (included in `wall_seconds`).
+    pub load_seconds: f64,
+    pub compared_commands: u64,
+    pub compared_policy_steps: u64,
+    pub truncated: Option<String>,
+    pub divergence: Option<Divergence>,
+    pub notes: Vec<String>,
+}
+
+/// One recorded tick.
+#[derive(Clone, Debug, Default)]
+struct RecTick {
+    tick: TickTime,
+    status: u8,
+    received: bool,
+    frame: std::ops::Range<usize>,
+    cmd: Option<[u8; LOW_CMD_LEN]>,
+    cmd_sent: bool,
+    hal_error: Option<(ErrorKind, bool)>,
+    operator: OperatorInput,
+    obs: Option<std::ops::Range<usize>>,
+    action: Option<std::ops::Range<usize>>,
+    trip: Option<String>,
+}
+
+struct Recording {
+    ticks: Vec<RecTick>,
+    frames: Vec<u8>,
+    values: Vec<f32>,
+    truncated: Option<String>,
+    period_ns: u64,
+}
+
+fn parse_values(data: &[u8], out: &mut Vec<f32>) -> Option<std::ops::Range<usize>> {
+    #[derive(serde::Deserialize)]
+    struct V {
+        values: Vec<Option<f32>>,
+    }
+    let v: V = serde_json::from_slice(data).ok()?;
+    let start = out.len();
+    out.extend(v.values.into_iter().map(|x| x.unwrap_or(f32::NAN)));
+    Some(start..out.len())
+}
+
+fn load(log: &LogFile) -> Result<Recording> {
+    let mut ticks: Vec<RecTick> = Vec::new();
+    let mut frames = Vec::new();
+    let mut values = Vec::new();
+    let mut operator = OperatorInput::default();
+    let mut bad: Option<String> = None;
+    // Messages of one tick share its log time; the LowState message opens a tick.
+    let end = log.scan(|topic, _t, data| {
+        if bad.is_some() {
+            return;
+        }
+        match topic {
+            ch::LOW_STATE => match ch::decode_low_state_frame(data) {
+                Some(f) => {
+                    let start = frames.len();
+                    frames.extend_from_slice(f.data);
+                    ticks.push(RecTick {
+                        tick: TickTime {
+                            index: f.tick,
+                            time_ns: f.time_ns,
+                        },
+                        status: f.status,
+                        received: f.received,
+                        frame: start..frames.len(),
+                        operator,
+                        ..Default::default()
+                    });
+                }
+                None => bad = Some("a /hal/low_state message does not decode".into()),
+            },
+            _ if ticks.is_empty() => {}
+            ch::LOW_CMD => match ch::decode_low_cmd_frame(data) {
+                Some(c) if c.data.len() == LOW_CMD_LEN => {
+                    let t = ticks.last_mut().expect("checked");
+                    t.cmd = Some(c.data.try_into().expect("length checked"));
+                    t.cmd_sent = c.sent;
+                }
+                _ => bad = Some("a /hal/low_cmd message does not decode".into()),
+            },
+            ch::OPERATOR => {
+                #[derive(serde::Deserialize)]
+                struct Op {
+                    vx: f32,
+                    vy: f32,
+                    wz: f32,
+                    estop: bool,
+                    reset: bool,
+                }
+                match serde_json::from_slice::<Op>(data) {
+                    Ok(o) => {
+                        operator = OperatorInput {
+                            velocity: [o.vx, o.vy, o.wz],
+                            estop: o.estop,
+                            reset: o.reset,
+                        };
+                        ticks.last_mut().expect("checked").operator = operator;
+                    }
+                    Err(e) => bad = Some(format!("an operator message does not parse: {e}")),
+                }
+            }
+            ch::HAL_EVENT => {
+                #[derive(serde::Deserialize)]
+                struct Ev {
+                    kind: String,
+                    phase: String,
+                }
+                if let Ok(e) = serde_json::from_slice::<Ev>(data) {
+                    let kind = match e.kind.as_str() {
+                        "Disconnected" => ErrorKind::Disconnected,
+                        "Timeout" => ErrorKind::Timeout,
+                        "Malformed" => ErrorKind::Malformed,
+                        "Checksum" => ErrorKind::Checksum,
+                        "NonFinite" => ErrorKind::NonFinite,
+                        _ => ErrorKind::Other,
+                    };
+                    ticks.last_mut().expect("checked").hal_error = Some((kind, e.phase == "write"));
+                }
+            }
+            ch::OBSERVATION => ticks.last_mut().expect("checked").obs = parse_values(data, &mut values),
+            ch::ACTION => ticks.last_mut().expect("checked").action = parse_values(data, &mut values),
+            ch::SAFETY_EVENT => {
+                #[derive(serde::Deserialize)]
+                struct Ev {
+                    event: String,
+                    reason: String,
+                }
+                if let Ok(e) = serde_json::from_slice::<Ev>(data) {
+                    if e.event == "trip" {
+                        ticks.last_mut().expect("checked").trip = Some(e.reason);
+                    }
+                }
+            }
+            _ => {}
+        }
+    });
+    if let Some(b) = bad {
+        bail!("{}: {b}", log.path.display());
+    }
+    // A crash can cut the last tick in half: drop it.
+    if ticks.last().is_some_and(|t| t.cmd.is_none()) {
+        ticks.pop();
+    }
+    if ticks.is_empty() {
+        bail!("{} holds no complete control tick", log.path.display());
+    }
+    let period_ns = if ticks.len() > 1 {
+        (ticks[1].tick.time_ns - ticks[0].tick.time_ns) / (ticks[1].tick.index - ticks[0].tick.index).max(1)
+    } else {
+        2_000_000
+    };
+    Ok(Recording {
+        ticks,
+        frames,
+        values,
+        truncated: end.truncated,
+        period_ns,
+    })
+}
+
+/// Errors a replay HAL reports: decode failures of recorded frames, and recorded link failures.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayHalError {
+    #[error("recorded frame: {0}")]
+    Decode(#[from] DecodeError),
+    #[error("recorded HAL failure ({0:?})")]
+    Recorded(ErrorKind),
+    #[error("end of the recording")]
+    End,
+}
+
+impl hal::Error for ReplayHalError {
+    fn kind(&self) -> ErrorKind {
+        match self {
+            ReplayHalError::Decode(e) => hal::Error::kind(e),
+            ReplayHalError::Recorded(k) => *k,
+            ReplayHalError::End => ErrorKind::Disconnected,
+        }
+    }
+}
+
+/// A HAL whose ticks, frames and link failures come from a recording.
+struct ReplayHal<'a> {
+    rec: &'a Recording,
+    next: usize,
+    cur: usize,
+    state: LowState,
+    scratch: LowState,
+    unread: bool,
+}
+
+impl TimeBase for ReplayHal<'_> {
+    type Error = ReplayHalError;
+    fn wait_tick(&mut self) -> Result<TickTime, ReplayHalError> {
+        let t = self.rec.ticks.get(self.next).ok_or(ReplayHalError::End)?;
+        if let Some((kind, false)) = t.hal_error {
+            return Err(ReplayHalError::Recorded(kind));
+        }
+        self.cur = self.next;
+        self.next += 1;
+        self.unread = true;
+        Ok(t.tick)
+    }
+    fn period_ns(&self) -> u64 {
+        self.rec.period_ns
+    }
+}
+
+impl LowLevel for ReplayHal<'_> {
+    type Error = ReplayHalError;
+    fn read_state(&mut self, out: &mut LowState) -> Result<bool, ReplayHalError> {
+        let t = &self.rec.ticks[self.cur];
+        let fresh = std::mem::take(&mut self.unread) && t.received;
+        let result = if fresh {
+            match decode_low_state(&self.rec.frames[t.frame.clone()], &mut self.scratch) {
+                Ok(()) => {
+                    self.state = self.scratch;
+                    Ok(true)
+                }
+                Err(e) => Err(e.into()),
+            }
+        } else {
+            Ok(false)
+        };
+        *out = self.state;
+        result
+    }
+    fn write_command(&mut self, _cmd: &LowCommand) -> Result<(), ReplayHalError> {
+        match self.rec.ticks[self.cur].hal_error {
+            Some((kind, true)) => Err(ReplayHalError::Recorded(kind)),
+            _ => Ok(()),
+        }
+    }
+}
+
+impl FrameSource for ReplayHal<'_> {
+    fn received_frame(&self) -> Option<&[u8]> {
+        let t = &self.rec.ticks[self.cur];
+        t.received.then(|| &self.rec.frames[t.frame.clone()])
+    }
+}
+
+struct RecordedOperator<'a> {
+    rec: &'a Recording,
+    i: usize,
+}
+
+impl OperatorSource for RecordedOperator<'_> {
+    fn at(&mut self, tick: TickTime) -> OperatorInput {
+        // Ticks are replayed in order; find this one's entry.
+        while self.i + 1 < self.rec.ticks.len() && self.rec.ticks[self.i].tick.index < tick.index {
+            self.i += 1;
+        }
+        self.rec.ticks[self.i].operator
+    }
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    format!("{:x}", Sha256::digest(bytes))
+}
+
+/// Finds the spec the log names: as recorded (absolute, or relative to the current directory), or
+/// relative to any directory above the log (a corpus committed inside the repository).
+fn locate_spec(recorded: &str, log_path: &Path) -> Option<PathBuf> {
+    let p = PathBuf::from(recorded);
+    if p.is_file() {
+        return Some(p);
+    }
+    if p.is_relative() {
+        let dir = std::fs::canonicalize(log_path).ok()?;
+        for anc in dir.ancestors().skip(1) {
+            let c = anc.join(&p);
+            if c.is_file() {
+                return Some(c);
+            }
+        }
+    }
+    None
+}
+
+fn meta_get<'a>(meta: &'a BTreeMap<String, String>, k: &str) -> Result<&'a str> {
+    meta.get(k)
+        .map(String::as_str)
+        .with_context(|| format!("the log's run metadata lacks '{k}'"))
+}
+
+/// Replays `log_path`; returns the report (with `divergence` set on the first mismatch).
+pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
+    let wall = Instant::now();
+    let log = LogFile::open(log_path)?;
+    let meta = log.run_metadata()?;
+    let mut notes = Vec::new();
+
+    // The spec: the text pinned in the log, located where the log says (relative weights paths
+    // resolve against it), or an explicit override that must hash the same.
+    let pinned_spec_sha = meta_get(&meta, key::SPEC_SHA256)?;
+    let (spec_text, spec_path) = match &opts.spec {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading spec {}", p.display()))?;
+            (text, p.clone())
+        }
+        None => {
+            let recorded = meta_get(&meta, key::SPEC_PATH)?;
+            let text = meta_get(&meta, key::SPEC_TOML)?.to_string();
+            let path = locate_spec(recorded, log_path).with_context(|| {
+                format!(
+                    "the log was recorded with spec '{recorded}', which is not found relative to the current \
+                     directory or above the log; pass --spec PATH"
+                )
+            })?;
+            (text, path)
+        }
+    };
+    let spec_sha = sha256_hex(spec_text.as_bytes());
+    if spec_sha != pinned_spec_sha {
+        let msg = format!(
+            "spec {} has sha256 {spec_sha}, but the log pins {pinned_spec_sha}",
+            spec_path.display()
+        );
+        if !opts.allow_mismatch {
+            bail!("{msg}; pass --allow-mismatch to replay anyway and see where outputs diverge");
+        }
+        notes.push(msg);
+    }
+    let mut spec = DeploySpec::from_toml(&spec_text, &spec_path)?;
+    if let Some(w) = &opts.weights {
+        spec.policy.weights = std::path::absolute(w).with_context(|| format!("resolving {}", w.display()))?;
+    }
+    if let (Some(r), Some(h)) = (meta.get(key::RAMP_S), meta.get(key::HOLD_S)) {
+        spec.startup.ramp_s = r.parse().context("metadata ramp_s")?;
+        spec.startup.hold_s = h.parse().context("metadata hold_s")?;
+    }
+    let hold_only = meta.get(key::HOLD_ONLY).is_some_and(|v| v == "true");
+    let controller = if hold_only {
+        Controller::hold_only(spec)
+    } else {
+        Controller::new(spec)?
+    };
+    let pinned_w = meta_get(&meta, key::WEIGHTS_SHA256)?;
+    if controller.weights_sha256() != pinned_w {
+        let msg = format!(
+            "weights {} have sha256 {}, but the log pins {pinned_w}",
+            controller.spec().weights_path().display(),
+            controller.weights_sha256()
+        );
+        if !opts.allow_mismatch {
+            bail!("{msg}; pass --allow-mismatch to replay anyway and see where outputs diverge");
+        }
+        notes.push(msg);
+    }
+
+    let rec = load(&log)?;
+    let load_seconds = wall.elapsed().as_secs_f64();
+    let mut rt = Runtime::new(controller);
+    let mut hal = ReplayHal {
+        rec: &rec,
+        next: 0,
+        cur: 0,
+        state: LowState::default(),
+        scratch: LowState::default(),
+        unread: false,
+    };
+    let mut op = RecordedOperator { rec: &rec, i: 0 };
+    let last = rec.ticks.last().expect("non-empty");
+    let last_tick = last.tick.index;
+    let mut cmp = Comparator {
+        rec: &rec,
+        i: 0,
+        bytes: [0; LOW_CMD_LEN],
+        divergence: None,
+        commands: 0,
+        policy_steps: 0,
+    };
+    let end = run_loop(&mut hal, &mut rt, &mut op, last_tick, |v| cmp.check(v));
+    match &end {
+        LoopEnd::HalError { tick, kind, .. } if cmp.divergence.is_none() => {
+            let recorded = rec
+                .ticks
+                .iter()
+                .find(|t| t.tick.index == *tick)
+                .and_then(|t| t.hal_error);
+            if recorded.map(|r| r.0) != Some(*kind) {
+                cmp.divergence = Some(Divergence {
+                    tick: *tick,
+                    time_s: 0.0,
+                    channel: ch::HAL_EVENT.into(),
+                    field: "kind".into(),
+                    recorded: format!("{recorded:?}"),
+                    replayed: format!("{kind:?}"),
+                });
+            }
+        }
+        _ => {}
+    }
+    let ticks = rec.ticks.len() as u64;
+    let sim_seconds = ticks as f64 * rec.period_ns as f64 * 1e-9;
+    let wall_seconds = wall.elapsed().as_secs_f64();
+    Ok(ReplayReport {
+        log: log_path.display().to_string(),
+        ticks,
+        sim_seconds,
+        wall_seconds,
+        sim_seconds_per_wall_second: sim_seconds / wall_seconds.max(1e-9),
+        load_seconds,
+        compared_commands: cmp.commands,
+        compared_policy_steps: cmp.policy_steps,
+        truncated: rec.truncated.clone(),
+        divergence: cmp.divergence,
+        notes,
+    })
+}
+
+struct Comparator<'a> {
+    rec: &'a Recording,
+    i: usize,
+    bytes: [u8; LOW_CMD_LEN],
+    divergence: Option<Divergence>,
+    commands: u64,
+    policy_steps: u64,
+}
+
+impl Comparator<'_> {
+    fn diverge(&mut self, t: &RecTick, channel: &str, field: String, recorded: String, replayed: String) -> bool {
+        self.divergence = Some(Divergence {
+            tick: t.tick.index,
+            time_s: t.tick.time_ns as f64 * 1e-9,
+            channel: channel.into(),
+            field,
+            recorded,
+            replayed,
+        });
+        false
+    }
+
+    /// Compares one replayed tick with the recording; false stops the replay.
+    fn check(&mut self, v: &TickView) -> bool {
+        let k = v.summary.tick.index;
+        while self.i < self.rec.ticks.len() && self.rec.ticks[self.i].tick.index < k {
+            self.i += 1;
+        }
+        let Some(t) = self.rec.ticks.get(self.i) else {
+            let t = self.rec.ticks.last().expect("non-empty").clone();
+            return self.diverge(&t, "tick", "index".into(), "end of log".into(), k.to_string());
+        };
+        if t.tick.index != k {
+            return self.diverge(t, "tick", "index".into(), t.tick.index.to_string(), k.to_string());
+        }
+        if v.summary.frame.code() != t.status {
+            let rec = FrameStatus::from_code(t.status).map_or(t.status.to_string(), |s| format!("{s:?}"));
+            return self.diverge(t, ch::LOW_STATE, "status".into(), rec, format!("{:?}", v.summary.frame));
+        }
+        encode_low_cmd(v.command, &mut self.bytes);
+        let recorded = t.cmd.expect("complete ticks only");
+        if self.bytes != recorded {
+            let (field, a, b) = first_cmd_difference(&recorded, &self.bytes);
+            return self.diverge(t, ch::LOW_CMD, field, a, b);
+        }
+        if v.command_sent != t.cmd_sent {
+            return self.diverge(
+                t,
+                ch::LOW_CMD,
+                "sent".into(),
+                t.cmd_sent.to_string(),
+                v.command_sent.to_string(),
+            );
+        }
+        self.commands += 1;
+        if v.summary.policy_step != t.action.is_some() {
+            return self.diverge(
+                t,
+                ch::ACTION,
+                "policy step".into(),
+                t.action.is_some().to_string(),
+                v.summary.policy_step.to_string(),
+            );
+        }
+        if v.summary.policy_step {
+            let c = v.runtime.controller();
+            for (chan, recorded, replayed) in [
+                (ch::OBSERVATION, &t.obs, c.observation()),
+                (ch::ACTION, &t.action, c.last_action()),
+            ] {
+                let r = &self.rec.values[recorded.clone().expect("present")];
+                if r.len() != replayed.len() {
+                    return self.diverge(
+                        t,
+                        chan,
+                        "values.len".into(),
+                        r.len().to_string(),
+                        replayed.len().to_string(),
+                    );
+                }
+                if let Some(i) = (0..r.len()).find(|&i| r[i].to_bits() != replayed[i].to_bits()) {
+                    return self.diverge(
+                        t,
+                        chan,
+                        format!("values[{i}]"),
+                        format!("{:e}", r[i]),
+                        format!("{:e}", replayed[i]),
+                    );
+                }
+            }
+            self.policy_steps += 1;
+        }
+        let tripped = v.summary.tripped.map(|r| r.name().to_string());
+        if tripped != t.trip {
+            return self.diverge(
+                t,
+                ch::SAFETY_EVENT,
+                "trip".into(),
+                format!("{:?}", t.trip),
+                format!("{tripped:?}"),
+            );
+        }
+        true
+    }
+}
+
+/// Names the first differing field of two LowCmd frames.
+fn first_cmd_difference(recorded: &[u8; LOW_CMD_LEN], replayed: &[u8; LOW_CMD_LEN]) -> (String, String, String) {
+    let (mut a, mut b) = (LowCommand::default(), LowCommand::default());
+    let ok = decode_low_cmd(recorded, &mut a).is_ok() && decode_low_cmd(replayed, &mut b).is_ok();
+    if ok {
+        if a.mode_pr != b.mode_pr {
+            return ("mode_pr".into(), a.mode_pr.to_string(), b.mode_pr.to_string());
+        }
+        if a.mode_machine != b.mode_machine {
+            return (
+                "mode_machine".into(),
+                a.mode_machine.to_string(),
+                b.mode_machine.to_string(),
+            );
+        }
+        for s in 0..hal::NUM_MOTORS {
+            let (x, y) = (&a.motors[s], &b.motors[s]);
+            let name = hal::G1_MOTOR_NAMES[s];
+            let fields = [
+                ("q", x.q, y.q),
+                ("dq", x.dq, y.dq),
+                ("tau", x.tau, y.tau),
+                ("kp", x.kp, y.kp),
+                ("kd", x.kd, y.kd),
+            ];
+            if x.mode != y.mode {
+                return (
+                    format!("motor_cmd[{s}] ({name}).mode"),
+                    x.mode.to_string(),
+                    y.mode.to_string(),
+                );
+            }
+            for (f, p, q) in fields {
+                if p.to_bits() != q.to_bits() {
+                    return (
+                        format!("motor_cmd[{s}] ({name}).{f}"),
+                        format!("{p:e}"),
+                        format!("{q:e}"),
+                    );
+                }
+            }
+        }
+    }
+    let i = recorded.iter().zip(replayed).position(|(x, y)| x != y).unwrap_or(0);
+    (format!("byte {i}"), recorded[i].to_string(), replayed[i].to_string())
+}

@@ -1,0 +1,525 @@
+//! The deterministic runtime: one control tick, its rate groups in a fixed order, and the loop that
+//! drives it from a HAL.
+//!
+//! Order inside a tick (fixed; the same on hardware, in simulation and in replay):
+//! 1. **fast** — read: the HAL's newest state and its frame status (in [`run_loop`]);
+//! 2. **fast** — estimate: attitude signals from the newest accepted state;
+//! 3. **fast** — safety: the supervisor judges the frame; operator e-stop / reset;
+//! 4. **perception** (every `control_hz / perception_hz` ticks, phase 0): budgeted and timed; the
+//!    terrain pipeline lands here;
+//! 5. **policy** (every `control_hz / policy_hz` ticks after the policy engaged): observation,
+//!    network, targets (clamped to joint ranges); NaN/Inf latches damping;
+//! 6. **fast** — command: PD targets or damping, written to the HAL (in [`run_loop`]).
+//!
+//! Time comes only from the HAL's tick index. Group compute times are measured with a monotonic
+//! clock for the log and the benchmarks, and never feed back into control.
+use std::time::Instant;
+
+use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
+
+use crate::controller::{Controller, Mode};
+use crate::operator::{OperatorInput, OperatorSource};
+use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
+
+/// Attitude estimate of one tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Estimate {
+    pub projected_gravity: [f32; 3],
+    pub rpy: [f32; 3],
+}
+
+/// Compute time of each group this tick, ns (0 when the group did not run).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TickTiming {
+    pub fast_ns: u32,
+    pub perception_ns: u32,
+    pub policy_ns: u32,
+}
+
+impl TickTiming {
+    pub fn total_ns(&self) -> u32 {
+        self.fast_ns + self.perception_ns + self.policy_ns
+    }
+}
+
+/// What happened in one tick.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TickSummary {
+    pub tick: TickTime,
+    pub frame: FrameStatus,
+    pub operator: OperatorInput,
+    pub policy_step: bool,
+    pub perception_step: bool,
+    pub mode: Mode,
+    /// Set on the tick the supervisor (or operator) latched damping.
+    pub tripped: Option<DampingReason>,
+    /// Set on the tick an operator reset left damping.
+    pub reset: bool,
+    pub counters: SafetyCounters,
+    pub clamped_targets: u64,
+    pub estimate: Estimate,
+    pub timing: TickTiming,
+    /// Groups over budget this tick: bit 0 fast, 1 perception, 2 policy.
+    pub overruns: u8,
+}
+
+impl TickSummary {
+    /// A summary of nothing (tick 0, no frame), for preallocated buffers.
+    pub fn empty() -> Self {
+        Self {
+            tick: TickTime::default(),
+            frame: FrameStatus::NoFrame,
+            operator: OperatorInput::default(),
+            policy_step: false,
+            perception_step: false,
+            mode: Mode::Startup,
+            tripped: None,
+            reset: false,
+            counters: SafetyCounters::default(),
+            clamped_targets: 0,
+            estimate: Estimate::default(),
+            timing: TickTiming::default(),
+            overruns: 0,
+        }
+    }
+}
+
+/// Overrun counts per group since start.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Overruns {
+    pub fast: u64,
+    pub perception: u64,
+    pub policy: u64,
+}
+
+pub struct Runtime {
+    controller: Controller,
+    supervisor: Supervisor,
+    perception_decimation: u64,
+    budget_ns: [u32; 3],
+    overruns: Overruns,
+    trip: Option<(u64, DampingReason)>,
+    estimate: Estimate,
+    stats: TimingStats,
+}
+
+impl Runtime {
+    pub fn new(controller: Controller) -> Self {
+        let spec = controller.spec();
+        let b = spec.rates.budget_us;
+        Self {
+            supervisor: Supervisor::new(spec, controller.enabled_slots()),
+            perception_decimation: spec.perception_decimation() as u64,
+            budget_ns: [b.fast * 1000, b.perception * 1000, b.policy * 1000],
+            overruns: Overruns::default(),
+            trip: None,
+            estimate: Estimate::default(),
+            stats: TimingStats::new(),
+            controller,
+        }
+    }
+
+    pub fn controller(&self) -> &Controller {
+        &self.controller
+    }
+    pub fn mode(&self) -> Mode {
+        self.controller.mode()
+    }
+    /// The first latched trip: tick and reason.
+    pub fn trip(&self) -> Option<(u64, DampingReason)> {
+        self.trip
+    }
+    pub fn overruns(&self) -> Overruns {
+        self.overruns
+    }
+    pub fn timing_stats(&self) -> &TimingStats {
+        &self.stats
+    }
+    pub fn counters(&self) -> SafetyCounters {
+        self.supervisor.counters()
+    }
+
+    fn latch(&mut self, k: u64, reason: DampingReason, summary: &mut TickSummary) {
+        if !matches!(self.controller.mode(), Mode::Damping(_)) {
+            self.controller.enter_damping(reason);
+            summary.tripped = Some(reason);
+            if self.trip.is_none() {
+                self.trip = Some((k, reason));
+            }
+        }
+    }
+
+    /// Latches damping from outside the tick (HAL failure), and writes the damping command.
+    pub fn fail_safe(&mut self, k: u64, reason: DampingReason, state: &LowState, out: &mut LowCommand) -> bool {
+        let was = matches!(self.controller.mode(), Mode::Damping(_));
+        self.controller.enter_damping(reason);
+        if !was && self.trip.is_none() {
+            self.trip = Some((k, reason));
+        }
+        self.controller.write_command(state, out);
+        !was
+    }
+
+    /// One control tick (steps 2–6 of the module doc; the caller did the read and does the write).
+    pub fn tick(
+        &mut self,
+        tick: TickTime,
+        frame: FrameStatus,
+        state: &LowState,
+        operator: OperatorInput,
+        out: &mut LowCommand,
+    ) -> TickSummary {
+        let k = tick.index;
+        let t0 = Instant::now();
+        let mut s = TickSummary {
+            tick,
+            frame,
+            operator,
+            policy_step: false,
+            perception_step: false,
+            mode: self.controller.mode(),
+            tripped: None,
+            reset: false,
+            counters: SafetyCounters::default(),
+            clamped_targets: 0,
+            estimate: self.estimate,
+            timing: TickTiming::default(),
+            overruns: 0,
+        };
+
+        // 2. estimate
+        let q = state.imu.quaternion;
+        self.estimate = Estimate {
+            projected_gravity: estimator::projected_gravity(q),
+            rpy: estimator::rpy(q),
+        };
+
+        // 3. safety and operator
+        if let Some(reason) = self.supervisor.check_frame(k, frame, state) {
+            self.latch(k, reason, &mut s);
+        }
+        if !operator.velocity.iter().all(|v| v.is_finite()) {
+            self.latch(k, DampingReason::NonFiniteInput, &mut s);
+        }
+        if operator.estop {
+            self.latch(k, DampingReason::EStop, &mut s);
+        } else if operator.reset && matches!(self.controller.mode(), Mode::Damping(_)) {
+            self.controller.restart(k, state);
+            self.supervisor.reset(k);
+            s.reset = true;
+        }
+        self.controller.advance(k, state);
+        let t1 = Instant::now();
+
+        // 4. perception group
+        let mut t2 = t1;
+        if k.is_multiple_of(self.perception_decimation) {
+            s.perception_step = true;
+            // The terrain pipeline (BEV, terrain token) runs here once it exists.
+            t2 = Instant::now();
+        }
+
+        // 5. policy group
+        let mut t3 = t2;
+        if self.controller.policy_due(k) {
+            s.policy_step = true;
+            if let Err(reason) = self.controller.policy_step(state, operator.velocity) {
+                self.latch(k, reason, &mut s);
+            }
+            t3 = Instant::now();
+        }
+
+        // 6. command
+        self.controller.write_command(state, out);
+        let t4 = Instant::now();
+
+        s.mode = self.controller.mode();
+        s.counters = self.supervisor.counters();
+        s.clamped_targets = self.controller.clamped_targets();
+        s.estimate = self.estimate;
+        s.timing = TickTiming {
+            fast_ns: ns(t1 - t0) + ns(t4 - t3),
+            perception_ns: if s.perception_step { ns(t2 - t1) } else { 0 },
+            policy_ns: if s.policy_step { ns(t3 - t2) } else { 0 },
+        };
+        let times = [s.timing.fast_ns, s.timing.perception_ns, s.timing.policy_ns];
+        let counts = [
+            &mut self.overruns.fast,
+            &mut self.overruns.perception,
+            &mut self.overruns.policy,
+        ];
+        for (g, count) in counts.into_iter().enumerate() {
+            if times[g] > self.budget_ns[g] {
+                *count += 1;
+                s.overruns |= 1 << g;
+            }
+        }
+        self.stats.add(&s.timing);
+        s
+    }
+}
+
+fn ns(d: std::time::Duration) -> u32 {
+    d.as_nanos().min(u32::MAX as u128) as u32
+}
+
+/// Fixed-size latency histograms (fast group and whole tick), 25 ns buckets up to 250 µs; slower
+/// ticks land in the last bucket and still count towards the exact maximum.
+pub struct TimingStats {
+    fast: Histogram,
+    total: Histogram,
+}
+
+const BUCKET_NS: u32 = 25;
+const BUCKETS: usize = 10_000;
+
+struct Histogram {
+    counts: Box<[u32; BUCKETS]>,
+    n: u64,
+    max_ns: u32,
+}
+
+impl Histogram {
+    fn new() -> Self {
+        Self {
+            counts: Box::new([0; BUCKETS]),
+            n: 0,
+            max_ns: 0,
+        }
+    }
+    fn add(&mut self, v: u32) {
+        self.counts[((v / BUCKET_NS) as usize).min(BUCKETS - 1)] += 1;
+        self.n += 1;
+        self.max_ns = self.max_ns.max(v);
+    }
+    /// Upper edge of the bucket holding quantile `p` (0..1), µs.
+    fn quantile_us(&self, p: f64) -> f64 {
+        let target = ((self.n as f64) * p).ceil().max(1.0) as u64;
+        let mut acc = 0u64;
+        for (i, &c) in self.counts.iter().enumerate() {
+            acc += c as u64;
+            if acc >= target {
+                return ((i as u32 + 1) * BUCKET_NS).min(self.max_ns) as f64 / 1000.0;
+            }
+        }
+        self.max_ns as f64 / 1000.0
+    }
+    fn summary(&self) -> LatencySummary {
+        LatencySummary {
+            ticks: self.n,
+            p50_us: self.quantile_us(0.5),
+            p99_us: self.quantile_us(0.99),
+            p999_us: self.quantile_us(0.999),
+            max_us: self.max_ns as f64 / 1000.0,
+        }
+    }
+}
+
+/// Latency percentiles, µs.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct LatencySummary {
+    pub ticks: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub p999_us: f64,
+    pub max_us: f64,
+}
+
+impl TimingStats {
+    fn new() -> Self {
+        Self {
+            fast: Histogram::new(),
+            total: Histogram::new(),
+        }
+    }
+    fn add(&mut self, t: &TickTiming) {
+        self.fast.add(t.fast_ns);
+        self.total.add(t.total_ns());
+    }
+    /// Fast group alone.
+    pub fn fast(&self) -> LatencySummary {
+        self.fast.summary()
+    }
+    /// Whole tick (fast + whichever groups ran).
+    pub fn tick(&self) -> LatencySummary {
+        self.total.summary()
+    }
+}
+
+/// What a HAL offers besides the traits, for logging and evaluation.
+pub trait FrameSource {
+    /// Wire bytes of the LowState frame that arrived on the newest tick (valid or not), if any.
+    fn received_frame(&self) -> Option<&[u8]>;
+    /// Simulator ground truth of the newest tick (evaluation only, never control).
+    fn truth(&self) -> Option<&sim_hal::bridge::Truth> {
+        None
+    }
+}
+
+/// Everything about one tick, for loggers, evaluators and the replay comparator.
+pub struct TickView<'a> {
+    pub summary: &'a TickSummary,
+    pub raw_state: Option<&'a [u8]>,
+    pub state: &'a LowState,
+    pub command: &'a LowCommand,
+    /// The command went to the HAL (false on the final tick and when the HAL failed first).
+    pub command_sent: bool,
+    pub runtime: &'a Runtime,
+    pub truth: Option<&'a sim_hal::bridge::Truth>,
+    /// The HAL failed on this tick (the loop ends after it).
+    pub hal_error: Option<HalFailure>,
+}
+
+/// A HAL failure and where it happened.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HalFailure {
+    pub kind: ErrorKind,
+    /// In `write_command` (this tick ran), rather than in `wait_tick` (the tick never came).
+    pub in_write: bool,
+}
+
+/// How a loop ended.
+#[derive(Debug)]
+pub enum LoopEnd {
+    /// Ran to the last tick.
+    Completed { ticks: u64 },
+    /// The observer asked to stop.
+    Stopped { ticks: u64 },
+    /// The HAL failed; damping was commanded best-effort.
+    HalError {
+        tick: u64,
+        kind: ErrorKind,
+        message: String,
+    },
+}
+
+/// Drives `runtime` from `hal` until tick `last_tick` (inclusive; no command is written on it, so a
+/// lock-stepped simulator stops there), the observer returns `false`, or the HAL fails.
+/// `observe` sees every tick, including the failing one. Allocation-free per tick when the HAL,
+/// operator source and observer are.
+pub fn run_loop<H, O>(
+    hal: &mut H,
+    rt: &mut Runtime,
+    operator: &mut O,
+    last_tick: u64,
+    mut observe: impl FnMut(&TickView) -> bool,
+) -> LoopEnd
+where
+    H: TimeBase + LowLevel + FrameSource,
+    O: OperatorSource,
+{
+    let mut state = LowState::default();
+    let mut cmd = LowCommand::default();
+    let mut k = 0u64;
+    loop {
+        let tick = match hal.wait_tick() {
+            Ok(t) => t,
+            Err(e) => {
+                let kind = hal::Error::kind(&e);
+                return fail(
+                    hal,
+                    rt,
+                    &mut state,
+                    &mut cmd,
+                    k,
+                    kind,
+                    e.to_string(),
+                    None,
+                    &mut observe,
+                );
+            }
+        };
+        k = tick.index;
+        let frame = match hal.read_state(&mut state) {
+            Ok(true) => FrameStatus::Fresh,
+            Ok(false) => FrameStatus::NoFrame,
+            Err(e) => FrameStatus::Bad(hal::Error::kind(&e)),
+        };
+        let op = operator.at(tick);
+        let summary = rt.tick(tick, frame, &state, op, &mut cmd);
+        let last = k >= last_tick;
+        if !last {
+            if let Err(e) = hal.write_command(&cmd) {
+                let kind = hal::Error::kind(&e);
+                return fail(
+                    hal,
+                    rt,
+                    &mut state,
+                    &mut cmd,
+                    k,
+                    kind,
+                    e.to_string(),
+                    Some(summary),
+                    &mut observe,
+                );
+            }
+        }
+        let go_on = observe(&TickView {
+            summary: &summary,
+            raw_state: hal.received_frame(),
+            state: &state,
+            command: &cmd,
+            command_sent: !last,
+            runtime: rt,
+            truth: hal.truth(),
+            hal_error: None,
+        });
+        if last {
+            return LoopEnd::Completed { ticks: k };
+        }
+        if !go_on {
+            return LoopEnd::Stopped { ticks: k };
+        }
+    }
+}
+
+/// HAL failure: latch damping, try once to send it, and let the observer record the tick.
+#[allow(clippy::too_many_arguments)]
+fn fail<H, F>(
+    hal: &mut H,
+    rt: &mut Runtime,
+    state: &mut LowState,
+    cmd: &mut LowCommand,
+    last_k: u64,
+    kind: ErrorKind,
+    message: String,
+    summary: Option<TickSummary>,
+    observe: &mut F,
+) -> LoopEnd
+where
+    H: TimeBase + LowLevel + FrameSource,
+    F: FnMut(&TickView) -> bool,
+{
+    // A failed wait means the tick after the last one never came; a failed write fails this tick.
+    let k = if summary.is_some() { last_k } else { last_k + 1 };
+    let tripped = rt.fail_safe(k, DampingReason::HalFault, state, cmd);
+    let sent = hal.write_command(cmd).is_ok();
+    let mut s = summary.unwrap_or_else(|| TickSummary {
+        tick: TickTime {
+            index: k,
+            time_ns: k * hal.period_ns(),
+        },
+        frame: FrameStatus::Bad(kind),
+        counters: rt.counters(),
+        clamped_targets: rt.controller().clamped_targets(),
+        ..TickSummary::empty()
+    });
+    s.mode = rt.mode();
+    if tripped {
+        s.tripped = Some(DampingReason::HalFault);
+    }
+    observe(&TickView {
+        summary: &s,
+        raw_state: None,
+        state,
+        command: cmd,
+        command_sent: sent,
+        runtime: rt,
+        truth: None,
+        hal_error: Some(HalFailure {
+            kind,
+            in_write: summary.is_some(),
+        }),
+    });
+    LoopEnd::HalError { tick: k, kind, message }
+}
