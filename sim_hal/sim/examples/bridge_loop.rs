@@ -23,6 +23,7 @@ fn main() {
     let opts = ServeOptions {
         spin: Duration::from_micros(spin_us),
         quiet: true,
+        ..ServeOptions::default()
     };
     let (tx, rx) = std::sync::mpsc::channel();
     let server = std::thread::spawn(move || serve_unix(&p2, &mut sim, &opts, || tx.send(()).unwrap()));

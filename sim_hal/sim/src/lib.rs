@@ -8,12 +8,15 @@
 //!   clamped to the joint's effort limit and written to the slot's motor actuator `ctrl` (gear 1,
 //!   so `ctrl` is the joint torque and shows up in `actuator_force`). It fills unitree_hg
 //!   [`LowState`]s and privileged [`Truth`].
+//! - [`faults`] parses `--fault` specs into a tick-indexed [`faults::FaultPlan`] (dropped, delayed,
+//!   corrupted frames, sensor and motor faults, disconnects) that the server injects.
 //! - [`server`] serves one bridge client over a Unix or loopback TCP socket with the protocol in
 //!   `sim_hal::bridge::protocol`; the `g1-sim` binary wraps it.
 //!
 //! The per-tick path (`apply_command` → `step_control_tick` → `low_state`, and the server's
 //! message loop) does not allocate. Runs are deterministic: same model, config and commands give
 //! bit-identical states (optional IMU noise comes from a seeded PRNG).
+pub mod faults;
 pub mod model;
 pub mod server;
 pub mod slots;
@@ -93,6 +96,19 @@ struct SlotCmd {
     kd: f64,
 }
 
+/// A simulated motor-driver fault (see [`Simulator::set_motor_fault`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum MotorFault {
+    /// The driver runs its PD law on the joint's real state.
+    #[default]
+    Healthy,
+    /// Stuck encoder: the driver's PD law sees this position (rad) and velocity (rad/s) instead of
+    /// the joint's; the joint itself still moves under the resulting torque.
+    StuckEncoder { q: f64, dq: f64 },
+    /// The driver produces no torque at all.
+    Dead,
+}
+
 /// SplitMix64 + Box–Muller: tiny, seedable, allocation-free, and no dependency.
 #[derive(Clone, Debug)]
 struct Rng(u64);
@@ -121,6 +137,10 @@ pub struct Simulator {
     slots: Vec<SlotMap>,
     present: u64,
     cmd: [SlotCmd; NUM_MOTORS],
+    motor_fault: [MotorFault; NUM_MOTORS],
+    /// Some slot is not `Healthy`: the physics step only looks at `motor_fault` when set, so the
+    /// fault-free path stays as it was.
+    any_motor_fault: bool,
     /// Torque applied at the last physics step, per slot.
     tau_applied: [f64; NUM_MOTORS],
     initial_qpos: Vec<f64>,
@@ -159,6 +179,8 @@ impl Simulator {
             slots: l.slots,
             present: l.present,
             cmd: [SlotCmd::default(); NUM_MOTORS],
+            motor_fault: [MotorFault::Healthy; NUM_MOTORS],
+            any_motor_fault: false,
             tau_applied: [0.0; NUM_MOTORS],
             initial_qpos: l.initial_qpos,
             config,
@@ -179,8 +201,11 @@ impl Simulator {
         Ok(sim)
     }
 
-    /// Back to the initial state: all motors disabled, step counter 0, noise generator reseeded.
+    /// Back to the initial state: all motors disabled and healthy, step counter 0, noise generator
+    /// reseeded.
     pub fn reset(&mut self) {
+        self.motor_fault = [MotorFault::Healthy; NUM_MOTORS];
+        self.any_motor_fault = false;
         self.data.reset();
         self.data.qpos_mut().copy_from_slice(&self.initial_qpos);
         // Positions, velocities and sensors of the initial state, so the first LowState is real.
@@ -215,6 +240,21 @@ impl Simulator {
         Ok(())
     }
 
+    /// Injects (or clears, with `Healthy`) a driver fault on motor slot `slot`; it acts from the
+    /// next physics step until changed. Slots the model does not drive are ignored (they have no
+    /// driver), as are slots past the 35 of unitree_hg.
+    pub fn set_motor_fault(&mut self, slot: usize, fault: MotorFault) {
+        if let Some(f) = self.motor_fault.get_mut(slot) {
+            *f = fault;
+        }
+        self.any_motor_fault = self.motor_fault.iter().any(|f| *f != MotorFault::Healthy);
+    }
+
+    /// The driver fault currently injected on `slot`.
+    pub fn motor_fault(&self, slot: usize) -> MotorFault {
+        self.motor_fault.get(slot).copied().unwrap_or_default()
+    }
+
     /// One physics step: the motor law from the current state, then `mj_step`.
     fn physics_step(&mut self) {
         let mut tau = [0.0f64; NUM_MOTORS];
@@ -222,8 +262,16 @@ impl Simulator {
             let (qpos, qvel) = (self.data.qpos(), self.data.qvel());
             for (t, s) in tau.iter_mut().zip(&self.slots) {
                 let c = &self.cmd[s.slot];
+                let (mut q, mut dq) = (qpos[s.qpos_adr], qvel[s.dof_adr]);
+                if self.any_motor_fault {
+                    match self.motor_fault[s.slot] {
+                        MotorFault::Healthy => {}
+                        MotorFault::StuckEncoder { q: qs, dq: dqs } => (q, dq) = (qs, dqs),
+                        MotorFault::Dead => continue,
+                    }
+                }
                 if c.enabled {
-                    let raw = c.tau + c.kp * (c.q - qpos[s.qpos_adr]) + c.kd * (c.dq - qvel[s.dof_adr]);
+                    let raw = c.tau + c.kp * (c.q - q) + c.kd * (c.dq - dq);
                     *t = raw.clamp(s.tau_lo, s.tau_hi);
                 }
             }

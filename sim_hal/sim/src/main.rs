@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
+use g1_sim::faults::FaultPlan;
 use g1_sim::server::{self, ServeOptions, SessionEnd};
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use hal::LowState;
@@ -13,8 +14,9 @@ use hal::LowState;
 ///
 /// Serves exactly one client (Hello → Welcome; per LowCmd one control tick → LowState), then
 /// exits 0 on Bye or disconnect. Exit status 3: the client sent a malformed LowCmd (bad CRC,
-/// length or non-finite value); 2: another protocol error; 1: setup failure. An Error message
-/// with the reason is sent to the client before exiting on an error.
+/// length or non-finite value); 2: another protocol error; 1: setup failure (including a bad
+/// --fault); 4: a `disconnect` fault closed the connection as planned. An Error message with the
+/// reason is sent to the client before exiting on an error.
 #[derive(Parser, Debug)]
 #[command(name = "g1-sim", version)]
 struct Cli {
@@ -62,9 +64,17 @@ struct Cli {
     #[arg(long, value_name = "US", default_value_t = 20)]
     spin_us: u64,
 
-    /// Do not print progress to stderr.
+    /// Do not print progress (or the active faults) to stderr.
     #[arg(long)]
     quiet: bool,
+
+    /// Inject a fault, repeatable: KIND@START_S[+DURATION_S][:ARG], active on LowState ticks k
+    /// with round(START/control_dt) <= k < round((START+DURATION)/control_dt); no duration = until
+    /// the end. Kinds: drop, delay:N (send tick k-N's frame), corrupt (CRC fails), imu-nan,
+    /// freeze-joint:SLOT (stuck encoder), motor-dead:SLOT, overheat:SLOT, disconnect (close the
+    /// connection, exit 4). Deterministic. E.g. --fault drop@1+0.02 --fault motor-dead@2:3
+    #[arg(long = "fault", value_name = "SPEC")]
+    faults: Vec<String>,
 
     /// Benchmark instead of serving: simulate SECONDS of simulated time with the same model and
     /// PD law holding the initial pose, no sockets or codecs, and print one JSON line
@@ -72,6 +82,9 @@ struct Cli {
     #[arg(long, value_name = "SECONDS")]
     bench_bare: Option<f64>,
 }
+
+/// Exit status after a `disconnect` fault ended the session as planned.
+const FAULT_DISCONNECT_EXIT: u8 = 4;
 
 fn parse_noise(s: &str) -> Result<(f64, f64), String> {
     let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
@@ -120,16 +133,28 @@ fn run(cli: Cli) -> Result<ExitCode> {
         imu_noise: cli.imu_noise,
     };
     let model_name = cli.model.to_string();
+    // Syntax errors before the (slow) model load; slot checks need the model.
+    let faults = FaultPlan::parse(&cli.faults)?;
     let mut sim = Simulator::load(cli.model, config).with_context(|| format!("loading model {model_name}"))?;
     if let Some(seconds) = cli.bench_bare {
+        if !faults.is_empty() {
+            bail!("--fault has no effect with --bench-bare (no bridge to inject into)");
+        }
         bench_bare(&mut sim, seconds)?;
         return Ok(ExitCode::SUCCESS);
+    }
+    let schedule = faults.schedule(config.control_dt, sim.motor_slots_present())?;
+    let quiet = cli.quiet;
+    if !quiet {
+        for (spec, f) in faults.faults.iter().zip(&schedule) {
+            eprintln!("g1-sim: fault '{}': {f}", spec.text);
+        }
     }
     let opts = ServeOptions {
         spin: Duration::from_micros(cli.spin_us),
         quiet: cli.quiet,
+        faults,
     };
-    let quiet = cli.quiet;
     let info = format!(
         "model {model_name}, {} motor slots, physics dt {} s, {} step(s) per tick",
         sim.motor_slots_present().count_ones(),
@@ -154,13 +179,19 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 let how = match s.end {
                     SessionEnd::Bye => "client said Bye",
                     SessionEnd::Disconnected => "client disconnected",
+                    SessionEnd::FaultDisconnect => "disconnect fault closed the connection",
                 };
                 eprintln!(
                     "g1-sim: {how} after {} ticks ({:.3} s simulated)",
                     s.ticks, s.sim_time_s
                 );
             }
-            Ok(ExitCode::SUCCESS)
+            Ok(match s.end {
+                // Distinct from a normal end so a harness can tell the planned cut from a crash
+                // or a clean session.
+                SessionEnd::FaultDisconnect => ExitCode::from(FAULT_DISCONNECT_EXIT),
+                SessionEnd::Bye | SessionEnd::Disconnected => ExitCode::SUCCESS,
+            })
         }
         Err(e) => {
             eprintln!("g1-sim: error: {e}");

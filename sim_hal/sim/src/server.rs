@@ -4,6 +4,9 @@
 //! tick → `LowState` (+ `Truth`); `Bye` or a clean disconnect ends the session. Any protocol
 //! violation is answered with an `Error` message naming it (best effort) before the session ends;
 //! [`ServeError::exit_code`] maps it to the process exit status (3 for a malformed `LowCmd`).
+//!
+//! [`ServeOptions::faults`] injects the faults of a [`FaultPlan`] on their ticks (see
+//! [`crate::faults`]); a `disconnect` fault ends the session with [`SessionEnd::FaultDisconnect`].
 use std::io::{self, BufReader, Read, Write};
 use std::net::{TcpListener, ToSocketAddrs};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -13,18 +16,24 @@ use std::time::Duration;
 use hal::{LowCommand, LowState};
 use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, DecodeError, LOW_STATE_LEN};
 pub use sim_hal::bridge::Blocking;
-use sim_hal::bridge::{append_msg, read_msg, write_msg, Kind, ProtocolError, SpinStream, Welcome, PROTOCOL_VERSION};
+use sim_hal::bridge::{
+    append_msg, append_msg_flags, read_msg, write_msg, Kind, ProtocolError, SpinStream, Welcome, FLAG_NO_FRAME,
+    PROTOCOL_VERSION,
+};
 
+use crate::faults::{FaultInjector, FaultPlan, Wire};
 use crate::Simulator;
 
 /// Session settings.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct ServeOptions {
     /// How long a read spins on a non-blocking socket before blocking. Saves the wake-up latency
     /// of a blocking read when the client answers within a few µs; 0 disables spinning.
     pub spin: Duration,
     /// No progress messages on stderr.
     pub quiet: bool,
+    /// Faults to inject (empty: none).
+    pub faults: FaultPlan,
 }
 
 impl Default for ServeOptions {
@@ -32,6 +41,7 @@ impl Default for ServeOptions {
         Self {
             spin: Duration::from_micros(20),
             quiet: false,
+            faults: FaultPlan::default(),
         }
     }
 }
@@ -43,6 +53,8 @@ pub enum SessionEnd {
     Bye,
     /// The client closed the connection.
     Disconnected,
+    /// A `disconnect` fault closed the connection (`g1-sim` exits with status 4).
+    FaultDisconnect,
 }
 
 /// Summary of a finished session.
@@ -110,17 +122,36 @@ struct Bufs {
     cmd: LowCommand,
 }
 
-fn send_state<W: Write>(w: &mut W, sim: &Simulator, truth: bool, b: &mut Bufs) -> Result<(), ServeError> {
+/// Sends LowState tick `k` (+ `Truth`), through the fault injector if there is one. Returns
+/// `false` when a `disconnect` fault says to close instead (nothing was sent).
+fn send_state<W: Write>(
+    w: &mut W,
+    sim: &mut Simulator,
+    truth: bool,
+    b: &mut Bufs,
+    faults: Option<&mut FaultInjector>,
+    k: u64,
+) -> Result<bool, ServeError> {
     sim.low_state(&mut b.state);
-    encode_low_state(&b.state, &mut b.state_bytes);
+    let wire = match faults {
+        None => {
+            encode_low_state(&b.state, &mut b.state_bytes);
+            Wire::Frame
+        }
+        Some(f) => f.apply(k, sim, &mut b.state, &mut b.state_bytes),
+    };
     b.scratch.clear();
-    append_msg(&mut b.scratch, Kind::LowState, &b.state_bytes);
+    match wire {
+        Wire::Frame => append_msg(&mut b.scratch, Kind::LowState, &b.state_bytes),
+        Wire::NoFrame => append_msg_flags(&mut b.scratch, Kind::LowState, FLAG_NO_FRAME, &[]),
+        Wire::Disconnect => return Ok(false),
+    }
     if truth {
         append_msg(&mut b.scratch, Kind::Truth, &sim.truth().encode());
     }
     // One write for both messages: one wake-up of the client per tick.
     w.write_all(&b.scratch)?;
-    Ok(())
+    Ok(true)
 }
 
 /// Serves one client on an accepted stream until `Bye`, disconnect or error. On error an
@@ -138,7 +169,7 @@ pub fn serve_stream<S: Read + Write + Blocking>(
         state_bytes: [0; LOW_STATE_LEN],
         cmd: LowCommand::default(),
     };
-    let r = session(&mut s, sim, &mut b);
+    let r = session(&mut s, sim, &mut b, &opts.faults);
     if let Err(e) = &r {
         // The peer may be gone already (that is often why we failed); ignore send errors.
         if !matches!(
@@ -151,7 +182,14 @@ pub fn serve_stream<S: Read + Write + Blocking>(
     r
 }
 
-fn session<S: Read + Write>(s: &mut S, sim: &mut Simulator, b: &mut Bufs) -> Result<SessionSummary, ServeError> {
+fn session<S: Read + Write>(
+    s: &mut S,
+    sim: &mut Simulator,
+    b: &mut Bufs,
+    plan: &FaultPlan,
+) -> Result<SessionSummary, ServeError> {
+    let mut faults = FaultInjector::new(plan, sim.config().control_dt, sim.motor_slots_present())
+        .map_err(|e| ServeError::Setup(e.to_string()))?;
     // Hello: version u32 LE, want_truth u8, 3 zero bytes.
     let want_truth = match read_msg(s, &mut b.payload)? {
         Kind::Hello => {
@@ -181,7 +219,14 @@ fn session<S: Read + Write>(s: &mut S, sim: &mut Simulator, b: &mut Bufs) -> Res
         control_dt_ns: (cfg.physics_dt * 1e9).round() as u64 * sim.substeps() as u64,
     };
     write_msg(s, Kind::Welcome, &welcome.encode(), &mut b.scratch)?;
-    send_state(s, sim, want_truth, b)?;
+    let fault_disconnect = |ticks, sim: &Simulator| SessionSummary {
+        end: SessionEnd::FaultDisconnect,
+        ticks,
+        sim_time_s: sim.time(),
+    };
+    if !send_state(s, sim, want_truth, b, faults.as_mut(), 0)? {
+        return Ok(fault_disconnect(0, sim));
+    }
 
     let mut ticks = 0u64;
     loop {
@@ -202,7 +247,9 @@ fn session<S: Read + Write>(s: &mut S, sim: &mut Simulator, b: &mut Bufs) -> Res
                 sim.apply_command(&b.cmd).expect("decoder rejects non-finite fields");
                 sim.step_control_tick();
                 ticks += 1;
-                send_state(s, sim, want_truth, b)?;
+                if !send_state(s, sim, want_truth, b, faults.as_mut(), ticks)? {
+                    return Ok(fault_disconnect(ticks, sim));
+                }
             }
             Kind::Bye => {
                 return Ok(SessionSummary {

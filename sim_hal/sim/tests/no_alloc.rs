@@ -53,3 +53,69 @@ fn control_tick_path_does_not_allocate() {
     ARMED.with(|a| a.set(false));
     assert_eq!(COUNT.with(|c| c.get()), 0, "allocations on the per-tick path");
 }
+
+#[test]
+fn fault_injector_does_not_allocate_per_tick() {
+    use g1_sim::faults::{FaultInjector, FaultPlan};
+    let mut sim = common::load29();
+    let cmd = sim.hold_initial_pose_command();
+    sim.apply_command(&cmd).unwrap();
+    let plan = FaultPlan::parse([
+        "drop@0.01+0.01",
+        "delay@0.02+0.02:5",
+        "corrupt@0.05+0.01",
+        "imu-nan@0.07+0.01",
+        "freeze-joint@0.02+0.1:3",
+        "motor-dead@0.04:20",
+        "overheat@0:1",
+    ])
+    .unwrap();
+    let mut inj = FaultInjector::new(&plan, 0.002, sim.motor_slots_present())
+        .unwrap()
+        .unwrap();
+    let (mut st, mut bytes) = (LowState::default(), [0u8; LOW_STATE_LEN]);
+    ARMED.with(|a| a.set(true));
+    for k in 0..200 {
+        sim.low_state(&mut st);
+        inj.apply(k, &mut sim, &mut st, &mut bytes);
+        sim.step_control_tick();
+    }
+    ARMED.with(|a| a.set(false));
+    assert_eq!(COUNT.with(|c| c.get()), 0, "allocations while injecting faults");
+}
+
+#[test]
+fn bridge_client_does_not_allocate_per_tick_even_with_faults() {
+    use g1_sim::faults::FaultPlan;
+    use g1_sim::server::{serve_unix, ServeOptions};
+    use hal::{LowLevel, TimeBase};
+    use sim_hal::bridge::BridgeHal;
+    use std::time::Duration;
+    let mut sim = common::load29();
+    let cmd = sim.hold_initial_pose_command();
+    let opts = ServeOptions {
+        faults: FaultPlan::parse(["drop@0.02+0.02", "corrupt@0.06+0.02", "delay@0.1+0.02:3"]).unwrap(),
+        ..ServeOptions::default()
+    };
+    let path = std::env::temp_dir().join(format!("g1-sim-noalloc-{}.sock", std::process::id()));
+    let p2 = path.clone();
+    // The server thread's allocations are not counted (the counter is per thread).
+    let server = std::thread::spawn(move || serve_unix(&p2, &mut sim, &opts, || {}));
+    let mut hal = BridgeHal::connect_unix(&path, true, Duration::from_secs(20), || Ok(())).unwrap();
+    let mut st = LowState::default();
+    let mut tick = |hal: &mut BridgeHal| {
+        hal.wait_tick().unwrap();
+        let _ = hal.read_state(&mut st);
+        hal.write_command(&cmd).unwrap();
+    };
+    tick(&mut hal); // warm-up: buffers reach their size
+    ARMED.with(|a| a.set(true));
+    for _ in 0..100 {
+        tick(&mut hal);
+    }
+    ARMED.with(|a| a.set(false));
+    assert_eq!(COUNT.with(|c| c.get()), 0, "allocations on the client's per-tick path");
+    hal.wait_tick().unwrap();
+    hal.close();
+    server.join().unwrap().unwrap();
+}

@@ -1,4 +1,21 @@
 //! The firmware's side of the bridge: a HAL whose time base is the simulator's lock-stepped tick.
+//!
+//! Per tick, [`TimeBase::wait_tick`] receives whatever the simulator sent for that tick and fails
+//! only when the link itself is broken (closed socket, lost sync, wrong message kind). What the
+//! tick brought is reported once by [`LowLevel::read_state`]:
+//!
+//! | this tick                                       | `read_state`               | `out`           |
+//! |-------------------------------------------------|----------------------------|-----------------|
+//! | a frame that decodes                            | `Ok(true)`                 | that frame      |
+//! | no frame (`FLAG_NO_FRAME`), or already read     | `Ok(false)`                | last good state |
+//! | a frame that fails to decode (CRC, length, NaN) | `Err(BridgeError::Decode)` | last good state |
+//!
+//! A bad frame is a sensor-side fault the controller decides about (like a stale one), not a dead
+//! link, so it no longer ends `wait_tick`. Decoding is exactly
+//! [`sensor_io::unitree_hg::decode_low_state`] on the received bytes, so a replay that re-decodes
+//! the logged [`BridgeHal::state_frame`] reproduces every result; it decodes into a scratch state so
+//! a half-written bad frame never leaks out. "Last good state" before any good frame is
+//! `LowState::default()`.
 use std::io::{BufReader, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::os::unix::net::UnixStream;
@@ -8,7 +25,9 @@ use std::time::{Duration, Instant};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
-use super::protocol::{read_expect, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
+use super::protocol::{
+    read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME, PROTOCOL_VERSION,
+};
 use super::spin::SpinStream;
 
 #[derive(Debug, thiserror::Error)]
@@ -83,9 +102,18 @@ pub struct BridgeHal {
     stream: BufReader<Stream>,
     welcome: Welcome,
     want_truth: bool,
+    /// Last frame that decoded.
     state: LowState,
+    /// Decode target, copied to `state` only on success.
+    decoded: LowState,
+    /// Newest received frame, exactly as received (any length); swapped with `payload`, not copied.
+    frame: Vec<u8>,
+    /// `frame` padded with zeros / cut to the unitree_hg length, for fixed-size logs.
     state_bytes: [u8; LOW_STATE_LEN],
-    fresh: bool,
+    /// A frame (good or bad) arrived on the newest tick.
+    frame_received: bool,
+    /// This tick's `read_state` result, until it is read: `Some(Ok)` fresh, `Some(Err)` bad frame.
+    pending: Option<Result<(), DecodeError>>,
     truth: Truth,
     cmd_bytes: [u8; LOW_CMD_LEN],
     /// A command was written since the last tick (so the simulator is stepping).
@@ -167,8 +195,11 @@ impl BridgeHal {
             welcome,
             want_truth,
             state: LowState::default(),
+            decoded: LowState::default(),
+            frame: Vec::with_capacity(LOW_STATE_LEN),
             state_bytes: [0; LOW_STATE_LEN],
-            fresh: false,
+            frame_received: false,
+            pending: None,
             truth: Truth::default(),
             cmd_bytes: [0; LOW_CMD_LEN],
             command_sent: false,
@@ -182,18 +213,49 @@ impl BridgeHal {
         Ok(hal)
     }
 
+    /// Receives one tick's `LowState` (and `Truth`). Fails only on transport / protocol errors; a
+    /// frame that does not decode is kept in `pending` for `read_state`.
     fn receive_state(&mut self) -> Result<(), BridgeError> {
-        read_expect(&mut self.stream, &mut self.payload, Kind::LowState)?;
-        // Keep the raw bytes (for logs) even when they fail to decode.
-        let n = self.payload.len().min(LOW_STATE_LEN);
-        self.state_bytes[..n].copy_from_slice(&self.payload[..n]);
-        let decoded = decode_low_state(&self.payload, &mut self.state);
+        let flags = read_expect_flags(&mut self.stream, &mut self.payload, Kind::LowState)?;
+        match flags {
+            0 => {
+                // Keep the raw bytes (for logs) even when they fail to decode. Swapping keeps both
+                // buffers' capacity, so no allocation per tick.
+                std::mem::swap(&mut self.frame, &mut self.payload);
+                let n = self.frame.len().min(LOW_STATE_LEN);
+                self.state_bytes[..n].copy_from_slice(&self.frame[..n]);
+                self.state_bytes[n..].fill(0);
+                self.frame_received = true;
+                let decoded = decode_low_state(&self.frame, &mut self.decoded);
+                if decoded.is_ok() {
+                    self.state = self.decoded;
+                }
+                self.pending = Some(decoded);
+            }
+            FLAG_NO_FRAME if self.payload.is_empty() => {
+                self.frame_received = false;
+                self.pending = None;
+            }
+            FLAG_NO_FRAME => {
+                return Err(ProtocolError::BadLength {
+                    kind: Kind::LowState,
+                    expected: 0,
+                    got: self.payload.len(),
+                }
+                .into())
+            }
+            flags => {
+                return Err(ProtocolError::BadFlags {
+                    kind: Kind::LowState,
+                    flags,
+                }
+                .into())
+            }
+        }
         if self.want_truth {
             read_expect(&mut self.stream, &mut self.payload, Kind::Truth)?;
             self.truth = Truth::decode(&self.payload)?;
         }
-        decoded?;
-        self.fresh = true;
         Ok(())
     }
 
@@ -206,9 +268,23 @@ impl BridgeHal {
         &self.truth
     }
 
-    /// Raw bytes of the newest LowState frame (for logging).
+    /// Raw bytes of the newest received LowState frame, good or bad (for logging); unchanged on a
+    /// tick without a frame. A frame of the wrong length is cut or zero-padded to fit, so only
+    /// [`Self::state_frame`] reproduces a length error on replay; all other results re-decode
+    /// identically from these bytes.
     pub fn state_bytes(&self) -> &[u8; LOW_STATE_LEN] {
         &self.state_bytes
+    }
+
+    /// The newest received LowState frame exactly as it arrived (any length; empty before the first).
+    pub fn state_frame(&self) -> &[u8] {
+        &self.frame
+    }
+
+    /// A LowState frame (good or bad) arrived on the newest tick; `false` when the simulator sent
+    /// `FLAG_NO_FRAME` (the frame was dropped).
+    pub fn frame_received(&self) -> bool {
+        self.frame_received
     }
 
     /// Raw bytes of the newest LowCmd frame sent.
@@ -255,9 +331,15 @@ impl TimeBase for BridgeHal {
 impl LowLevel for BridgeHal {
     type Error = BridgeError;
 
+    /// See the module doc: `Ok(true)` fresh frame, `Ok(false)` none (dropped or already read),
+    /// `Err(Decode)` bad frame; `out` is the newest frame that decoded in every case.
     fn read_state(&mut self, out: &mut LowState) -> Result<bool, BridgeError> {
         *out = self.state;
-        Ok(std::mem::take(&mut self.fresh))
+        match self.pending.take() {
+            Some(Ok(())) => Ok(true),
+            Some(Err(e)) => Err(BridgeError::Decode(e)),
+            None => Ok(false),
+        }
     }
 
     fn write_command(&mut self, cmd: &LowCommand) -> Result<(), BridgeError> {

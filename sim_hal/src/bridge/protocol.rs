@@ -7,11 +7,19 @@
 //! 3. per tick: client → `LowCmd` (1004 B unitree_hg frame); server steps one control tick →
 //!    `LowState` (2092 B) and, if asked, `Truth` ([`Truth`])
 //! 4. client → `Bye`; or server → `Error` (UTF-8 text) before closing.
+//!
+//! Flags (header byte 3): [`FLAG_NO_FRAME`] on a `LowState` means "this tick produced no frame"
+//! (the simulator's fault injection dropped it); its payload is then empty, and the lock-step still
+//! advanced one tick (the `Truth` of that tick follows if asked). All other bits, and any flag on
+//! other kinds, are reserved and sent as zero. Version 2 introduced the flag; version 1 peers are
+//! refused at `Hello`.
 use std::io::{self, Read, Write};
 
 pub const MAGIC: [u8; 2] = *b"G1";
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 pub const HEADER_LEN: usize = 8;
+/// `LowState` flag: no frame this tick (dropped); the payload is empty.
+pub const FLAG_NO_FRAME: u8 = 1 << 0;
 /// Largest payload either side accepts (guards against a corrupted length field).
 pub const MAX_PAYLOAD: usize = 1 << 20;
 
@@ -58,6 +66,8 @@ pub enum ProtocolError {
     Unexpected { expected: Kind, got: Kind },
     #[error("{kind:?} payload is {got} bytes, expected {expected}")]
     BadLength { kind: Kind, expected: usize, got: usize },
+    #[error("{kind:?} message has flags {flags:#04x}, which this protocol version does not define")]
+    BadFlags { kind: Kind, flags: u8 },
     #[error("simulator reported: {0}")]
     Remote(String),
 }
@@ -65,23 +75,45 @@ pub enum ProtocolError {
 /// Writes one message. `scratch` avoids an allocation per message: header and payload go out in one
 /// write so a message is never split across two syscalls on the lock-stepped path.
 pub fn write_msg<W: Write>(w: &mut W, kind: Kind, payload: &[u8], scratch: &mut Vec<u8>) -> Result<(), ProtocolError> {
+    write_msg_flags(w, kind, 0, payload, scratch)
+}
+
+/// [`write_msg`] with header flags (e.g. [`FLAG_NO_FRAME`]).
+pub fn write_msg_flags<W: Write>(
+    w: &mut W,
+    kind: Kind,
+    flags: u8,
+    payload: &[u8],
+    scratch: &mut Vec<u8>,
+) -> Result<(), ProtocolError> {
     scratch.clear();
-    append_msg(scratch, kind, payload);
+    append_msg_flags(scratch, kind, flags, payload);
     w.write_all(scratch)?;
     Ok(())
 }
 
 /// Appends one framed message to `buf`, so several can leave in one write (one wake-up of the peer).
 pub fn append_msg(buf: &mut Vec<u8>, kind: Kind, payload: &[u8]) {
+    append_msg_flags(buf, kind, 0, payload);
+}
+
+/// [`append_msg`] with header flags (e.g. [`FLAG_NO_FRAME`]).
+pub fn append_msg_flags(buf: &mut Vec<u8>, kind: Kind, flags: u8, payload: &[u8]) {
     buf.extend_from_slice(&MAGIC);
     buf.push(kind as u8);
-    buf.push(0);
+    buf.push(flags);
     buf.extend_from_slice(&(payload.len() as u32).to_le_bytes());
     buf.extend_from_slice(payload);
 }
 
-/// Reads one message into `payload` (resized, capacity reused). Returns its kind.
+/// Reads one message into `payload` (resized, capacity reused). Returns its kind; flags are
+/// ignored (see [`read_msg_flags`]).
 pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, ProtocolError> {
+    read_msg_flags(r, payload).map(|(kind, _)| kind)
+}
+
+/// Reads one message into `payload` (resized, capacity reused). Returns its kind and header flags.
+pub fn read_msg_flags<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<(Kind, u8), ProtocolError> {
     let mut h = [0u8; HEADER_LEN];
     if let Err(e) = r.read_exact(&mut h) {
         return Err(if e.kind() == io::ErrorKind::UnexpectedEof {
@@ -109,14 +141,19 @@ pub fn read_msg<R: Read>(r: &mut R, payload: &mut Vec<u8>) -> Result<Kind, Proto
     if kind == Kind::Error {
         return Err(ProtocolError::Remote(String::from_utf8_lossy(payload).into_owned()));
     }
-    Ok(kind)
+    Ok((kind, h[3]))
 }
 
-/// Reads one message that must be of kind `expected` (payload into `payload`).
+/// Reads one message that must be of kind `expected` (payload into `payload`); flags ignored.
 pub fn read_expect<R: Read>(r: &mut R, payload: &mut Vec<u8>, expected: Kind) -> Result<(), ProtocolError> {
-    match read_msg(r, payload)? {
-        got if got == expected => Ok(()),
-        got => Err(ProtocolError::Unexpected { expected, got }),
+    read_expect_flags(r, payload, expected).map(|_| ())
+}
+
+/// Reads one message that must be of kind `expected` (payload into `payload`); returns its flags.
+pub fn read_expect_flags<R: Read>(r: &mut R, payload: &mut Vec<u8>, expected: Kind) -> Result<u8, ProtocolError> {
+    match read_msg_flags(r, payload)? {
+        (got, flags) if got == expected => Ok(flags),
+        (got, _) => Err(ProtocolError::Unexpected { expected, got }),
     }
 }
 
@@ -261,6 +298,25 @@ mod tests {
         assert!(
             matches!(read_msg(&mut err.as_slice(), &mut p), Err(ProtocolError::Remote(m)) if m == "model not found")
         );
+    }
+
+    #[test]
+    fn flags_round_trip_and_plain_readers_ignore_them() {
+        let (mut wire, mut scratch, mut p) = (Vec::new(), Vec::new(), vec![9u8; 4]);
+        write_msg_flags(&mut wire, Kind::LowState, FLAG_NO_FRAME, &[], &mut scratch).unwrap();
+        append_msg_flags(&mut wire, Kind::Truth, 0, &[7]);
+        assert_eq!(wire[3], FLAG_NO_FRAME);
+        let mut r = wire.as_slice();
+        assert_eq!(read_msg_flags(&mut r, &mut p).unwrap(), (Kind::LowState, FLAG_NO_FRAME));
+        assert!(p.is_empty());
+        assert_eq!(read_expect_flags(&mut r, &mut p, Kind::Truth).unwrap(), 0);
+        assert_eq!(p, [7]);
+        assert_eq!(read_msg(&mut wire.as_slice(), &mut p).unwrap(), Kind::LowState);
+        read_expect(&mut wire.as_slice(), &mut p, Kind::LowState).unwrap();
+        // The unflagged writers still write a zero flags byte.
+        let mut plain = Vec::new();
+        append_msg(&mut plain, Kind::Bye, &[]);
+        assert_eq!(plain, [b'G', b'1', Kind::Bye as u8, 0, 0, 0, 0, 0]);
     }
 
     #[test]
