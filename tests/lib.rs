@@ -67,3 +67,35 @@ pub fn read_tensor(path: &Path, name: &str) -> (Vec<usize>, Vec<f64>) {
     };
     (t.shape().to_vec(), vals)
 }
+
+/// The project's Python (created by scripts/install.sh), for independent readers and peers.
+/// `None` (after a loud message; a failure under CI) when it is missing.
+pub fn venv_python(what: &str) -> Option<PathBuf> {
+    let p = repo_root().join(".venv/bin/python");
+    if p.is_file() {
+        return Some(p);
+    }
+    let msg = format!("SKIP: {what} needs the project's Python environment (.venv); run scripts/install.sh");
+    if std::env::var_os("CI").is_some() {
+        panic!("{msg} — and CI must have it");
+    }
+    eprintln!("\n!!!!!!!! {msg} !!!!!!!!\n");
+    None
+}
+
+/// A fresh scratch directory under the system temp dir, unique per test.
+pub fn scratch_dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("g1-it-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+/// Runs the built `g1fw` with `args` from the repository root.
+pub fn g1fw(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(built_bin("g1fw"))
+        .args(args)
+        .current_dir(repo_root())
+        .output()
+        .expect("g1fw runs")
+}

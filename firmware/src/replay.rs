@@ -439,7 +439,9 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     };
     let mut op = RecordedOperator { rec: &rec, i: 0 };
     let last = rec.ticks.last().expect("non-empty");
-    let last_tick = last.tick.index;
+    // A run that ended normally did not send its final command; one that stopped early (a fall, a
+    // crash cutting the log) did, so the loop must not treat that tick as final.
+    let last_tick = last.tick.index + last.cmd_sent as u64;
     let mut cmp = Comparator {
         rec: &rec,
         i: 0,
@@ -526,22 +528,6 @@ impl Comparator<'_> {
             let rec = FrameStatus::from_code(t.status).map_or(t.status.to_string(), |s| format!("{s:?}"));
             return self.diverge(t, ch::LOW_STATE, "status".into(), rec, format!("{:?}", v.summary.frame));
         }
-        encode_low_cmd(v.command, &mut self.bytes);
-        let recorded = t.cmd.expect("complete ticks only");
-        if self.bytes != recorded {
-            let (field, a, b) = first_cmd_difference(&recorded, &self.bytes);
-            return self.diverge(t, ch::LOW_CMD, field, a, b);
-        }
-        if v.command_sent != t.cmd_sent {
-            return self.diverge(
-                t,
-                ch::LOW_CMD,
-                "sent".into(),
-                t.cmd_sent.to_string(),
-                v.command_sent.to_string(),
-            );
-        }
-        self.commands += 1;
         if v.summary.policy_step != t.action.is_some() {
             return self.diverge(
                 t,
@@ -579,6 +565,22 @@ impl Comparator<'_> {
             }
             self.policy_steps += 1;
         }
+        encode_low_cmd(v.command, &mut self.bytes);
+        let recorded = t.cmd.expect("complete ticks only");
+        if self.bytes != recorded {
+            let (field, a, b) = first_cmd_difference(&recorded, &self.bytes);
+            return self.diverge(t, ch::LOW_CMD, field, a, b);
+        }
+        if v.command_sent != t.cmd_sent {
+            return self.diverge(
+                t,
+                ch::LOW_CMD,
+                "sent".into(),
+                t.cmd_sent.to_string(),
+                v.command_sent.to_string(),
+            );
+        }
+        self.commands += 1;
         let tripped = v.summary.tripped.map(|r| r.name().to_string());
         if tripped != t.trip {
             return self.diverge(
@@ -589,7 +591,8 @@ impl Comparator<'_> {
                 format!("{tripped:?}"),
             );
         }
-        true
+        // Stop after the last recorded tick.
+        self.i + 1 < self.rec.ticks.len()
     }
 }
 

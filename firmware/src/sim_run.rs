@@ -18,7 +18,7 @@ use crate::spec::DeploySpec;
 
 impl FrameSource for BridgeHal {
     fn received_frame(&self) -> Option<&[u8]> {
-        self.frame_received().then(|| &self.state_bytes()[..])
+        self.frame_received().then(|| self.state_frame())
     }
     fn truth(&self) -> Option<&Truth> {
         Some(BridgeHal::truth(self))

@@ -331,6 +331,8 @@ impl McapSink {
         let opts = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Lz4))
             .chunk_size(Some(4 << 20))
+            // Readers (Foxglove included) decompress whole chunks anyway; per-channel indexes cost ~10 %.
+            .emit_message_indexes(false)
             .profile("")
             .library(format!("g1fw {}", env!("CARGO_PKG_VERSION")));
         let mut w = opts.create(out).map_err(mk)?;

@@ -54,8 +54,8 @@ impl hal::Error for BridgeError {
             BridgeError::Protocol(ProtocolError::Closed) => ErrorKind::Disconnected,
             BridgeError::Protocol(ProtocolError::Io(_)) => ErrorKind::Disconnected,
             BridgeError::Protocol(_) => ErrorKind::Malformed,
-            BridgeError::Decode(DecodeError::Crc { .. }) => ErrorKind::Checksum,
-            BridgeError::Decode(_) => ErrorKind::Malformed,
+            // The same classification as every other unitree_hg decoder (replay included).
+            BridgeError::Decode(e) => hal::Error::kind(e),
             BridgeError::Connect { .. } => ErrorKind::Timeout,
             BridgeError::NotLoopback(_) | BridgeError::Version { .. } => ErrorKind::Other,
         }
