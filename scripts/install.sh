@@ -12,7 +12,7 @@ mkdir -p "$deps"
 say() { printf '[install] %s\n' "$*" >&2; }
 
 # --- apt -----------------------------------------------------------------------------------------
-apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates)
+apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates fonts-dejavu-core)
 missing=()
 for p in "${apt_pkgs[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then
