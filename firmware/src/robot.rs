@@ -6,6 +6,8 @@
 use hal::NUM_MOTORS;
 
 /// Position range (min, max) in rad per motor slot; `None` for unfitted slots.
+// The URDF's numbers, kept as written there (some happen to be close to π/6 or π/3).
+#[allow(clippy::approx_constant)]
 pub const G1_JOINT_RANGE: [Option<(f32, f32)>; NUM_MOTORS] = {
     const LEG_L: [(f32, f32); 6] = [
         (-2.5307, 2.8798),   // hip pitch
@@ -58,6 +60,7 @@ mod tests {
     use super::*;
 
     #[test]
+    #[allow(clippy::approx_constant)] // URDF numbers
     fn ranges_are_ordered_and_mirrored() {
         for (s, r) in G1_JOINT_RANGE.iter().enumerate().take(29) {
             let (lo, hi) = r.unwrap_or_else(|| panic!("slot {s} has no range"));

@@ -147,24 +147,6 @@ fn ramp_moves_linearly_from_the_measured_pose() {
     assert_eq!(c.mode(), Mode::Startup);
 }
 
-#[test]
-fn tilt_latches_damping() {
-    let spec = rl_lab_spec();
-    let mut c = Controller::new(spec).unwrap();
-    let mut state = LowState::default();
-    let a: f32 = 1.2; // beyond the 1.0 rad limit
-    state.imu.quaternion = [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0];
-    let mut cmd = LowCommand::default();
-    c.tick(&state, TickTime::default(), [0.0; 3], &mut cmd);
-    assert!(matches!(c.mode(), Mode::Damping(_)));
-    assert_eq!((cmd.motors[0].kp, cmd.motors[0].kd), (0.0, 5.0));
-    // Upright again: still damping (latched).
-    state.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
-    c.tick(&state, TickTime { index: 1, time_ns: 0 }, [0.0; 3], &mut cmd);
-    assert!(matches!(c.mode(), Mode::Damping(_)));
-    assert_eq!(cmd.motors[0].kp, 0.0);
-}
-
 fn load_err(text: &str) -> String {
     DeploySpec::from_toml(text, &specs_dir().join("test/x.toml"))
         .unwrap_err()

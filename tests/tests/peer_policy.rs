@@ -1,4 +1,5 @@
 //! The peer policy (Unitree's G1 LSTM walker) end to end: firmware ⇄ bridge ⇄ MuJoCo.
+use firmware::operator::CommandSchedule;
 use firmware::sim_run::{run_sim, Report, SimOptions};
 use firmware::spec::DeploySpec;
 use integration_tests::*;
@@ -7,12 +8,14 @@ fn run(model: &str, cmd: [f32; 3], duration_s: f64) -> Report {
     let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
     let opts = SimOptions {
         model: model.into(),
-        command: cmd,
+        schedule: CommandSchedule::constant(cmd),
         duration_s,
         sim_bin: Some(built_bin("g1-sim")),
         ..SimOptions::default()
     };
     let r = run_sim(spec, &opts, |_| {}).expect("run completes");
+    // The supervisor must not trip on a healthy walk (joint speed, frozen joints, timeouts...).
+    assert!(r.trip.is_none(), "{model} {cmd:?}: false safety trip {:?}", r.trip);
     eprintln!(
         "{model} cmd {cmd:?}: fell {} x {:.2} m vx2 {:.3} wz2 {:.3} z [{:.3}, {:.3}] tilt {:.1}° rt {:.1}x",
         r.fell,
@@ -42,7 +45,7 @@ fn first_observations_match_the_reference_loop() {
     let spec = DeploySpec::load(&peer_spec_path()).unwrap();
     let opts = SimOptions {
         model: "g1-12dof".into(),
-        command: [0.5, 0.0, 0.0],
+        schedule: CommandSchedule::constant([0.5, 0.0, 0.0]),
         duration_s: 0.25,
         ramp_override: Some((0.0, 0.0)),
         sim_bin: Some(built_bin("g1-sim")),
@@ -50,8 +53,11 @@ fn first_observations_match_the_reference_loop() {
     };
     let mut obs: Vec<(f64, Vec<f32>)> = Vec::new();
     run_sim(spec, &opts, |rec| {
-        if rec.policy_step {
-            obs.push((rec.index as f64 * 0.002, rec.controller.observation().to_vec()));
+        if rec.summary.policy_step {
+            obs.push((
+                rec.summary.tick.index as f64 * 0.002,
+                rec.runtime.controller().observation().to_vec(),
+            ));
         }
     })
     .unwrap();

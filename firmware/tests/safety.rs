@@ -1,0 +1,238 @@
+//! The safety supervisor through the runtime, one trigger at a time, from hand-made states: each
+//! latches damping (kp = 0, damping kd on every enabled motor) on the tick it becomes detectable,
+//! stays latched until an operator reset, and names its reason.
+use std::path::Path;
+
+use firmware::controller::{Controller, DampingReason, Mode};
+use firmware::operator::OperatorInput;
+use firmware::runtime::Runtime;
+use firmware::spec::DeploySpec;
+use firmware::supervisor::FrameStatus;
+use hal::{ErrorKind, LowCommand, LowState, TickTime};
+
+fn spec() -> DeploySpec {
+    DeploySpec::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml")).unwrap()
+}
+
+fn runtime() -> Runtime {
+    Runtime::new(Controller::new(spec()).unwrap())
+}
+
+/// A healthy, upright, slowly changing state for tick `k`.
+fn healthy(k: u64) -> LowState {
+    let mut s = LowState {
+        tick: k as u32,
+        ..Default::default()
+    };
+    s.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
+    for (i, m) in s.motors.iter_mut().enumerate() {
+        let x = k as f32 * 0.01 + i as f32;
+        (m.q, m.dq, m.tau_est) = (x.sin() * 0.1, x.cos() * 0.2, x.sin());
+        m.temperature = [40, 45];
+    }
+    s
+}
+
+fn tick(k: u64) -> TickTime {
+    TickTime {
+        index: k,
+        time_ns: k * 2_000_000,
+    }
+}
+
+/// Runs healthy ticks `0..until`, then `bad(k)` from `until` on for `n` ticks; returns the first
+/// trip (tick, reason).
+fn trip_after(
+    mut rt: Runtime,
+    until: u64,
+    n: u64,
+    bad: impl Fn(u64) -> (FrameStatus, LowState, OperatorInput),
+) -> (Runtime, Option<(u64, DampingReason)>) {
+    let mut cmd = LowCommand::default();
+    let op = OperatorInput {
+        velocity: [0.3, 0.0, 0.0],
+        ..Default::default()
+    };
+    for k in 0..until {
+        let s = rt.tick(tick(k), FrameStatus::Fresh, &healthy(k), op, &mut cmd);
+        assert!(s.tripped.is_none(), "healthy tick {k} tripped: {:?}", s.tripped);
+    }
+    for k in until..until + n {
+        let (f, st, o) = bad(k);
+        rt.tick(tick(k), f, &st, o, &mut cmd);
+    }
+    let trip = rt.trip();
+    if trip.is_some() {
+        assert!(matches!(rt.mode(), Mode::Damping(_)));
+        assert!(
+            cmd.motors[..29].iter().all(|m| m.kp == 0.0 && m.kd == 5.0),
+            "damping command"
+        );
+    }
+    (rt, trip)
+}
+
+const OP: OperatorInput = OperatorInput {
+    velocity: [0.3, 0.0, 0.0],
+    estop: false,
+    reset: false,
+};
+
+#[test]
+fn tilt_over_one_radian_trips() {
+    let (_, trip) = trip_after(runtime(), 100, 1, |k| {
+        let mut s = healthy(k);
+        let a: f32 = 1.05;
+        s.imu.quaternion = [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0];
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((100, DampingReason::Tilt)));
+    // 0.95 rad does not.
+    let (_, trip) = trip_after(runtime(), 100, 5, |k| {
+        let mut s = healthy(k);
+        let a: f32 = 0.95;
+        s.imu.quaternion = [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0];
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, None);
+}
+
+#[test]
+fn joint_speed_base_rate_and_temperature_limits_trip() {
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        let mut s = healthy(k);
+        s.motors[9].dq = -10.5;
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::JointSpeed { slot: 9 })));
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        let mut s = healthy(k);
+        s.imu.gyroscope = [4.0, 4.0, 2.5]; // |w| = 6.18 > 6
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::BaseAngularSpeed)));
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        let mut s = healthy(k);
+        s.motors[20].temperature = [40, 121];
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::MotorTemperature { slot: 20 })));
+}
+
+#[test]
+fn crc_failures_trip_only_as_a_streak_and_stale_state_times_out() {
+    // Two bad frames, one good, two bad: never three in a row.
+    let (rt, trip) = trip_after(runtime(), 50, 5, |k| {
+        let f = if k == 52 {
+            FrameStatus::Fresh
+        } else {
+            FrameStatus::Bad(ErrorKind::Checksum)
+        };
+        (f, healthy(k), OP)
+    });
+    assert_eq!(trip, None);
+    assert_eq!(rt.counters().crc_failures, 4);
+    let (_, trip) = trip_after(runtime(), 50, 3, |k| {
+        (FrameStatus::Bad(ErrorKind::Checksum), healthy(k), OP)
+    });
+    assert_eq!(trip, Some((52, DampingReason::CrcStreak)));
+    // No frame for 10 ticks is tolerated (state_timeout_s 0.02 s); the 11th trips.
+    let (_, trip) = trip_after(runtime(), 50, 12, |_| (FrameStatus::NoFrame, healthy(49), OP));
+    assert_eq!(trip, Some((60, DampingReason::StateTimeout)));
+    // A frame whose counter does not advance is stale, not news.
+    let (rt, trip) = trip_after(runtime(), 50, 12, |_| (FrameStatus::Fresh, healthy(49), OP));
+    assert_eq!(trip, Some((60, DampingReason::StateTimeout)));
+    assert!(rt.counters().stale_frames >= 10);
+}
+
+#[test]
+fn non_finite_inputs_and_malformed_frames_trip_at_once() {
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        (FrameStatus::Bad(ErrorKind::NonFinite), healthy(k), OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::NonFiniteInput)));
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        (FrameStatus::Bad(ErrorKind::Malformed), healthy(k), OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::MalformedFrame)));
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        let mut o = OP;
+        o.velocity[1] = f32::NAN;
+        (FrameStatus::Fresh, healthy(k), o)
+    });
+    assert_eq!(trip, Some((50, DampingReason::NonFiniteInput)));
+}
+
+#[test]
+fn nan_policy_output_trips_and_targets_are_clamped_to_joint_ranges() {
+    // The loader refuses NaN weights, but finite ones can still overflow: a first layer of 3e38
+    // makes the hidden layer infinite and the action NaN.
+    let mut s = spec();
+    let bytes = std::fs::read(s.weights_path()).unwrap();
+    let poisoned = overflow_first_tensor(&bytes);
+    let dir = std::env::temp_dir().join(format!("g1fw-safety-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let w = dir.join("nan.safetensors");
+    std::fs::write(&w, poisoned).unwrap();
+    s.policy.weights = w;
+    let rt = Runtime::new(Controller::new(s).unwrap());
+    // The policy engages after the 0.5 s ramp (250 ticks) and first steps 10 ticks later.
+    let (_, trip) = trip_after(rt, 250, 20, |k| (FrameStatus::Fresh, healthy(k), OP));
+    assert_eq!(trip, Some((260, DampingReason::NonFiniteAction)));
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // The seeded test MLP's targets exceed the ankle ranges at times: clamped and counted, no trip.
+    let (rt, trip) = trip_after(runtime(), 500, 500, |k| (FrameStatus::Fresh, healthy(k), OP));
+    assert_eq!(trip, None);
+    let c = rt.controller();
+    for (s, q) in c.target_q().iter().enumerate().take(29) {
+        let (lo, hi) = firmware::robot::G1_JOINT_RANGE[s].unwrap();
+        assert!(*q >= lo && *q <= hi, "slot {s}: {q} outside [{lo}, {hi}]");
+    }
+    eprintln!("clamped targets: {}", c.clamped_targets());
+}
+
+#[test]
+fn estop_latches_until_an_explicit_reset() {
+    let mut rt = runtime();
+    let mut cmd = LowCommand::default();
+    let estop = OperatorInput { estop: true, ..OP };
+    let reset = OperatorInput { reset: true, ..OP };
+    for k in 0..700 {
+        let op = match k {
+            600 => estop,
+            650 => reset,
+            _ => OP,
+        };
+        let s = rt.tick(tick(k), FrameStatus::Fresh, &healthy(k), op, &mut cmd);
+        match k {
+            600 => assert_eq!(s.tripped, Some(DampingReason::EStop)),
+            601..650 => assert!(matches!(s.mode, Mode::Damping(DampingReason::EStop)), "latched at {k}"),
+            650 => assert!(s.reset && s.mode == Mode::Startup, "reset leaves damping"),
+            _ => {}
+        }
+    }
+    assert_eq!(rt.trip(), Some((600, DampingReason::EStop)));
+}
+
+/// Sets every value of the first F32 tensor (by offset) to 3e38.
+fn overflow_first_tensor(bytes: &[u8]) -> Vec<u8> {
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let (start, end) = header
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, v)| *k != "__metadata__" && v["dtype"] == "F32")
+        .map(|(_, v)| {
+            let o = &v["data_offsets"];
+            (o[0].as_u64().unwrap() as usize, o[1].as_u64().unwrap() as usize)
+        })
+        .min()
+        .unwrap();
+    let mut out = bytes.to_vec();
+    for at in (8 + n + start..8 + n + end).step_by(4) {
+        out[at..at + 4].copy_from_slice(&3e38f32.to_le_bytes());
+    }
+    out
+}
