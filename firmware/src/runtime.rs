@@ -411,6 +411,7 @@ where
     let mut state = LowState::default();
     let mut cmd = LowCommand::default();
     let mut k = 0u64;
+    let mut bad_frames = 0u64;
     loop {
         let tick = match hal.wait_tick() {
             Ok(t) => t,
@@ -433,7 +434,14 @@ where
         let frame = match hal.read_state(&mut state) {
             Ok(true) => FrameStatus::Fresh,
             Ok(false) => FrameStatus::NoFrame,
-            Err(e) => FrameStatus::Bad(hal::Error::kind(&e)),
+            Err(e) => {
+                // Say why, but not 500 times a second: the first bad frame and every 500th.
+                if bad_frames.is_multiple_of(500) {
+                    tracing::warn!(tick = k, bad_frames = bad_frames + 1, "rejected LowState frame: {e}");
+                }
+                bad_frames += 1;
+                FrameStatus::Bad(hal::Error::kind(&e))
+            }
         };
         let op = operator.at(tick);
         let summary = rt.tick(tick, frame, &state, op, &mut cmd);
