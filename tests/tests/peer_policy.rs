@@ -150,14 +150,11 @@ fn same_seed_gives_bit_identical_runs() {
     }
     let a = run("g1-29dof", [0.5, 0.0, 0.3], 4.0);
     let b = run("g1-29dof", [0.5, 0.0, 0.3], 4.0);
-    // Everything but the wall-clock `timing` figures must be identical, bit for bit.
+    // Everything but the wall-clock figures (speed, compute times, overruns) must be identical.
     let strip = |r: &Report| {
         let mut v = serde_json::to_value(r).unwrap();
-        for k in [
-            "sim_seconds_per_wall_second",
-            "max_tick_compute_us",
-            "mean_tick_compute_us",
-        ] {
+        v["safety"].as_object_mut().unwrap().remove("overruns");
+        for k in ["sim_seconds_per_wall_second", "fast_group_us", "tick_compute_us"] {
             v.as_object_mut().unwrap().remove(k).expect("timing field present");
         }
         v.to_string()
