@@ -1,0 +1,87 @@
+//! Replay regression: every log in tests/corpus replays bit-exact through today's firmware, and a
+//! perturbed weight file makes the replay fail naming the first divergent tick, channel and field.
+use std::path::PathBuf;
+
+use firmware::replay::{replay, ReplayOptions};
+use integration_tests::*;
+
+fn corpus() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(repo_root().join("tests/corpus"))
+        .expect("tests/corpus exists")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "mcap"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn corpus_replays_bit_exact() {
+    let logs = corpus();
+    assert!(logs.len() >= 3, "corpus: {logs:?}");
+    for log in logs {
+        let name = log.file_name().unwrap().to_string_lossy().to_string();
+        if name.starts_with("peer_") && shared_dir().is_none() {
+            skip_or_fail(&format!("replaying {name}"));
+            continue;
+        }
+        let r = replay(&log, &ReplayOptions::default()).unwrap_or_else(|e| panic!("{name}: {e:#}"));
+        assert!(r.divergence.is_none(), "{name}: {}", r.divergence.unwrap());
+        assert!(r.truncated.is_none(), "{name}");
+        assert!(r.ticks > 900 && r.compared_commands == r.ticks, "{name}: {r:?}");
+        assert!(r.compared_policy_steps > 20, "{name}: {r:?}");
+        eprintln!(
+            "{name}: {} ticks, {} policy steps bit-exact, {:.0}x real time",
+            r.ticks, r.compared_policy_steps, r.sim_seconds_per_wall_second
+        );
+    }
+}
+
+#[test]
+fn perturbed_peer_weights_diverge_at_the_first_policy_step() {
+    let Some(shared) = shared_dir() else {
+        return skip_or_fail("perturbed-weights replay");
+    };
+    let weights = shared.join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    let dir = scratch_dir("perturb");
+    let perturbed = dir.join("policy.safetensors");
+    let bytes = std::fs::read(&weights).unwrap();
+    // Scale one value of the first f32 tensor by 1.001.
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let start = header
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, v)| *k != "__metadata__" && v["dtype"] == "F32")
+        .map(|(_, v)| v["data_offsets"][0].as_u64().unwrap() as usize)
+        .min()
+        .unwrap();
+    let mut out = bytes.clone();
+    let at = 8 + n + start;
+    let v = f32::from_le_bytes(out[at..at + 4].try_into().unwrap());
+    out[at..at + 4].copy_from_slice(&(if v == 0.0 { 1e-3 } else { v * 1.001 }).to_le_bytes());
+    std::fs::write(&perturbed, out).unwrap();
+
+    let log = repo_root().join("tests/corpus/peer_walk_12dof.mcap");
+    let opts = ReplayOptions {
+        weights: Some(perturbed.clone()),
+        ..Default::default()
+    };
+    let e = replay(&log, &opts).unwrap_err().to_string();
+    assert!(e.contains("sha256") && e.contains("--allow-mismatch"), "{e}");
+    let r = replay(
+        &log,
+        &ReplayOptions {
+            allow_mismatch: true,
+            ..opts
+        },
+    )
+    .unwrap();
+    let d = r.divergence.expect("a perturbed weight changes the outputs");
+    assert_eq!(d.channel, "/policy/action", "{d}");
+    assert!(d.field.starts_with("values["), "{d}");
+    // Start-up is 0.6 s (300 ticks): the first policy step is at tick 310.
+    assert_eq!(d.tick, 310, "{d}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
