@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
-use sensor_io::unitree_hg::{decode_low_cmd, decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN};
+use sensor_io::unitree_hg::{decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, LOW_CMD_LEN};
 use sha2::{Digest, Sha256};
 
 use crate::controller::Controller;
@@ -79,6 +79,11 @@ pub struct ReplayReport {
     pub truncated: Option<String>,
     pub divergence: Option<Divergence>,
     pub notes: Vec<String>,
+    /// Ticks per wall-second of the re-execution alone (after the log is loaded), as sim-s/wall-s.
+    pub run_sim_seconds_per_wall_second: f64,
+    /// Fast group and whole-tick compute during the replay.
+    pub fast_group_us: crate::runtime::LatencySummary,
+    pub tick_compute_us: crate::runtime::LatencySummary,
 }
 
 /// One recorded tick.
@@ -88,7 +93,8 @@ struct RecTick {
     status: u8,
     received: bool,
     frame: std::ops::Range<usize>,
-    cmd: Option<[u8; LOW_CMD_LEN]>,
+    /// Range of the recorded LowCmd bytes in `Recording::cmds`.
+    cmd: Option<std::ops::Range<usize>>,
     cmd_sent: bool,
     hal_error: Option<(ErrorKind, bool)>,
     operator: OperatorInput,
@@ -100,6 +106,7 @@ struct RecTick {
 struct Recording {
     ticks: Vec<RecTick>,
     frames: Vec<u8>,
+    cmds: Vec<u8>,
     values: Vec<f32>,
     truncated: Option<String>,
     period_ns: u64,
@@ -117,8 +124,11 @@ fn parse_values(data: &[u8], out: &mut Vec<f32>) -> Option<std::ops::Range<usize
 }
 
 fn load(log: &LogFile) -> Result<Recording> {
-    let mut ticks: Vec<RecTick> = Vec::new();
-    let mut frames = Vec::new();
+    // Sized from the file: roughly one tick per 900 compressed bytes, generously.
+    let guess = log.bytes.len() / 300 + 16;
+    let mut ticks: Vec<RecTick> = Vec::with_capacity(guess);
+    let mut frames = Vec::with_capacity(guess * sensor_io::unitree_hg::LOW_STATE_LEN);
+    let mut cmds = Vec::with_capacity(guess * LOW_CMD_LEN);
     let mut values = Vec::new();
     let mut operator = OperatorInput::default();
     let mut bad: Option<String> = None;
@@ -150,7 +160,9 @@ fn load(log: &LogFile) -> Result<Recording> {
             ch::LOW_CMD => match ch::decode_low_cmd_frame(data) {
                 Some(c) if c.data.len() == LOW_CMD_LEN => {
                     let t = ticks.last_mut().expect("checked");
-                    t.cmd = Some(c.data.try_into().expect("length checked"));
+                    let start = cmds.len();
+                    cmds.extend_from_slice(c.data);
+                    t.cmd = Some(start..cmds.len());
                     t.cmd_sent = c.sent;
                 }
                 _ => bad = Some("a /hal/low_cmd message does not decode".into()),
@@ -229,6 +241,7 @@ fn load(log: &LogFile) -> Result<Recording> {
     Ok(Recording {
         ticks,
         frames,
+        cmds,
         values,
         truncated: end.truncated,
         period_ns,
@@ -474,6 +487,7 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     let ticks = rec.ticks.len() as u64;
     let sim_seconds = ticks as f64 * rec.period_ns as f64 * 1e-9;
     let wall_seconds = wall.elapsed().as_secs_f64();
+    let run_seconds = (wall_seconds - load_seconds).max(1e-9);
     Ok(ReplayReport {
         log: log_path.display().to_string(),
         ticks,
@@ -486,6 +500,9 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         truncated: rec.truncated.clone(),
         divergence: cmp.divergence,
         notes,
+        run_sim_seconds_per_wall_second: sim_seconds / run_seconds,
+        fast_group_us: rt.timing_stats().fast(),
+        tick_compute_us: rt.timing_stats().tick(),
     })
 }
 
@@ -565,10 +582,15 @@ impl Comparator<'_> {
             }
             self.policy_steps += 1;
         }
-        encode_low_cmd(v.command, &mut self.bytes);
-        let recorded = t.cmd.expect("complete ticks only");
-        if self.bytes != recorded {
-            let (field, a, b) = first_cmd_difference(&recorded, &self.bytes);
+        // Bodies only: the CRC word is a function of them (and the recorded one was checked by
+        // whoever wrote it), so this saves a CRC per tick.
+        encode_low_cmd_body(v.command, &mut self.bytes);
+        let recorded = &self.rec.cmds[t.cmd.clone().expect("complete ticks only")];
+        let body = LOW_CMD_LEN - 4;
+        if self.bytes[..body] != recorded[..body] {
+            let recorded: &[u8; LOW_CMD_LEN] = recorded.try_into().expect("length checked at load");
+            sensor_io::unitree_hg::encode_low_cmd(v.command, &mut self.bytes);
+            let (field, a, b) = first_cmd_difference(recorded, &self.bytes);
             return self.diverge(t, ch::LOW_CMD, field, a, b);
         }
         if v.command_sent != t.cmd_sent {

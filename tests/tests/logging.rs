@@ -160,6 +160,11 @@ fn python_mcap_reads_a_complete_log_like_we_do() {
     ] {
         assert!(theirs.get(t).copied().unwrap_or(0) > 0, "{t} missing: {theirs:?}");
     }
+    // The same log renders to a velocity-tracking PNG.
+    let png = dir.join("v.png");
+    let out = g1fw(&["plot", log.to_str().unwrap(), "--out", png.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

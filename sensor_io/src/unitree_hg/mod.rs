@@ -122,6 +122,13 @@ fn finite(message: &'static str, field: &'static str, values: &[f32]) -> Result<
 
 /// Encodes `cmd` into `out` with zeroed padding and a fresh CRC.
 pub fn encode_low_cmd(cmd: &LowCommand, out: &mut [u8; LOW_CMD_LEN]) {
+    encode_low_cmd_body(cmd, out);
+    seal(out);
+}
+
+/// Everything [`encode_low_cmd`] writes except the CRC word (left zero). The CRC is a function of
+/// these bytes, so comparing bodies compares frames (replay uses this to skip a CRC per tick).
+pub fn encode_low_cmd_body(cmd: &LowCommand, out: &mut [u8; LOW_CMD_LEN]) {
     out.fill(0);
     let mut w = Writer { buf: out };
     w.u8(0, cmd.mode_pr);
@@ -135,7 +142,6 @@ pub fn encode_low_cmd(cmd: &LowCommand, out: &mut [u8; LOW_CMD_LEN]) {
     for (i, r) in cmd.reserve.iter().enumerate() {
         w.u32(LOW_CMD_MOTORS_AT + NUM_MOTORS * MOTOR_CMD_LEN + 4 * i, *r);
     }
-    seal(out);
 }
 
 /// Decodes and validates a `LowCmd_` frame (the simulator's and the CAN emulator's side).
