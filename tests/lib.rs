@@ -99,3 +99,21 @@ pub fn g1fw(args: &[&str]) -> std::process::Output {
         .output()
         .expect("g1fw runs")
 }
+
+/// Scales the first f32 of the first tensor in a safetensors file by 1.001.
+pub fn perturb_first_weight(bytes: &[u8]) -> Vec<u8> {
+    let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + header_len]).unwrap();
+    let (_, first) = header
+        .as_object()
+        .unwrap()
+        .iter()
+        .find(|(k, v)| *k != "__metadata__" && v["dtype"] == "F32")
+        .expect("an f32 tensor");
+    let at = 8 + header_len + first["data_offsets"][0].as_u64().unwrap() as usize;
+    let mut out = bytes.to_vec();
+    let v = f32::from_le_bytes(out[at..at + 4].try_into().unwrap());
+    let nv = if v == 0.0 { 1e-3 } else { v * 1.001 };
+    out[at..at + 4].copy_from_slice(&nv.to_le_bytes());
+    out
+}

@@ -2,7 +2,7 @@
 //! frame from the bridge, a bridge that dies mid-run, a spec with a wrong dimension.
 use std::os::unix::net::UnixListener;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::thread;
 
 use hal::LowState;
@@ -84,14 +84,6 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
         // Linger until the firmware hangs up, so the fault (not a disconnect) is what it sees.
         let _ = read_msg(&mut s, &mut payload);
     })
-}
-
-fn g1fw(args: &[&str]) -> Output {
-    Command::new(built_bin("g1fw"))
-        .args(args)
-        .current_dir(repo_root())
-        .output()
-        .expect("g1fw runs")
 }
 
 fn socket_path(tag: &str) -> PathBuf {

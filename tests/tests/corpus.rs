@@ -45,23 +45,7 @@ fn perturbed_peer_weights_diverge_at_the_first_policy_step() {
     let weights = shared.join("peer_policy/unitree_g1_lstm/policy.safetensors");
     let dir = scratch_dir("perturb");
     let perturbed = dir.join("policy.safetensors");
-    let bytes = std::fs::read(&weights).unwrap();
-    // Scale one value of the first f32 tensor by 1.001.
-    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
-    let start = header
-        .as_object()
-        .unwrap()
-        .iter()
-        .filter(|(k, v)| *k != "__metadata__" && v["dtype"] == "F32")
-        .map(|(_, v)| v["data_offsets"][0].as_u64().unwrap() as usize)
-        .min()
-        .unwrap();
-    let mut out = bytes.clone();
-    let at = 8 + n + start;
-    let v = f32::from_le_bytes(out[at..at + 4].try_into().unwrap());
-    out[at..at + 4].copy_from_slice(&(if v == 0.0 { 1e-3 } else { v * 1.001 }).to_le_bytes());
-    std::fs::write(&perturbed, out).unwrap();
+    std::fs::write(&perturbed, perturb_first_weight(&std::fs::read(&weights).unwrap())).unwrap();
 
     let log = repo_root().join("tests/corpus/peer_walk_12dof.mcap");
     let opts = ReplayOptions {
