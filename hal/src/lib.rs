@@ -16,6 +16,10 @@ pub use types::*;
 /// Number of motor slots in the unitree_hg messages (29 used on the 29-dof G1).
 pub const NUM_MOTORS: usize = 35;
 
+/// Position of the G1's main IMU (in the pelvis) relative to the pelvis origin, m (Unitree's
+/// hardware data; the 29-dof MJCF's `imu_in_pelvis` site sits at the same place).
+pub const G1_PELVIS_IMU_POS: [f64; 3] = [0.04525, 0.0, -0.08339];
+
 /// What went wrong, independent of the transport (socket, CAN, DDS).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ErrorKind {

@@ -23,7 +23,7 @@ use crate::SimError;
 /// Name of the pelvis IMU site (the one the 29-dof MJCF ships).
 pub const IMU_SITE: &str = "imu_in_pelvis";
 /// Its position in the pelvis frame (G1 hardware).
-pub const IMU_SITE_POS: [f64; 3] = [0.04525, 0.0, -0.08339];
+pub const IMU_SITE_POS: [f64; 3] = hal::G1_PELVIS_IMU_POS;
 /// Body carrying the IMU and the free joint.
 pub const PELVIS: &str = "pelvis";
 

@@ -1,0 +1,251 @@
+//! The state estimator the firmware runs every fast tick: attitude → leg kinematics → contact →
+//! Kalman filter, from one `LowState`. Fixed size; nothing allocates after construction.
+use hal::LowState;
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::attitude::{valid_quaternion, AttitudeFilter};
+use crate::baseline::GRAVITY;
+use crate::contact::{vertical_force, ContactConfig, ContactDetector};
+use crate::filter::{BaseFilter, FilterConfig};
+use crate::kinematics::{LegKinematics, LegPose, LEGS};
+
+/// Everything tunable, with defaults that walk the G1 in simulation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimatorConfig {
+    pub filter: FilterConfig,
+    pub contact: ContactConfig,
+    /// IMU position in the pelvis frame, m (lever arm for the accelerometer).
+    pub imu_position: [f64; 3],
+    /// Gain of the fallback attitude filter, 1/s.
+    pub attitude_gain: f64,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        Self {
+            filter: FilterConfig::default(),
+            contact: ContactConfig::default(),
+            imu_position: hal::G1_PELVIS_IMU_POS,
+            attitude_gain: 1.0,
+        }
+    }
+}
+
+/// Where the attitude of a tick came from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum AttitudeSource {
+    /// No valid input yet.
+    #[default]
+    None,
+    /// The IMU's own quaternion.
+    Imu,
+    /// The fallback complementary filter (the IMU quaternion was invalid).
+    Filter,
+}
+
+/// One tick's estimate. Single precision: it is logged and fed to policies.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BaseEstimate {
+    /// The filter ran on this tick's inputs (false before the first valid frame, without leg
+    /// kinematics, and on ticks whose inputs were not finite).
+    pub valid: bool,
+    pub attitude_source: AttitudeSource,
+    /// Base orientation w, x, y, z (heading frame).
+    pub quat: [f32; 4],
+    pub rpy: [f32; 3],
+    pub projected_gravity: [f32; 3],
+    /// Base linear velocity, heading frame and body frame, m/s.
+    pub lin_vel_world: [f32; 3],
+    pub lin_vel_body: [f32; 3],
+    /// Standard deviation of the world-frame velocity, m/s.
+    pub lin_vel_std: [f32; 3],
+    /// Base position in the heading frame, m; z is the height above the ground the robot
+    /// started on.
+    pub position: [f32; 3],
+    pub height_std: f32,
+    /// Foot points (sole centres) in the heading frame, m.
+    pub foot_pos: [[f32; 3]; 2],
+    /// Left, right.
+    pub contact: [bool; 2],
+    /// Vertical ground force estimated from joint torques, N.
+    pub contact_force: [f32; 2],
+}
+
+fn f32x3(v: &Vector3<f64>) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// Leg joint positions, velocities and torques of one leg from a `LowState`.
+pub fn leg_joints(state: &LowState, leg: usize) -> ([f64; 6], [f64; 6], [f64; 6]) {
+    let (mut q, mut dq, mut tau) = ([0.0; 6], [0.0; 6], [0.0; 6]);
+    for j in 0..6 {
+        let m = &state.motors[LEGS[leg].first_slot() + j];
+        q[j] = m.q as f64;
+        dq[j] = m.dq as f64;
+        tau[j] = m.tau_est as f64;
+    }
+    (q, dq, tau)
+}
+
+pub struct StateEstimator {
+    kinematics: Option<LegKinematics>,
+    cfg: EstimatorConfig,
+    tick_dt: f64,
+    attitude: AttitudeFilter,
+    contact: ContactDetector,
+    filter: Option<BaseFilter>,
+    last_tick: Option<u64>,
+    out: BaseEstimate,
+}
+
+impl StateEstimator {
+    /// `kinematics` `None` runs attitude only (no velocity, height or contact). `tick_dt` is the
+    /// control period, s.
+    pub fn new(kinematics: Option<LegKinematics>, cfg: EstimatorConfig, tick_dt: f64) -> Self {
+        Self {
+            kinematics,
+            cfg,
+            tick_dt,
+            attitude: AttitudeFilter::new(cfg.attitude_gain),
+            contact: ContactDetector::new(cfg.contact),
+            filter: None,
+            last_tick: None,
+            out: BaseEstimate::default(),
+        }
+    }
+
+    pub fn has_kinematics(&self) -> bool {
+        self.kinematics.is_some()
+    }
+    pub fn estimate(&self) -> &BaseEstimate {
+        &self.out
+    }
+    pub fn filter(&self) -> Option<&BaseFilter> {
+        self.filter.as_ref()
+    }
+
+    /// Forgets everything; the next update starts afresh.
+    pub fn reset(&mut self) {
+        *self = Self::new(self.kinematics.take(), self.cfg, self.tick_dt);
+    }
+
+    /// Folds in the newest accepted state of control tick `tick`. Call once per fresh frame; ticks
+    /// without one are bridged by the time step of the next call.
+    pub fn update(&mut self, tick: u64, state: &LowState) -> &BaseEstimate {
+        let dt = match self.last_tick {
+            Some(t) if tick > t => (tick - t) as f64 * self.tick_dt,
+            Some(_) => return &self.out,
+            None => self.tick_dt,
+        };
+        let imu = &state.imu;
+        let gyro = Vector3::new(
+            imu.gyroscope[0] as f64,
+            imu.gyroscope[1] as f64,
+            imu.gyroscope[2] as f64,
+        );
+        let acc = Vector3::new(
+            imu.accelerometer[0] as f64,
+            imu.accelerometer[1] as f64,
+            imu.accelerometer[2] as f64,
+        );
+        let imu_ok = gyro.iter().chain(acc.iter()).all(|v| v.is_finite());
+        // Attitude: the IMU's quaternion when valid; otherwise the complementary filter carries on
+        // from the last good one.
+        let source = match valid_quaternion(imu.quaternion) {
+            Some(q) => {
+                self.attitude.sync(q);
+                AttitudeSource::Imu
+            }
+            None if imu_ok && self.last_tick.is_some() => {
+                self.attitude.step(dt, &gyro, &acc);
+                AttitudeSource::Filter
+            }
+            None => {
+                self.out.valid = false;
+                return &self.out;
+            }
+        };
+        self.last_tick = Some(tick);
+        let rot = self.attitude.attitude();
+        self.out.attitude_source = source;
+        self.write_attitude(&rot);
+
+        let Some(kin) = &self.kinematics else {
+            self.out.valid = false;
+            return &self.out;
+        };
+        let mut poses = [None::<LegPose>; 2];
+        let mut joints = [([0.0; 6], [0.0; 6], [0.0; 6]); 2];
+        for (i, leg) in LEGS.iter().enumerate() {
+            joints[i] = leg_joints(state, i);
+            let (q, dq, tau) = &joints[i];
+            if q.iter().chain(dq).chain(tau).all(|v| v.is_finite()) {
+                poses[i] = Some(kin.leg(*leg).pose(q));
+            }
+        }
+        let (Some(pl), Some(pr)) = (poses[0], poses[1]) else {
+            self.out.valid = false;
+            return &self.out;
+        };
+        if !imu_ok {
+            self.out.valid = false;
+            return &self.out;
+        }
+        let poses = [pl, pr];
+        let forces = [0, 1].map(|i| vertical_force(&poses[i], &rot, &joints[i].2));
+        let contact = self.contact.update(forces);
+
+        // Foot positions relative to the base, heading frame.
+        let rel = [0, 1].map(|i| rot * poses[i].foot);
+        let filter = self.filter.get_or_insert_with(|| {
+            // Start at rest with the lower foot on the ground (height 0).
+            let ground = rel[0].z.min(rel[1].z);
+            let base = Vector3::new(0.0, 0.0, -ground);
+            BaseFilter::new(self.cfg.filter, base, [base + rel[0], base + rel[1]])
+        });
+
+        // Base acceleration at the pelvis origin: the accelerometer minus the centripetal term of
+        // its lever arm (the tangential term needs dω/dt and is left in the process noise).
+        let r_imu = Vector3::from(self.cfg.imu_position);
+        let a_body = acc - gyro.cross(&gyro.cross(&r_imu));
+        let a_world = rot * a_body - Vector3::new(0.0, 0.0, GRAVITY);
+        filter.predict(dt, &a_world, contact);
+        for i in 0..2 {
+            filter.update_foot_position(i, &rel[i]);
+            if contact[i] {
+                // A foot that stays put moves, seen from the base, at −(ω × r + J q̇).
+                let foot_vel_body =
+                    gyro.cross(&poses[i].foot) + poses[i].position_jacobian() * nalgebra::Vector6::from(joints[i].1);
+                filter.update_stance_velocity(&(rot * -foot_vel_body));
+                filter.update_ground_height(i, 0.0);
+            }
+        }
+        filter.symmetrize();
+        if !filter.is_finite() {
+            // Never let a poisoned filter stick: start again from the next frame.
+            self.filter = None;
+            self.out.valid = false;
+            return &self.out;
+        }
+        let v = filter.velocity();
+        self.out.valid = true;
+        self.out.lin_vel_world = f32x3(&v);
+        self.out.lin_vel_body = f32x3(&(rot.inverse() * v));
+        self.out.lin_vel_std = f32x3(&filter.velocity_std());
+        self.out.position = f32x3(&filter.position());
+        self.out.height_std = filter.std(2) as f32;
+        self.out.foot_pos = [f32x3(&filter.foot(0)), f32x3(&filter.foot(1))];
+        self.out.contact = contact;
+        let f = self.contact.force();
+        self.out.contact_force = [f[0] as f32, f[1] as f32];
+        &self.out
+    }
+
+    fn write_attitude(&mut self, rot: &UnitQuaternion<f64>) {
+        let q = rot.quaternion();
+        let qf = [q.w as f32, q.i as f32, q.j as f32, q.k as f32];
+        self.out.quat = qf;
+        self.out.rpy = crate::attitude::rpy(qf);
+        self.out.projected_gravity = crate::attitude::projected_gravity(qf);
+    }
+}
