@@ -58,8 +58,8 @@ impl ContactDetector {
     }
     /// Feeds this tick's vertical forces (`None`: keep the previous decision).
     pub fn update(&mut self, force: [Option<f64>; 2]) -> [bool; 2] {
-        for i in 0..2 {
-            if let Some(f) = force[i] {
+        for (i, f) in force.into_iter().enumerate() {
+            if let Some(f) = f {
                 self.force[i] = f;
                 self.contact[i] = if self.contact[i] {
                     f > self.cfg.off_force_n

@@ -157,7 +157,7 @@ impl BaseFilter {
         }
         let s = ph[a] - b.map_or(0.0, |b| ph[b]) + r;
         let innovation = y - (self.x[a] - b.map_or(0.0, |b| self.x[b]));
-        if !(s > 0.0) || !innovation.is_finite() {
+        if s.is_nan() || s <= 0.0 || !innovation.is_finite() {
             return false;
         }
         if let Some(g) = gate_sigma {
@@ -168,8 +168,8 @@ impl BaseFilter {
         for i in 0..N {
             let k = ph[i] / s;
             self.x[i] += k * innovation;
-            for j in 0..N {
-                self.p[(i, j)] -= k * ph[j];
+            for (j, phj) in ph.iter().enumerate() {
+                self.p[(i, j)] -= k * phj;
             }
         }
         true
