@@ -40,7 +40,7 @@ fn compare(mjcf: &std::path::Path, kin: &LegKinematics, n: usize, seed: u64) -> 
     let model = MjModel::from_xml(mjcf).unwrap_or_else(|e| panic!("{}: {e}", mjcf.display()));
     let mut d = MjData::new(Box::new(model));
     let m = d.model();
-    let pelvis = m.name_to_id(MjtObjBase::mjOBJ_BODY, "pelvis").expect("pelvis") as usize;
+    let pelvis = m.name_to_id(MjtObjBase::mjOBJ_BODY, "pelvis").expect("pelvis");
     let free_adr = m.jnt_qposadr()[m.body_jntadr()[pelvis] as usize] as usize;
     let mut joints = [[(0usize, 0.0f64, 0.0f64); 6]; 2];
     let mut ankles = [0usize; 2];
@@ -103,7 +103,7 @@ fn compare(mjcf: &std::path::Path, kin: &LegKinematics, n: usize, seed: u64) -> 
             // The foot point: MuJoCo's site where the model has one, else the ankle frame carried
             // to the parsed offset.
             let foot_mj = match feet_site[l] {
-                Some(s) => to_pelvis(v3(d.site_xpos()[s as usize])),
+                Some(s) => to_pelvis(v3(d.site_xpos()[s])),
                 None => ankle_mj + rot_mj * leg.foot_offset(),
             };
             worst.foot_m = worst.foot_m.max((pose.foot - foot_mj).norm());
