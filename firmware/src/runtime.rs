@@ -3,7 +3,7 @@
 //!
 //! Order inside a tick (fixed; the same on hardware, in simulation and in replay):
 //! 1. **fast** — read: the HAL's newest state and its frame status (in [`run_loop`]);
-//! 2. **fast** — estimate: attitude signals from the newest accepted state;
+//! 2. **fast** — estimate: attitude, base velocity, height and foot contacts from a fresh state;
 //! 3. **fast** — safety: the supervisor judges the frame; operator e-stop / reset;
 //! 4. **perception** (every `control_hz / perception_hz` ticks, phase 0): budgeted and timed; the
 //!    terrain pipeline lands here;
@@ -20,13 +20,10 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
+use estimator::StateEstimator;
 
-/// Attitude estimate of one tick.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Estimate {
-    pub projected_gravity: [f32; 3],
-    pub rpy: [f32; 3],
-}
+/// The state estimate of one tick (attitude, base velocity and height, foot contacts).
+pub type Estimate = estimator::BaseEstimate;
 
 /// Compute time of each group this tick, ns (0 when the group did not run).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -99,6 +96,7 @@ pub struct Runtime {
     budget_ns: [u32; 3],
     overruns: Overruns,
     trip: Option<(u64, DampingReason)>,
+    estimator: StateEstimator,
     estimate: Estimate,
     stats: TimingStats,
 }
@@ -113,6 +111,7 @@ impl Runtime {
             budget_ns: [b.fast * 1000, b.perception * 1000, b.policy * 1000],
             overruns: Overruns::default(),
             trip: None,
+            estimator: StateEstimator::new(spec.kinematics.clone(), spec.estimator.config(), spec.control_dt()),
             estimate: Estimate::default(),
             stats: TimingStats::new(),
             controller,
@@ -137,6 +136,13 @@ impl Runtime {
     }
     pub fn counters(&self) -> SafetyCounters {
         self.supervisor.counters()
+    }
+    /// The newest state estimate.
+    pub fn estimate(&self) -> &Estimate {
+        &self.estimate
+    }
+    pub fn estimator(&self) -> &StateEstimator {
+        &self.estimator
     }
 
     fn latch(&mut self, k: u64, reason: DampingReason, summary: &mut TickSummary) {
@@ -187,12 +193,10 @@ impl Runtime {
             overruns: 0,
         };
 
-        // 2. estimate
-        let q = state.imu.quaternion;
-        self.estimate = Estimate {
-            projected_gravity: estimator::projected_gravity(q),
-            rpy: estimator::rpy(q),
-        };
+        // 2. estimate (from fresh frames only: a repeated state carries no new information)
+        if frame == FrameStatus::Fresh {
+            self.estimate = *self.estimator.update(k, state);
+        }
 
         // 3. safety and operator
         if let Some(reason) = self.supervisor.check_frame(k, frame, state) {

@@ -40,6 +40,8 @@ pub struct DeploySpec {
     pub phase: Option<Phase>,
     #[serde(default)]
     pub safety: Safety,
+    #[serde(default)]
+    pub estimator: EstimatorSpec,
     pub observation: Observation,
     /// Directory of the spec file; relative paths resolve against it.
     #[serde(skip)]
@@ -50,6 +52,54 @@ pub struct DeploySpec {
     /// The TOML text it was parsed from (pinned in run logs).
     #[serde(skip)]
     pub source_text: String,
+    /// Leg kinematics read from `estimator.model` at load time (`None` without one).
+    #[serde(skip)]
+    pub kinematics: Option<estimator::LegKinematics>,
+}
+
+/// `[estimator]`: where the leg kinematics come from and the estimator's tuning. Without `model`
+/// the estimator runs attitude only (no base velocity, height or contacts).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EstimatorSpec {
+    /// The robot's MJCF (relative to the spec), the single source of the leg kinematics.
+    pub model: Option<PathBuf>,
+    /// Contact on/off thresholds on the vertical foot force from joint torques, N.
+    pub contact_on_force_n: f64,
+    pub contact_off_force_n: f64,
+    /// Standard deviation of the flat-ground prior on stance feet, m; 0 turns it off (stairs).
+    pub ground_height_noise_m: f64,
+    /// Stance-leg odometry noise, m/s.
+    pub leg_velocity_noise_m_s: f64,
+    /// Process noise on the base acceleration, m/s² per √Hz.
+    pub accel_noise: f64,
+}
+
+impl Default for EstimatorSpec {
+    fn default() -> Self {
+        let c = estimator::EstimatorConfig::default();
+        Self {
+            model: None,
+            contact_on_force_n: c.contact.on_force_n,
+            contact_off_force_n: c.contact.off_force_n,
+            ground_height_noise_m: c.filter.ground_height_noise.unwrap_or(0.0),
+            leg_velocity_noise_m_s: c.filter.leg_velocity_noise,
+            accel_noise: c.filter.accel_noise,
+        }
+    }
+}
+
+impl EstimatorSpec {
+    /// The estimator's configuration from these settings.
+    pub fn config(&self) -> estimator::EstimatorConfig {
+        let mut c = estimator::EstimatorConfig::default();
+        c.contact.on_force_n = self.contact_on_force_n;
+        c.contact.off_force_n = self.contact_off_force_n;
+        c.filter.ground_height_noise = (self.ground_height_noise_m > 0.0).then_some(self.ground_height_noise_m);
+        c.filter.leg_velocity_noise = self.leg_velocity_noise_m_s;
+        c.filter.accel_noise = self.accel_noise;
+        c
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -345,6 +395,18 @@ impl DeploySpec {
         spec.source_text = text.to_string();
         spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         spec.validate()?;
+        if let Some(model) = &spec.estimator.model {
+            let file = spec.base_dir.join(model);
+            spec.kinematics = Some(estimator::LegKinematics::from_mjcf_file(&file).map_err(|e| {
+                spec.invalid(
+                    "estimator.model",
+                    format!(
+                        "{e} (reading {}; fix the path, or remove `model` to run attitude only)",
+                        file.display()
+                    ),
+                )
+            })?);
+        }
         Ok(spec)
     }
 
@@ -410,6 +472,29 @@ impl DeploySpec {
 
     fn validate(&self) -> Result<(), SpecError> {
         self.validate_safety()?;
+        let e = &self.estimator;
+        let positive = [
+            ("estimator.contact_on_force_n", e.contact_on_force_n),
+            ("estimator.leg_velocity_noise_m_s", e.leg_velocity_noise_m_s),
+            ("estimator.accel_noise", e.accel_noise),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(self.invalid(field, format!("must be a positive number, got {v}")));
+            }
+        }
+        if !(e.contact_off_force_n.is_finite() && e.contact_off_force_n <= e.contact_on_force_n) {
+            return Err(self.invalid(
+                "estimator.contact_off_force_n",
+                "must be a number <= contact_on_force_n (hysteresis)",
+            ));
+        }
+        if !(e.ground_height_noise_m.is_finite() && e.ground_height_noise_m >= 0.0) {
+            return Err(self.invalid(
+                "estimator.ground_height_noise_m",
+                "must be >= 0 (0 turns the prior off)",
+            ));
+        }
         let r = &self.rates;
         if r.perception_hz == 0 || !r.control_hz.is_multiple_of(r.perception_hz) {
             return Err(self.invalid(

@@ -61,7 +61,7 @@ pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
     (
         ESTIMATOR,
         "g1fw.EstimatorState",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"projected_gravity":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rpy":{"type":"object","properties":{"roll":{"type":"number"},"pitch":{"type":"number"},"yaw":{"type":"number"}}}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"valid":{"type":"boolean"},"attitude_source":{"type":"string"},"projected_gravity":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"rpy":{"type":"object","properties":{"roll":{"type":"number"},"pitch":{"type":"number"},"yaw":{"type":"number"}}},"lin_vel_body":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"lin_vel_world":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"lin_vel_std":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"height":{"type":"number"},"height_std":{"type":"number"},"foot_left":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"foot_right":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"contact":{"type":"array","items":{"type":"boolean"}},"contact_force_n":{"type":"array","items":{"type":"number"}}}}"#,
     ),
     (
         SAFETY_STATE,

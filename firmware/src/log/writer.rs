@@ -470,12 +470,28 @@ impl McapSink {
             t,
             &EstimatorMsg {
                 tick: k,
+                valid: e.valid,
+                attitude_source: match e.attitude_source {
+                    estimator::AttitudeSource::None => "none",
+                    estimator::AttitudeSource::Imu => "imu",
+                    estimator::AttitudeSource::Filter => "filter",
+                },
                 projected_gravity: Xyz::from(e.projected_gravity),
                 rpy: Rpy {
                     roll: e.rpy[0],
                     pitch: e.rpy[1],
                     yaw: e.rpy[2],
                 },
+                lin_vel_body: Xyz::from(e.lin_vel_body),
+                lin_vel_world: Xyz::from(e.lin_vel_world),
+                lin_vel_std: Xyz::from(e.lin_vel_std),
+                position: Xyz::from(e.position),
+                height: e.position[2],
+                height_std: e.height_std,
+                foot_left: Xyz::from(e.foot_pos[0]),
+                foot_right: Xyz::from(e.foot_pos[1]),
+                contact: e.contact,
+                contact_force_n: e.contact_force,
             },
         )?;
         // Safety state at 50 Hz and on every change of mode; events on trips and resets.
@@ -667,8 +683,20 @@ struct Rpy {
 #[derive(Serialize)]
 struct EstimatorMsg {
     tick: u64,
+    valid: bool,
+    attitude_source: &'static str,
     projected_gravity: Xyz,
     rpy: Rpy,
+    lin_vel_body: Xyz,
+    lin_vel_world: Xyz,
+    lin_vel_std: Xyz,
+    position: Xyz,
+    height: f32,
+    height_std: f32,
+    foot_left: Xyz,
+    foot_right: Xyz,
+    contact: [bool; 2],
+    contact_force_n: [f32; 2],
 }
 
 #[derive(Serialize)]

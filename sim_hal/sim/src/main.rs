@@ -54,10 +54,11 @@ struct Cli {
     #[arg(long, value_name = "N", default_value_t = 0)]
     seed: u64,
 
-    /// White noise on the IMU: `GYRO_STD` (rad/s, also used for the accelerometer in m/s²) or
-    /// `GYRO_STD,ACC_STD`. Off by default (output is exactly the model's).
-    #[arg(long, value_name = "STD[,ACC_STD]", value_parser = parse_noise)]
-    imu_noise: Option<(f64, f64)>,
+    /// IMU errors: `realistic` (white noise, biases, attitude error of a MEMS IMU; see
+    /// `ImuNoise::REALISTIC`), white noise only as `STD` or `GYRO_STD,ACC_STD` (rad/s, m/s²), or
+    /// `GYRO_STD,ACC_STD,GYRO_BIAS,ACC_BIAS,ATTITUDE_STD`. Off by default (exactly the model's).
+    #[arg(long, value_name = "realistic|STD[,...]")]
+    imu_noise: Option<g1_sim::ImuNoise>,
 
     /// Microseconds a socket read spins before blocking (lower latency when the client answers
     /// quickly; 0 = always block).
@@ -85,21 +86,6 @@ struct Cli {
 
 /// Exit status after a `disconnect` fault ended the session as planned.
 const FAULT_DISCONNECT_EXIT: u8 = 4;
-
-fn parse_noise(s: &str) -> Result<(f64, f64), String> {
-    let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
-    let (g, a) = match s.split_once(',') {
-        Some((g, a)) => (parse(g)?, parse(a)?),
-        None => {
-            let g = parse(s)?;
-            (g, g)
-        }
-    };
-    if !(g >= 0.0 && a >= 0.0 && g.is_finite() && a.is_finite()) {
-        return Err("noise standard deviations must be finite and >= 0".into());
-    }
-    Ok((g, a))
-}
 
 fn bench_bare(sim: &mut Simulator, seconds: f64) -> Result<()> {
     if !(seconds.is_finite() && seconds > 0.0) {

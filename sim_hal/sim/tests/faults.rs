@@ -345,7 +345,7 @@ fn same_plan_same_bytes() {
     ];
     let config = SimConfig {
         seed: 7,
-        imu_noise: Some((0.01, 0.05)),
+        imu_noise: Some(g1_sim::ImuNoise::white(0.01, 0.05)),
         ..SimConfig::default()
     };
     let trace = |tag: &str| -> Option<Vec<(bool, Vec<u8>)>> {

@@ -156,13 +156,60 @@ fn same_commands_give_bit_identical_states() {
     // Noise is seeded: same seed → same bytes, different seed → different bytes.
     let noisy = SimConfig {
         seed: 7,
-        imu_noise: Some((0.01, 0.05)),
+        imu_noise: Some(g1_sim::ImuNoise::REALISTIC),
         ..SimConfig::default()
     };
     let n1 = run_500(noisy);
     assert!(n1 == run_500(noisy));
     assert!(n1 != run_500(SimConfig { seed: 8, ..noisy }));
     assert!(n1 != a);
+}
+
+#[test]
+fn realistic_imu_noise_has_biases_and_a_drifting_yaw() {
+    let config = SimConfig {
+        seed: 3,
+        imu_noise: Some("realistic".parse().unwrap()),
+        ..SimConfig::default()
+    };
+    require_deps();
+    let mut sim = Simulator::load(ModelChoice::G1_29Dof, config).unwrap();
+    sim.apply_command(&sim.hold_initial_pose_command()).unwrap();
+    let bias = sim.imu_bias();
+    assert!(bias.iter().all(|b| *b != 0.0), "{bias:?}");
+    let mut st = LowState::default();
+    let (mut gyro_sum, mut n) = ([0.0f64; 3], 0.0);
+    let mut yaw_err = Vec::new();
+    for tick in 1..=1000 {
+        sim.step_control_tick();
+        sim.low_state(&mut st);
+        let t = sim.truth();
+        if tick > 500 {
+            // Standing still: the mean gyro reading is the bias.
+            for a in 0..3 {
+                gyro_sum[a] += st.imu.gyroscope[a] as f64 - t.base_ang_vel_body[a];
+            }
+            n += 1.0;
+        }
+        if tick % 500 == 0 {
+            let truth_yaw = g1_sim::quat_to_rpy(t.base_quat)[2];
+            yaw_err.push(st.imu.rpy[2] as f64 - truth_yaw);
+        }
+    }
+    for a in 0..3 {
+        let mean = gyro_sum[a] / n;
+        // White noise 0.01 over 500 samples leaves ~0.0005 of scatter on the mean.
+        assert!(
+            (mean - bias[a]).abs() < 0.002,
+            "axis {a}: mean {mean} vs bias {}",
+            bias[a]
+        );
+    }
+    // Yaw drifts at the z bias: twice the error after twice the time.
+    assert!((yaw_err[0] - bias[2] * 1.0).abs() < 1e-3, "{yaw_err:?} {}", bias[2]);
+    assert!((yaw_err[1] - bias[2] * 2.0).abs() < 1e-3, "{yaw_err:?} {}", bias[2]);
+    assert!("1,2,3".parse::<g1_sim::ImuNoise>().is_err());
+    assert!("0.1,-1".parse::<g1_sim::ImuNoise>().is_err());
 }
 
 #[test]
