@@ -4,6 +4,12 @@
 //! its vertical component in the world frame is the contact force. A swinging leg's own weight
 //! reads as a small *downward* force, a stance leg carries a share of the robot's ~315 N.
 //! Hysteresis between two thresholds keeps the decision from chattering at touchdown and lift-off.
+//!
+//! Torques alone mislabel two moments of every step (measured on the peer policy's gait): the
+//! toe still grazes the ground for a few ticks after the leg unloads, and a swing leg decelerating
+//! before touchdown reads as a load. Where the ground is known to be flat, the foot's height
+//! settles both: a foot enters contact only when loaded *and* low, and stays in contact while
+//! loaded *or* on the ground.
 use nalgebra::{Matrix6, UnitQuaternion, Vector6};
 
 use crate::kinematics::LegPose;
@@ -14,13 +20,19 @@ pub struct ContactConfig {
     pub on_force_n: f64,
     /// A foot in contact leaves it below this vertical force, N.
     pub off_force_n: f64,
+    /// With a foot height (flat ground): a foot enters contact only below this height, m.
+    pub touchdown_height_m: f64,
+    /// With a foot height: a foot below this height stays in contact however light, m.
+    pub stance_height_m: f64,
 }
 
 impl Default for ContactConfig {
     fn default() -> Self {
         Self {
             on_force_n: 40.0,
-            off_force_n: 25.0,
+            off_force_n: 10.0,
+            touchdown_height_m: 0.003,
+            stance_height_m: 0.0005,
         }
     }
 }
@@ -44,6 +56,8 @@ pub fn vertical_force(pose: &LegPose, base_rot: &UnitQuaternion<f64>, tau: &[f64
 pub struct ContactDetector {
     cfg: ContactConfig,
     contact: [bool; 2],
+    /// Force hysteresis alone: the foot carries load.
+    loaded: [bool; 2],
     force: [f64; 2],
 }
 
@@ -53,25 +67,38 @@ impl ContactDetector {
             cfg,
             // Start standing: the robot is put down on both feet.
             contact: [true; 2],
+            loaded: [true; 2],
             force: [0.0; 2],
         }
     }
-    /// Feeds this tick's vertical forces (`None`: keep the previous decision).
-    pub fn update(&mut self, force: [Option<f64>; 2]) -> [bool; 2] {
+    /// Feeds this tick's vertical forces (`None`: keep the previous decision) and, where the
+    /// ground is known, the feet's sole heights above it.
+    pub fn update(&mut self, force: [Option<f64>; 2], height: [Option<f64>; 2]) -> [bool; 2] {
+        let c = &self.cfg;
         for (i, f) in force.into_iter().enumerate() {
-            if let Some(f) = f {
-                self.force[i] = f;
-                self.contact[i] = if self.contact[i] {
-                    f > self.cfg.off_force_n
-                } else {
-                    f > self.cfg.on_force_n
-                };
-            }
+            let Some(f) = f else { continue };
+            self.force[i] = f;
+            self.loaded[i] = if self.loaded[i] {
+                f > c.off_force_n
+            } else {
+                f > c.on_force_n
+            };
+            let h = height[i].filter(|h| h.is_finite());
+            self.contact[i] = match (self.contact[i], h) {
+                (true, None) => f > c.off_force_n,
+                (true, Some(h)) => f > c.off_force_n || h < c.stance_height_m,
+                (false, None) => f > c.on_force_n,
+                (false, Some(h)) => (f > c.on_force_n && h < c.touchdown_height_m) || h < c.stance_height_m,
+            };
         }
         self.contact
     }
     pub fn contact(&self) -> [bool; 2] {
         self.contact
+    }
+    /// In contact and carrying load: a foot the filter may treat as a fixed support.
+    pub fn support(&self) -> [bool; 2] {
+        [self.contact[0] && self.loaded[0], self.contact[1] && self.loaded[1]]
     }
     /// Last vertical forces, N.
     pub fn force(&self) -> [f64; 2] {
@@ -86,9 +113,33 @@ mod tests {
     #[test]
     fn hysteresis_holds_between_thresholds() {
         let mut c = ContactDetector::new(ContactConfig::default());
-        assert_eq!(c.update([Some(10.0), Some(100.0)]), [false, true]);
-        assert_eq!(c.update([Some(30.0), Some(30.0)]), [false, true]);
-        assert_eq!(c.update([Some(50.0), Some(20.0)]), [true, false]);
-        assert_eq!(c.update([None, None]), [true, false]);
+        assert_eq!(c.update([Some(5.0), Some(100.0)], [None; 2]), [false, true]);
+        assert_eq!(c.update([Some(30.0), Some(30.0)], [None; 2]), [false, true]);
+        assert_eq!(c.update([Some(50.0), Some(5.0)], [None; 2]), [true, false]);
+        assert_eq!(c.update([None, None], [None; 2]), [true, false]);
+    }
+
+    #[test]
+    fn height_gates_touchdown_and_holds_a_light_stance() {
+        let mut c = ContactDetector::new(ContactConfig::default());
+        // Unloaded but still on the ground (toe-off): stays in contact; lifted: leaves.
+        assert_eq!(
+            c.update([Some(-50.0), Some(-50.0)], [Some(0.001), Some(0.02)]),
+            [true, false]
+        );
+        // Loaded in the air (swing deceleration): no contact until the foot is low; on the ground
+        // it is in contact before the load arrives.
+        assert_eq!(
+            c.update([Some(-50.0), Some(80.0)], [Some(0.03), Some(0.05)]),
+            [false, false]
+        );
+        assert_eq!(
+            c.update([Some(-50.0), Some(80.0)], [Some(0.03), Some(0.005)]),
+            [false, true]
+        );
+        assert_eq!(
+            c.update([Some(-50.0), Some(80.0)], [Some(0.001), Some(0.005)]),
+            [true, true]
+        );
     }
 }

@@ -83,7 +83,14 @@ pub struct Leg {
     links: [Option<Link>; 8],
     /// Foot point in the ankle-roll frame, m.
     foot: Vector3<f64>,
+    /// Lowest points of the foot's collision geoms (sphere / capsule-end centres lowered by the
+    /// radius along the foot's z), ankle-roll frame; the first `sole_len` are used.
+    sole: [Vector3<f64>; MAX_SOLE_POINTS],
+    sole_len: usize,
 }
+
+/// Sole points kept per foot (the 29-dof foot has 7 capsules, 14 ends).
+pub const MAX_SOLE_POINTS: usize = 16;
 
 /// A leg's pose for one joint configuration: foot point, hinge anchors and axes, all in the pelvis
 /// frame.
@@ -96,9 +103,23 @@ pub struct LegPose {
     pub foot_rot: UnitQuaternion<f64>,
     anchors: [Vector3<f64>; 6],
     axes: [Vector3<f64>; 6],
+    sole: [Vector3<f64>; MAX_SOLE_POINTS],
+    sole_len: usize,
 }
 
 impl LegPose {
+    /// The sole's lowest point along world z for a base orientation `rot`, relative to the base
+    /// (m); the foot point's when the model gives no collision geometry.
+    pub fn sole_min_z(&self, rot: &UnitQuaternion<f64>) -> f64 {
+        if self.sole_len == 0 {
+            return (rot * self.foot).z;
+        }
+        self.sole[..self.sole_len]
+            .iter()
+            .map(|p| (rot * p).z)
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Linear (3×6) Jacobian of the foot point w.r.t. the leg's joint angles, pelvis frame.
     pub fn position_jacobian(&self) -> Matrix3x6<f64> {
         let mut j = Matrix3x6::zeros();
@@ -150,12 +171,18 @@ impl Leg {
                 rot *= r;
             }
         }
+        let mut sole = [Vector3::zeros(); MAX_SOLE_POINTS];
+        for (out, p) in sole.iter_mut().zip(&self.sole[..self.sole_len]) {
+            *out = pos + rot * p;
+        }
         LegPose {
             foot: pos + rot * self.foot,
             ankle: pos,
             foot_rot: rot,
             anchors,
             axes,
+            sole,
+            sole_len: self.sole_len,
         }
     }
 
@@ -338,11 +365,66 @@ fn leg_from_doc(doc: &roxmltree::Document, side: Side) -> Result<Leg, Kinematics
         )));
     }
 
+    let (sole, sole_len) = sole_points(doc, ankle)?;
     Ok(Leg {
         side,
         links,
         foot: foot_point(ankle, p)?,
+        sole,
+        sole_len,
     })
+}
+
+/// `size` of a geom: its own attribute, else the one its `class` default sets.
+fn geom_size(doc: &roxmltree::Document, g: roxmltree::Node) -> Result<Option<f64>, KinematicsError> {
+    if g.has_attribute("size") {
+        let [r] = parse_vec(g, "size", [0.0])?;
+        return Ok(Some(r));
+    }
+    let Some(class) = g.attribute("class") else {
+        return Ok(None);
+    };
+    for d in doc
+        .descendants()
+        .filter(|n| n.has_tag_name("default") && n.attribute("class") == Some(class))
+    {
+        if let Some(dg) = d.children().find(|c| c.has_tag_name("geom") && c.has_attribute("size")) {
+            let [r] = parse_vec(dg, "size", [0.0])?;
+            return Ok(Some(r));
+        }
+    }
+    Ok(None)
+}
+
+/// The foot's lowest collision points: sphere centres and capsule ends (`fromto`), each lowered
+/// by its radius along the ankle frame's z. Visual-only geoms (`contype="0"`, meshes) are skipped.
+fn sole_points(
+    doc: &roxmltree::Document,
+    ankle: roxmltree::Node,
+) -> Result<([Vector3<f64>; MAX_SOLE_POINTS], usize), KinematicsError> {
+    let mut out = [Vector3::zeros(); MAX_SOLE_POINTS];
+    let mut n = 0;
+    let mut push = |p: Vector3<f64>| {
+        if n < MAX_SOLE_POINTS {
+            out[n] = p;
+            n += 1;
+        }
+    };
+    for g in ankle.children().filter(|c| c.has_tag_name("geom")) {
+        if g.attribute("contype") == Some("0") || g.has_attribute("mesh") {
+            continue;
+        }
+        let Some(r) = geom_size(doc, g)? else { continue };
+        let down = Vector3::new(0.0, 0.0, r);
+        if g.has_attribute("fromto") {
+            let [a, b, c, d, e, f] = parse_vec(g, "fromto", [0.0; 6])?;
+            push(Vector3::new(a, b, c) - down);
+            push(Vector3::new(d, e, f) - down);
+        } else if g.attribute("type").is_none_or(|t| t == "sphere") {
+            push(Vector3::from(parse_vec(g, "pos", [0.0; 3])?) - down);
+        }
+    }
+    Ok((out, n))
 }
 
 /// The sole centre in the ankle-roll frame (see the module doc).

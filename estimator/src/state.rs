@@ -69,6 +69,8 @@ pub struct BaseEstimate {
     pub contact: [bool; 2],
     /// Vertical ground force estimated from joint torques, N.
     pub contact_force: [f32; 2],
+    /// Height of each sole's lowest point above the ground (flat-ground estimate), m.
+    pub sole_height: [f32; 2],
 }
 
 fn f32x3(v: &Vector3<f64>) -> [f32; 3] {
@@ -192,11 +194,19 @@ impl StateEstimator {
             return &self.out;
         }
         let poses = [pl, pr];
-        let forces = [0, 1].map(|i| vertical_force(&poses[i], &rot, &joints[i].2));
-        let contact = self.contact.update(forces);
-
         // Foot positions relative to the base, heading frame.
         let rel = [0, 1].map(|i| rot * poses[i].foot);
+        let forces = [0, 1].map(|i| vertical_force(&poses[i], &rot, &joints[i].2));
+        // On flat ground, the sole height above it from the filter's base height (its prior for
+        // this tick) and kinematics.
+        let sole_low = [0, 1].map(|i| poses[i].sole_min_z(&rot));
+        let heights = match (&self.filter, self.cfg.filter.ground_height_noise) {
+            (Some(f), Some(_)) => [0, 1].map(|i| Some(f.position().z + sole_low[i])),
+            _ => [None; 2],
+        };
+        let contact = self.contact.update(forces, heights);
+        let support = self.contact.support();
+
         let filter = self.filter.get_or_insert_with(|| {
             // Start at rest with the lower foot on the ground (height 0).
             let ground = rel[0].z.min(rel[1].z);
@@ -209,15 +219,18 @@ impl StateEstimator {
         let r_imu = Vector3::from(self.cfg.imu_position);
         let a_body = acc - gyro.cross(&gyro.cross(&r_imu));
         let a_world = rot * a_body - Vector3::new(0.0, 0.0, GRAVITY);
-        filter.predict(dt, &a_world, contact);
+        filter.predict(dt, &a_world, support);
         for i in 0..2 {
             filter.update_foot_position(i, &rel[i]);
-            if contact[i] {
+            if support[i] {
                 // A foot that stays put moves, seen from the base, at −(ω × r + J q̇).
                 let foot_vel_body =
                     gyro.cross(&poses[i].foot) + poses[i].position_jacobian() * nalgebra::Vector6::from(joints[i].1);
                 filter.update_stance_velocity(&(rot * -foot_vel_body));
-                filter.update_ground_height(i, 0.0);
+                // The sole's lowest point is on the ground: the foot point sits that far above it.
+                // A loaded sole sinks in by its compliance.
+                let sink = self.cfg.filter.sole_compliance_m_per_n * forces[i].unwrap_or(0.0).max(0.0);
+                filter.update_ground_height(i, rel[i].z - sole_low[i] - sink);
             }
         }
         filter.symmetrize();
@@ -236,6 +249,8 @@ impl StateEstimator {
         self.out.height_std = filter.std(2) as f32;
         self.out.foot_pos = [f32x3(&filter.foot(0)), f32x3(&filter.foot(1))];
         self.out.contact = contact;
+        let z = filter.position().z;
+        self.out.sole_height = [(z + sole_low[0]) as f32, (z + sole_low[1]) as f32];
         let f = self.contact.force();
         self.out.contact_force = [f[0] as f32, f[1] as f32];
         &self.out

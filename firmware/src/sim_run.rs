@@ -48,6 +48,8 @@ pub struct SimOptions {
     pub progress: bool,
     /// Faults for the simulator to inject (`g1-sim --fault` grammar).
     pub faults: Vec<String>,
+    /// IMU error model for the simulator (`g1-sim --imu-noise` grammar, e.g. `realistic`).
+    pub imu_noise: Option<String>,
     /// Record an MCAP log here.
     pub log: Option<PathBuf>,
     pub log_options: LogOptions,
@@ -70,6 +72,7 @@ impl Default for SimOptions {
             hold_only: false,
             progress: false,
             faults: Vec::new(),
+            imu_noise: None,
             log: None,
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
@@ -113,8 +116,35 @@ pub struct Report {
     /// How the run ended: `completed`, `fell`, or the HAL failure.
     pub end: String,
     pub log: Option<LogStats>,
+    /// State estimator against ground truth, beside the naive baseline (`null` without leg
+    /// kinematics in the spec).
+    #[serde(flatten)]
+    pub estimator: EstimatorReport,
     #[serde(flatten)]
     pub timing: Timing,
+}
+
+/// Estimator errors over every fast tick from the first valid estimate on (body-frame velocity,
+/// base height, both feet's contact state agreeing with the simulator's).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct EstimatorReport {
+    pub est_ticks: u64,
+    pub est_vel_rmse_x: Option<f64>,
+    pub est_vel_rmse_y: Option<f64>,
+    pub est_vel_rmse_z: Option<f64>,
+    pub est_height_rmse_m: Option<f64>,
+    /// Fraction of (tick, foot) pairs on which the estimated contact matches the simulator's.
+    pub est_contact_agreement: Option<f64>,
+    /// The same per foot (left, right).
+    pub est_contact_agreement_feet: Option<[f64; 2]>,
+    /// Fraction of ticks on which both feet match at once (the strictest reading).
+    pub est_contact_agreement_both_feet: Option<f64>,
+    /// Integrated accelerometer from rest and the "lower foot is down" rule.
+    pub baseline_vel_rmse_x: Option<f64>,
+    pub baseline_vel_rmse_y: Option<f64>,
+    pub baseline_height_rmse_m: Option<f64>,
+    pub baseline_contact_agreement: Option<f64>,
+    pub baseline_contact_agreement_both_feet: Option<f64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -235,6 +265,7 @@ fn spawn_sim(opts: &SimOptions, control_dt: f64) -> Result<SimChild> {
         .args(["--physics-dt", &opts.physics_dt.to_string()])
         .args(["--control-dt", &control_dt.to_string()])
         .args(opts.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
+        .args(opts.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
         .arg("--quiet")
         .stdin(Stdio::null())
         .spawn()
@@ -322,6 +353,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let progress = opts.progress.then(|| progress_bar(opts.duration_s));
     let mut hasher = Sha256::new();
     let mut agg = Aggregate::new(&opts.schedule, total_ticks as usize);
+    let mut est_eval = EstimatorEval::new(controller.spec().kinematics.clone(), control_dt);
     let mut runtime = Runtime::new(controller);
     let mut operator = opts.schedule.source(welcome.control_dt_ns);
     let wall = Instant::now();
@@ -344,6 +376,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         ticks = k;
         if let Some(truth) = v.truth {
             agg.add(truth, k as f64 * control_dt, opts.duration_s, v);
+            est_eval.add(truth, v);
         }
         observe(v);
         if let Some(pb) = &progress {
@@ -432,6 +465,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         },
         end: end_text,
         log: log_stats,
+        estimator: est_eval.report(),
         timing: Timing {
             sim_seconds_per_wall_second: time_s / wall_s.max(1e-9),
             fast_group_us: runtime.timing_stats().fast(),
@@ -466,6 +500,7 @@ fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
         .set("physics_dt", opts.physics_dt)
         .set("duration_s", opts.duration_s)
         .set("faults", opts.faults.join(" "))
+        .set("imu_noise", opts.imu_noise.as_deref().unwrap_or("none"))
         .set(
             "command_schedule",
             opts.schedule
@@ -600,6 +635,107 @@ impl Aggregate {
             settle_s: SETTLE_S,
             segments: out,
             rmse: all_sq.map(|x| (x / all_n.max(1) as f64).sqrt()),
+        }
+    }
+}
+
+/// Running estimator errors, and the naive baseline run beside the firmware (evaluation only).
+struct EstimatorEval {
+    kinematics: Option<estimator::LegKinematics>,
+    dt: f64,
+    baseline: Option<estimator::baseline::DeadReckoning>,
+    last_tick: Option<u64>,
+    n: u64,
+    est_sq: [f64; 4],
+    base_sq: [f64; 3],
+    est_agree: [u64; 3],
+    base_agree: [u64; 2],
+}
+
+impl EstimatorEval {
+    fn new(kinematics: Option<estimator::LegKinematics>, dt: f64) -> Self {
+        Self {
+            kinematics,
+            dt,
+            baseline: None,
+            last_tick: None,
+            n: 0,
+            est_sq: [0.0; 4],
+            base_sq: [0.0; 3],
+            est_agree: [0; 3],
+            base_agree: [0; 2],
+        }
+    }
+
+    fn add(&mut self, t: &Truth, v: &TickView) {
+        use estimator::baseline::{lower_foot_contact, DeadReckoning};
+        use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+        let e = &v.summary.estimate;
+        let Some(kin) = &self.kinematics else { return };
+        if !e.valid {
+            return;
+        }
+        let k = v.summary.tick.index;
+        let imu = &v.state.imu;
+        let q = imu.quaternion.map(|x| x as f64);
+        let rot = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]));
+        let acc = Vector3::from(imu.accelerometer.map(|x| x as f64));
+        // The baseline starts where the estimator starts (same initial height), then integrates.
+        let b = self
+            .baseline
+            .get_or_insert_with(|| DeadReckoning::new(Vector3::from(e.position.map(|x| x as f64))));
+        if v.summary.frame == crate::supervisor::FrameStatus::Fresh {
+            let steps = self.last_tick.map_or(1, |l| k.saturating_sub(l).max(1));
+            if self.last_tick != Some(k) {
+                b.step(steps as f64 * self.dt, &rot, &acc);
+            }
+            self.last_tick = Some(k);
+        }
+        let bv = b.body_velocity(&rot);
+        let tv = t.base_lin_vel_body;
+        let tz = t.base_pos[2];
+        self.n += 1;
+        for a in 0..3 {
+            self.est_sq[a] += (e.lin_vel_body[a] as f64 - tv[a]).powi(2);
+        }
+        self.est_sq[3] += (e.position[2] as f64 - tz).powi(2);
+        self.base_sq[0] += (bv.x - tv[0]).powi(2);
+        self.base_sq[1] += (bv.y - tv[1]).powi(2);
+        self.base_sq[2] += (b.position.z - tz).powi(2);
+        for i in 0..2 {
+            self.est_agree[i] += (e.contact[i] == t.foot_contact[i]) as u64;
+        }
+        self.est_agree[2] += (e.contact == t.foot_contact) as u64;
+        // Naive contact: the lower foot (gravity-aligned) is down.
+        let foot_z = [0, 1].map(|i| {
+            let (q, _, _) = estimator::state::leg_joints(v.state, i);
+            (rot * kin.leg(estimator::kinematics::LEGS[i]).foot_position(&q)).z
+        });
+        let naive = lower_foot_contact(foot_z, 0.01);
+        self.base_agree[0] += (naive[0] == t.foot_contact[0]) as u64 + (naive[1] == t.foot_contact[1]) as u64;
+        self.base_agree[1] += (naive == t.foot_contact) as u64;
+    }
+
+    fn report(&self) -> EstimatorReport {
+        if self.n == 0 {
+            return EstimatorReport::default();
+        }
+        let n = self.n as f64;
+        let rms = |s: f64| Some((s / n).sqrt());
+        EstimatorReport {
+            est_ticks: self.n,
+            est_vel_rmse_x: rms(self.est_sq[0]),
+            est_vel_rmse_y: rms(self.est_sq[1]),
+            est_vel_rmse_z: rms(self.est_sq[2]),
+            est_height_rmse_m: rms(self.est_sq[3]),
+            est_contact_agreement: Some((self.est_agree[0] + self.est_agree[1]) as f64 / (2.0 * n)),
+            est_contact_agreement_feet: Some([self.est_agree[0] as f64 / n, self.est_agree[1] as f64 / n]),
+            est_contact_agreement_both_feet: Some(self.est_agree[2] as f64 / n),
+            baseline_vel_rmse_x: rms(self.base_sq[0]),
+            baseline_vel_rmse_y: rms(self.base_sq[1]),
+            baseline_height_rmse_m: rms(self.base_sq[2]),
+            baseline_contact_agreement: Some(self.base_agree[0] as f64 / (2.0 * n)),
+            baseline_contact_agreement_both_feet: Some(self.base_agree[1] as f64 / n),
         }
     }
 }

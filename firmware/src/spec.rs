@@ -67,10 +67,16 @@ pub struct EstimatorSpec {
     /// Contact on/off thresholds on the vertical foot force from joint torques, N.
     pub contact_on_force_n: f64,
     pub contact_off_force_n: f64,
+    /// On flat ground: a foot enters contact only with its sole below this height, and stays in
+    /// contact while below the stance height however light, m.
+    pub contact_touchdown_height_m: f64,
+    pub contact_stance_height_m: f64,
     /// Standard deviation of the flat-ground prior on stance feet, m; 0 turns it off (stairs).
     pub ground_height_noise_m: f64,
     /// Stance-leg odometry noise, m/s.
     pub leg_velocity_noise_m_s: f64,
+    /// Sole (and ground) compliance: sink per newton of load, m/N.
+    pub sole_compliance_m_per_n: f64,
     /// Process noise on the base acceleration, m/s² per √Hz.
     pub accel_noise: f64,
 }
@@ -82,8 +88,11 @@ impl Default for EstimatorSpec {
             model: None,
             contact_on_force_n: c.contact.on_force_n,
             contact_off_force_n: c.contact.off_force_n,
+            contact_touchdown_height_m: c.contact.touchdown_height_m,
+            contact_stance_height_m: c.contact.stance_height_m,
             ground_height_noise_m: c.filter.ground_height_noise.unwrap_or(0.0),
             leg_velocity_noise_m_s: c.filter.leg_velocity_noise,
+            sole_compliance_m_per_n: c.filter.sole_compliance_m_per_n,
             accel_noise: c.filter.accel_noise,
         }
     }
@@ -95,8 +104,11 @@ impl EstimatorSpec {
         let mut c = estimator::EstimatorConfig::default();
         c.contact.on_force_n = self.contact_on_force_n;
         c.contact.off_force_n = self.contact_off_force_n;
+        c.contact.touchdown_height_m = self.contact_touchdown_height_m;
+        c.contact.stance_height_m = self.contact_stance_height_m;
         c.filter.ground_height_noise = (self.ground_height_noise_m > 0.0).then_some(self.ground_height_noise_m);
         c.filter.leg_velocity_noise = self.leg_velocity_noise_m_s;
+        c.filter.sole_compliance_m_per_n = self.sole_compliance_m_per_n;
         c.filter.accel_noise = self.accel_noise;
         c
     }
@@ -488,6 +500,9 @@ impl DeploySpec {
                 "estimator.contact_off_force_n",
                 "must be a number <= contact_on_force_n (hysteresis)",
             ));
+        }
+        if !(e.sole_compliance_m_per_n.is_finite() && e.sole_compliance_m_per_n >= 0.0) {
+            return Err(self.invalid("estimator.sole_compliance_m_per_n", "must be >= 0"));
         }
         if !(e.ground_height_noise_m.is_finite() && e.ground_height_noise_m >= 0.0) {
             return Err(self.invalid(

@@ -94,6 +94,10 @@ struct SimArgs {
     /// drop, delay:N, corrupt, imu-nan, freeze-joint:SLOT, motor-dead:SLOT, overheat:SLOT, disconnect.
     #[arg(long = "fault")]
     faults: Vec<String>,
+    /// IMU errors in the simulator: `realistic` (MEMS-grade white noise, biases, roll/pitch error
+    /// and yaw drift), or numbers as `g1-sim --imu-noise` takes them. Off by default.
+    #[arg(long, value_name = "realistic|STD[,...]")]
+    imu_noise: Option<String>,
     /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
     #[arg(long)]
     rt_priority: Option<i32>,
@@ -265,6 +269,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         hold_only: a.hold,
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         faults: a.faults,
+        imu_noise: a.imu_noise,
         log: a.log.clone(),
         log_options: Default::default(),
         rt: firmware::rt::RtOptions {

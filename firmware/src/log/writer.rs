@@ -492,6 +492,7 @@ impl McapSink {
                 foot_right: Xyz::from(e.foot_pos[1]),
                 contact: e.contact,
                 contact_force_n: e.contact_force,
+                sole_height: e.sole_height,
             },
         )?;
         // Safety state at 50 Hz and on every change of mode; events on trips and resets.
@@ -697,6 +698,7 @@ struct EstimatorMsg {
     foot_right: Xyz,
     contact: [bool; 2],
     contact_force_n: [f32; 2],
+    sole_height: [f32; 2],
 }
 
 #[derive(Serialize)]
