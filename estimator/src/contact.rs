@@ -122,6 +122,8 @@ mod tests {
     #[test]
     fn height_gates_touchdown_and_holds_a_light_stance() {
         let mut c = ContactDetector::new(ContactConfig::default());
+        c.update([Some(-50.0), Some(-50.0)], [Some(0.03), Some(0.03)]);
+        c.update([Some(100.0), Some(100.0)], [Some(0.0), Some(0.0)]);
         // Unloaded but still on the ground (toe-off): stays in contact; lifted: leaves.
         assert_eq!(
             c.update([Some(-50.0), Some(-50.0)], [Some(0.001), Some(0.02)]),
