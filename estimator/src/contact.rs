@@ -126,7 +126,7 @@ mod tests {
         c.update([Some(100.0), Some(100.0)], [Some(0.0), Some(0.0)]);
         // Unloaded but still on the ground (toe-off): stays in contact; lifted: leaves.
         assert_eq!(
-            c.update([Some(-50.0), Some(-50.0)], [Some(0.001), Some(0.02)]),
+            c.update([Some(-50.0), Some(-50.0)], [Some(0.0002), Some(0.02)]),
             [true, false]
         );
         // Loaded in the air (swing deceleration): no contact until the foot is low; on the ground
@@ -136,11 +136,11 @@ mod tests {
             [false, false]
         );
         assert_eq!(
-            c.update([Some(-50.0), Some(80.0)], [Some(0.03), Some(0.005)]),
+            c.update([Some(-50.0), Some(80.0)], [Some(0.03), Some(0.002)]),
             [false, true]
         );
         assert_eq!(
-            c.update([Some(-50.0), Some(80.0)], [Some(0.001), Some(0.005)]),
+            c.update([Some(-50.0), Some(80.0)], [Some(0.0002), Some(0.002)]),
             [true, true]
         );
     }
