@@ -57,6 +57,8 @@ pub struct BaseEstimate {
     /// Base linear velocity, heading frame and body frame, m/s.
     pub lin_vel_world: [f32; 3],
     pub lin_vel_body: [f32; 3],
+    /// Base angular velocity, body frame (the gyro), rad/s.
+    pub ang_vel_body: [f32; 3],
     /// Standard deviation of the world-frame velocity, m/s.
     pub lin_vel_std: [f32; 3],
     /// Base position in the heading frame, m; z is the height above the ground the robot
@@ -168,6 +170,9 @@ impl StateEstimator {
             }
         };
         self.last_tick = Some(tick);
+        if imu_ok {
+            self.out.ang_vel_body = f32x3(&gyro);
+        }
         let rot = self.attitude.attitude();
         self.out.attitude_source = source;
         self.write_attitude(&rot);

@@ -79,6 +79,9 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
         events: Vec::new(),
     };
     let mut command = [0f32; 3];
+    // The newest valid estimate, paired with the truth of the same tick (written after it).
+    let mut estimate: Option<[f64; 3]> = None;
+    let mut any_estimate = false;
     #[derive(serde::Deserialize)]
     struct Xy {
         x: f64,
@@ -90,6 +93,12 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
     }
     #[derive(serde::Deserialize)]
     struct Truth {
+        lin_vel_body: Xy,
+        ang_vel_body: Z,
+    }
+    #[derive(serde::Deserialize)]
+    struct Est {
+        valid: bool,
         lin_vel_body: Xy,
         ang_vel_body: Z,
     }
@@ -112,8 +121,17 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
                 command = [o.vx, o.vy, o.wz];
             }
         }
+        ch::ESTIMATOR => {
+            estimate = serde_json::from_slice::<Est>(data)
+                .ok()
+                .filter(|e| e.valid)
+                .map(|e| [e.lin_vel_body.x, e.lin_vel_body.y, e.ang_vel_body.z]);
+        }
         ch::TRUTH => {
             if let Ok(tr) = serde_json::from_slice::<Truth>(data) {
+                let m = [tr.lin_vel_body.x, tr.lin_vel_body.y, tr.ang_vel_body.z];
+                any_estimate |= estimate.is_some();
+                s.estimated.push(estimate.unwrap_or(m));
                 s.t.push(t_ns as f64 * 1e-9);
                 s.commanded.push(command);
                 s.measured
@@ -132,6 +150,10 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
         }
         _ => {}
     });
+    if !any_estimate {
+        // Logs from specs without leg kinematics: no estimate to draw.
+        s.estimated.clear();
+    }
     if s.t.is_empty() {
         bail!(
             "{} has no simulator ground truth ({}); only logs of `g1fw sim` runs can be plotted",

@@ -695,8 +695,8 @@ impl EstimatorEval {
         let tv = t.base_lin_vel_body;
         let tz = t.base_pos[2];
         self.n += 1;
-        for a in 0..3 {
-            self.est_sq[a] += (e.lin_vel_body[a] as f64 - tv[a]).powi(2);
+        for (sq, (ev, tv)) in self.est_sq.iter_mut().zip(e.lin_vel_body.iter().zip(tv)) {
+            *sq += (*ev as f64 - tv).powi(2);
         }
         self.est_sq[3] += (e.position[2] as f64 - tz).powi(2);
         self.base_sq[0] += (bv.x - tv[0]).powi(2);

@@ -12,7 +12,10 @@ fn walk(cmd: [f32; 3], imu_noise: Option<&str>) -> Option<Report> {
         return None;
     }
     let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
-    assert!(spec.kinematics.is_some(), "the peer spec names the MJCF for leg kinematics");
+    assert!(
+        spec.kinematics.is_some(),
+        "the peer spec names the MJCF for leg kinematics"
+    );
     let opts = SimOptions {
         model: "g1-12dof".into(),
         schedule: CommandSchedule::constant(cmd),
@@ -48,7 +51,10 @@ fn walk(cmd: [f32; 3], imu_noise: Option<&str>) -> Option<Report> {
 fn check_clean(r: &Report, what: &str) {
     let e = &r.estimator;
     let (vx, vy) = (e.est_vel_rmse_x.unwrap(), e.est_vel_rmse_y.unwrap());
-    assert!(vx <= 0.05 && vy <= 0.05, "{what}: velocity RMSE x {vx} y {vy} > 0.05 m/s");
+    assert!(
+        vx <= 0.05 && vy <= 0.05,
+        "{what}: velocity RMSE x {vx} y {vy} > 0.05 m/s"
+    );
     let h = e.est_height_rmse_m.unwrap();
     assert!(h <= 0.02, "{what}: height RMSE {h} m > 2 cm");
     let c = e.est_contact_agreement.unwrap();
@@ -57,7 +63,10 @@ fn check_clean(r: &Report, what: &str) {
     let both = e.est_contact_agreement_both_feet.unwrap();
     assert!(both >= 0.95, "{what}: both-feet contact agreement {both} < 95 %");
     // The naive contact rule is worse.
-    assert!(c > e.baseline_contact_agreement.unwrap(), "{what}: no better than the lower-foot rule");
+    assert!(
+        c > e.baseline_contact_agreement.unwrap(),
+        "{what}: no better than the lower-foot rule"
+    );
 }
 
 #[test]
@@ -80,12 +89,18 @@ fn estimates_with_realistic_imu_errors() {
         let Some(r) = walk(cmd, Some("realistic")) else { return };
         let e = &r.estimator;
         let (vx, vy) = (e.est_vel_rmse_x.unwrap(), e.est_vel_rmse_y.unwrap());
-        assert!(vx <= 0.08 && vy <= 0.08, "{cmd:?} noisy IMU: velocity RMSE x {vx} y {vy} > 0.08");
+        assert!(
+            vx <= 0.08 && vy <= 0.08,
+            "{cmd:?} noisy IMU: velocity RMSE x {vx} y {vy} > 0.08"
+        );
         let h = e.est_height_rmse_m.unwrap();
         assert!(h <= 0.02, "{cmd:?} noisy IMU: height RMSE {h}");
         // Integrating a biased accelerometer drifts; the filter does not.
         let (bx, by) = (e.baseline_vel_rmse_x.unwrap(), e.baseline_vel_rmse_y.unwrap());
-        assert!(bx > 5.0 * vx && by > 5.0 * vy, "{cmd:?}: baseline {bx} {by} vs filter {vx} {vy}");
+        assert!(
+            bx > 5.0 * vx && by > 5.0 * vy,
+            "{cmd:?}: baseline {bx} {by} vs filter {vx} {vy}"
+        );
     }
 }
 
@@ -109,7 +124,10 @@ fn spec_without_kinematics_reports_no_estimator_figures() {
     };
     let r = run_sim(spec, &opts, |v| {
         assert!(!v.summary.estimate.valid);
-        assert!(v.summary.estimate.projected_gravity[2] < -0.9, "attitude still estimated");
+        assert!(
+            v.summary.estimate.projected_gravity[2] < -0.9,
+            "attitude still estimated"
+        );
     })
     .unwrap();
     assert_eq!(r.estimator.est_ticks, 0);
@@ -120,5 +138,8 @@ fn spec_without_kinematics_reports_no_estimator_figures() {
     // A wrong MJCF path is a clear load-time error naming the field.
     let bad = text.replace("g1_12dof.xml", "no_such_model.xml");
     let err = DeploySpec::from_toml(&bad, &path).unwrap_err().to_string();
-    assert!(err.contains("estimator.model") && err.contains("no_such_model.xml"), "{err}");
+    assert!(
+        err.contains("estimator.model") && err.contains("no_such_model.xml"),
+        "{err}"
+    );
 }

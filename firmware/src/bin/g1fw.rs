@@ -24,7 +24,7 @@ struct Cli {
 enum Cmd {
     /// Start the MuJoCo simulator (g1-sim) and run the firmware against it, lock-stepped over the
     /// bridge, then print (and optionally write) a JSON report evaluated from ground truth.
-    Sim(SimArgs),
+    Sim(Box<SimArgs>),
     /// Load and validate a deploy spec and its weights, print a summary, exit non-zero on any error.
     CheckSpec {
         /// Deploy spec (TOML).
@@ -185,7 +185,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             );
             Ok(ExitCode::SUCCESS)
         }
-        Cmd::Sim(a) => sim(a),
+        Cmd::Sim(a) => sim(*a),
         Cmd::Replay(a) => {
             let report = replay(
                 &a.log,

@@ -186,8 +186,11 @@ fn realistic_imu_noise_has_biases_and_a_drifting_yaw() {
         let t = sim.truth();
         if tick > 500 {
             // Standing still: the mean gyro reading is the bias.
-            for a in 0..3 {
-                gyro_sum[a] += st.imu.gyroscope[a] as f64 - t.base_ang_vel_body[a];
+            for (sum, (g, w)) in gyro_sum
+                .iter_mut()
+                .zip(st.imu.gyroscope.iter().zip(t.base_ang_vel_body))
+            {
+                *sum += *g as f64 - w;
             }
             n += 1.0;
         }
