@@ -461,11 +461,15 @@ fn foot_point(ankle: roxmltree::Node, p: &str) -> Result<Vector3<f64>, Kinematic
     Ok(Vector3::new(c.x, c.y, low))
 }
 
+/// A toy two-legged MJCF (0.4 m thigh and shank) for unit tests.
+#[cfg(test)]
+pub(crate) const TEST_LEGS_MJCF: &str = tests::TWO_LINK;
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    const TWO_LINK: &str = r#"<mujoco><worldbody><body name="pelvis">
+    pub(super) const TWO_LINK: &str = r#"<mujoco><worldbody><body name="pelvis">
       <body name="left_hip_pitch_link" pos="0 0.1 0"><joint name="left_hip_pitch_joint" axis="0 1 0"/>
        <body name="left_hip_roll_link"><joint name="left_hip_roll_joint" axis="1 0 0"/>
         <body name="left_hip_yaw_link"><joint name="left_hip_yaw_joint"/>

@@ -269,3 +269,61 @@ impl StateEstimator {
         self.out.projected_gravity = crate::attitude::projected_gravity(qf);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn standing() -> LowState {
+        let mut s = LowState::default();
+        s.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
+        s.imu.accelerometer = [0.0, 0.0, 9.81];
+        for leg in 0..2 {
+            let m = &mut s.motors[6 * leg..6 * leg + 6];
+            m[3].q = 0.3;
+            m[3].tau_est = -60.0; // the knee holds the robot up
+        }
+        s
+    }
+
+    #[test]
+    fn standing_still_stays_put_and_bad_input_never_poisons_the_filter() {
+        let kin = LegKinematics::from_mjcf(crate::kinematics::TEST_LEGS_MJCF).unwrap();
+        let mut e = StateEstimator::new(Some(kin), EstimatorConfig::default(), 0.002);
+        let good = standing();
+        for k in 0..500 {
+            e.update(k, &good);
+        }
+        let est = *e.estimate();
+        assert!(est.valid && est.attitude_source == AttitudeSource::Imu);
+        assert!(est.lin_vel_body.iter().all(|v| v.abs() < 1e-3), "{est:?}");
+        assert!(est.position[2] > 0.7 && est.position[2] < 0.9, "{est:?}");
+
+        // NaN in a joint or the gyro: the tick is skipped, not folded in.
+        let mut bad = good;
+        bad.motors[3].dq = f32::NAN;
+        assert!(!e.update(500, &bad).valid);
+        let mut bad = good;
+        bad.imu.gyroscope[1] = f32::INFINITY;
+        assert!(!e.update(501, &bad).valid);
+        // An invalid quaternion falls back to the complementary filter.
+        let mut bad = good;
+        bad.imu.quaternion = [f32::NAN; 4];
+        let fb = *e.update(502, &bad);
+        assert!(fb.valid && fb.attitude_source == AttitudeSource::Filter, "{fb:?}");
+        // Good input again: finite and where it was.
+        let after = *e.update(503, &good);
+        assert!(after.valid && e.filter().unwrap().is_finite());
+        assert!((after.position[2] - est.position[2]).abs() < 1e-3);
+        // A repeated tick index changes nothing.
+        assert_eq!(*e.update(503, &good), after);
+    }
+
+    #[test]
+    fn attitude_only_without_kinematics() {
+        let mut e = StateEstimator::new(None, EstimatorConfig::default(), 0.002);
+        let out = *e.update(0, &standing());
+        assert!(!out.valid);
+        assert_eq!(out.projected_gravity, [0.0, 0.0, -1.0]);
+    }
+}
