@@ -369,7 +369,7 @@ fn leg_from_doc(doc: &roxmltree::Document, side: Side) -> Result<Leg, Kinematics
     Ok(Leg {
         side,
         links,
-        foot: foot_point(ankle, p)?,
+        foot: foot_point(ankle, p, &sole[..sole_len])?,
         sole,
         sole_len,
     })
@@ -427,8 +427,9 @@ fn sole_points(
     Ok((out, n))
 }
 
-/// The sole centre in the ankle-roll frame (see the module doc).
-fn foot_point(ankle: roxmltree::Node, p: &str) -> Result<Vector3<f64>, KinematicsError> {
+/// The sole centre in the ankle-roll frame (see the module doc): the `{p}_foot` site, else the
+/// centroid of the sole points at their lowest height.
+fn foot_point(ankle: roxmltree::Node, p: &str, sole: &[Vector3<f64>]) -> Result<Vector3<f64>, KinematicsError> {
     let site = format!("{p}_foot");
     if let Some(s) = ankle
         .children()
@@ -436,28 +437,13 @@ fn foot_point(ankle: roxmltree::Node, p: &str) -> Result<Vector3<f64>, Kinematic
     {
         return Ok(Vector3::from(parse_vec(s, "pos", [0.0; 3])?));
     }
-    // Collision spheres: geoms with no type (MuJoCo's default is a sphere) or type="sphere" that
-    // collide (contype not 0).
-    let mut sum = Vector3::zeros();
-    let mut low = f64::INFINITY;
-    let mut n = 0;
-    for g in ankle.children().filter(|c| c.has_tag_name("geom")) {
-        let is_sphere = g.attribute("type").is_none_or(|t| t == "sphere") && !g.has_attribute("mesh");
-        if !is_sphere || g.attribute("contype") == Some("0") || g.has_attribute("class") {
-            continue;
-        }
-        let c = Vector3::from(parse_vec(g, "pos", [0.0; 3])?);
-        let [r] = parse_vec(g, "size", [0.0])?;
-        sum += c;
-        low = low.min(c.z - r);
-        n += 1;
-    }
-    if n == 0 {
+    if sole.is_empty() {
         return Err(KinematicsError::Unsupported(format!(
-            "no site '{site}' and no collision spheres on {p}_ankle_roll_link to place the foot point"
+            "no site '{site}' and no collision spheres or capsules on {p}_ankle_roll_link to place the foot point"
         )));
     }
-    let c = sum / n as f64;
+    let c = sole.iter().sum::<Vector3<f64>>() / sole.len() as f64;
+    let low = sole.iter().map(|v| v.z).fold(f64::INFINITY, f64::min);
     Ok(Vector3::new(c.x, c.y, low))
 }
 

@@ -128,11 +128,6 @@ impl StateEstimator {
         self.filter.as_ref()
     }
 
-    /// Forgets everything; the next update starts afresh.
-    pub fn reset(&mut self) {
-        *self = Self::new(self.kinematics.take(), self.cfg, self.tick_dt);
-    }
-
     /// Folds in the newest accepted state of control tick `tick`. Call once per fresh frame; ticks
     /// without one are bridged by the time step of the next call.
     pub fn update(&mut self, tick: u64, state: &LowState) -> &BaseEstimate {

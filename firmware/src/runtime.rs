@@ -97,7 +97,6 @@ pub struct Runtime {
     overruns: Overruns,
     trip: Option<(u64, DampingReason)>,
     estimator: StateEstimator,
-    estimate: Estimate,
     stats: TimingStats,
 }
 
@@ -112,7 +111,6 @@ impl Runtime {
             overruns: Overruns::default(),
             trip: None,
             estimator: StateEstimator::new(spec.kinematics.clone(), spec.estimator.config(), spec.control_dt()),
-            estimate: Estimate::default(),
             stats: TimingStats::new(),
             controller,
         }
@@ -139,7 +137,7 @@ impl Runtime {
     }
     /// The newest state estimate.
     pub fn estimate(&self) -> &Estimate {
-        &self.estimate
+        self.estimator.estimate()
     }
     pub fn estimator(&self) -> &StateEstimator {
         &self.estimator
@@ -188,14 +186,14 @@ impl Runtime {
             reset: false,
             counters: SafetyCounters::default(),
             clamped_targets: 0,
-            estimate: self.estimate,
+            estimate: *self.estimator.estimate(),
             timing: TickTiming::default(),
             overruns: 0,
         };
 
         // 2. estimate (from fresh frames only: a repeated state carries no new information)
         if frame == FrameStatus::Fresh {
-            self.estimate = *self.estimator.update(k, state);
+            self.estimator.update(k, state);
         }
 
         // 3. safety and operator
@@ -240,7 +238,7 @@ impl Runtime {
         s.mode = self.controller.mode();
         s.counters = self.supervisor.counters();
         s.clamped_targets = self.controller.clamped_targets();
-        s.estimate = self.estimate;
+        s.estimate = *self.estimator.estimate();
         s.timing = TickTiming {
             fast_ns: ns(t1 - t0) + ns(t4 - t3),
             perception_ns: if s.perception_step { ns(t2 - t1) } else { 0 },

@@ -431,16 +431,22 @@ impl DeploySpec {
             ("safety.base_ang_speed_limit_rad_s", s.base_ang_speed_limit_rad_s as f64),
             ("safety.state_timeout_s", s.state_timeout_s),
         ];
-        for (field, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(self.invalid(field, format!("must be a positive number, got {v}")));
-            }
-        }
+        self.require_positive(&positive)?;
         if s.crc_failure_streak == 0 || s.frozen_state_frames < 2 {
             return Err(self.invalid("safety", "crc_failure_streak must be >= 1 and frozen_state_frames >= 2"));
         }
         if !(s.joint_range_margin_rad.is_finite() && s.joint_range_margin_rad >= 0.0) {
             return Err(self.invalid("safety.joint_range_margin_rad", "must be >= 0"));
+        }
+        Ok(())
+    }
+
+    /// Every `(field, value)` is a finite number > 0.
+    fn require_positive(&self, fields: &[(&str, f64)]) -> Result<(), SpecError> {
+        for &(field, v) in fields {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(self.invalid(field, format!("must be a positive number, got {v}")));
+            }
         }
         Ok(())
     }
@@ -490,11 +496,7 @@ impl DeploySpec {
             ("estimator.leg_velocity_noise_m_s", e.leg_velocity_noise_m_s),
             ("estimator.accel_noise", e.accel_noise),
         ];
-        for (field, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(self.invalid(field, format!("must be a positive number, got {v}")));
-            }
-        }
+        self.require_positive(&positive)?;
         if !(e.contact_off_force_n.is_finite() && e.contact_off_force_n <= e.contact_on_force_n) {
             return Err(self.invalid(
                 "estimator.contact_off_force_n",
