@@ -8,9 +8,11 @@
 #![no_std]
 
 mod lidar;
+mod terrain;
 mod types;
 
 pub use lidar::{LidarPoint, PointFrame};
+pub use terrain::{wrap_angle, TerrainClass, TerrainToken};
 pub use types::*;
 
 /// Number of motor slots in the unitree_hg messages (29 used on the 29-dof G1).
