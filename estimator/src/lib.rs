@@ -8,14 +8,17 @@
 //! - [`attitude`]: the IMU's quaternion (or a complementary filter when it is invalid) and the
 //!   signals policies use (projected gravity, roll/pitch/yaw);
 //! - [`state`]: [`StateEstimator`], all of the above in the firmware's per-tick order;
-//! - [`baseline`]: the naive estimator it is compared with (integrated accelerometer).
+//! - [`baseline`]: the naive estimator it is compared with (integrated accelerometer);
+//! - [`terrain`]: the geometric (no learning) terrain token from a BEV grid, the CNN's fallback.
 pub mod attitude;
 pub mod baseline;
 pub mod contact;
 pub mod filter;
 pub mod kinematics;
 pub mod state;
+pub mod terrain;
 
 pub use attitude::{projected_gravity, rpy, tilt_rad};
 pub use kinematics::{KinematicsError, LegKinematics, Side};
 pub use state::{AttitudeSource, BaseEstimate, EstimatorConfig, StateEstimator};
+pub use terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
