@@ -17,9 +17,12 @@
 //! message loop) does not allocate. Runs are deterministic: same model, config and commands give
 //! bit-identical states (optional IMU noise comes from a seeded PRNG).
 pub mod faults;
+pub mod lidar;
+pub mod rng;
 pub mod model;
 pub mod server;
 pub mod slots;
+pub mod world;
 
 use std::path::PathBuf;
 
@@ -28,6 +31,7 @@ pub use model::ModelChoice;
 use model::SlotMap;
 use mujoco_rs::prelude::*;
 pub use sim_hal::bridge::Truth;
+use rng::Rng;
 
 /// Errors of the simulator library.
 #[derive(Debug, thiserror::Error)]
@@ -198,26 +202,6 @@ pub enum MotorFault {
 
 /// SplitMix64 + Box–Muller: tiny, seedable, allocation-free, and no dependency.
 #[derive(Clone, Debug)]
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    /// Uniform in (0, 1].
-    fn uniform(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 1.0) * (1.0 / (1u64 << 53) as f64)
-    }
-    fn gaussian(&mut self) -> f64 {
-        let (u1, u2) = (self.uniform(), self.uniform());
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
-}
-
 /// The simulated G1 with its motor drivers.
 pub struct Simulator {
     data: MjData<Box<MjModel>>,
@@ -253,6 +237,11 @@ pub struct Simulator {
 impl Simulator {
     /// Loads and prepares `choice` and puts it in its initial state.
     pub fn load(choice: ModelChoice, config: SimConfig) -> Result<Self, SimError> {
+        Self::load_in(choice, config, None)
+    }
+
+    /// [`Simulator::load`] in a terrain world (stairs); the robot starts on the world's start pose.
+    pub fn load_in(choice: ModelChoice, config: SimConfig, world: Option<&world::World>) -> Result<Self, SimError> {
         let substeps = config.substeps()?;
         if let Some(n) = config.imu_noise {
             if !n.is_valid() {
@@ -261,7 +250,7 @@ impl Simulator {
                 )));
             }
         }
-        let l = model::load(&choice, config.physics_dt)?;
+        let l = model::load(&choice, config.physics_dt, world)?;
         let robot_root = l.model.body_rootid()[l.pelvis_body];
         let data = MjData::new(Box::new(l.model));
         let mut sim = Self {
@@ -584,6 +573,11 @@ impl Simulator {
     /// The underlying MuJoCo data (and, through it, the model), for inspection.
     pub fn data(&self) -> &MjData<Box<MjModel>> {
         &self.data
+    }
+
+    /// Mutable MuJoCo state, for sensors that need it (ray casting); not for stepping.
+    pub fn data_mut(&mut self) -> &mut MjData<Box<MjModel>> {
+        &mut self.data
     }
 
     /// A command holding the initial pose with [`slots::hold_gains`] on every present slot.

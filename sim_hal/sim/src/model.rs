@@ -8,6 +8,7 @@
 //! - one `motor` actuator (gear 1, ctrlrange = effort limit) per slot joint that has no direct
 //!   torque actuator (gear 1, fixed gain 1, no bias, no dynamics);
 //! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it.
+use crate::world::{Primitive, World};
 use std::path::PathBuf;
 use std::str::FromStr;
 
@@ -146,7 +147,7 @@ fn is_direct_motor(trn: mjtTrn, gain: mjtGain, gainprm0: f64, bias: mjtBias, dyn
 }
 
 /// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map.
-pub fn load(choice: &ModelChoice, physics_dt: f64) -> Result<Loaded, SimError> {
+pub fn load(choice: &ModelChoice, physics_dt: f64, world: Option<&World>) -> Result<Loaded, SimError> {
     let path = choice.path();
     if !path.exists() {
         return Err(SimError::ModelMissing {
@@ -160,11 +161,66 @@ pub fn load(choice: &ModelChoice, physics_dt: f64) -> Result<Loaded, SimError> {
     add_floor_if_missing(&mut spec)?;
     let limits = prepare_slot_joints(&mut spec)?;
     add_imu_if_missing(&mut spec)?;
+    if let Some(w) = world {
+        add_world(&mut spec, w)?;
+    }
 
     let model = spec
         .compile()
         .map_err(|e| edit_err(&format!("compiling {}", path.display()), e))?;
-    resolve(choice, model, &limits)
+    let mut loaded = resolve(choice, model, &limits)?;
+    if let (Some(w), Some(qa)) = (world, loaded.root_qpos_adr) {
+        // Stand the robot on the world's start pose (its ground may be a raised landing).
+        let [x, y, ground, yaw] = w.start();
+        let q = &mut loaded.initial_qpos;
+        q[qa] += x;
+        q[qa + 1] += y;
+        q[qa + 2] += ground;
+        let r = [(0.5 * yaw).cos(), 0.0, 0.0, (0.5 * yaw).sin()];
+        let o = [q[qa + 3], q[qa + 4], q[qa + 5], q[qa + 6]];
+        let m = quat_mul(r, o);
+        q[qa + 3..qa + 7].copy_from_slice(&m);
+    }
+    Ok(loaded)
+}
+
+fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    ]
+}
+
+/// The world's static geoms (named `terrain_N`, grey, colliding like the floor).
+fn add_world(spec: &mut MjSpec, world: &World) -> Result<(), SimError> {
+    for (i, p) in world.primitives().into_iter().enumerate() {
+        let g = spec.world_body_mut().add_geom();
+        match p {
+            Primitive::Box { pos, quat, half } => {
+                g.set_type(_mjtGeomBase::mjGEOM_BOX);
+                *g.pos_mut() = pos;
+                *g.quat_mut() = quat;
+                *g.size_mut() = half;
+            }
+            Primitive::Cylinder {
+                pos,
+                quat,
+                radius,
+                half_len,
+            } => {
+                g.set_type(_mjtGeomBase::mjGEOM_CYLINDER);
+                *g.pos_mut() = pos;
+                *g.quat_mut() = quat;
+                *g.size_mut() = [radius, half_len, 0.0];
+            }
+        }
+        *g.rgba_mut() = [0.62, 0.6, 0.55, 1.0];
+        g.set_name(&format!("terrain_{i}"))
+            .map_err(|e| edit_err("naming a terrain geom", e))?;
+    }
+    Ok(())
 }
 
 fn add_floor_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
