@@ -16,6 +16,7 @@
 //! The per-tick path (`apply_command` → `step_control_tick` → `low_state`, and the server's
 //! message loop) does not allocate. Runs are deterministic: same model, config and commands give
 //! bit-identical states (optional IMU noise comes from a seeded PRNG).
+pub mod dataset;
 pub mod faults;
 pub mod lidar;
 pub mod rng;

@@ -1,0 +1,1 @@
+//! Dataset generation for the terrain estimator (placeholder; being written).
