@@ -85,3 +85,333 @@ impl Default for BevGrid {
         Self::zeroed()
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Sensor mount and the robot frame
+
+/// Why a BEV configuration was rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum BevError {
+    #[error("self-filter: {count} boxes given, at most {MAX_SELF_BOXES} supported")]
+    TooManyBoxes { count: usize },
+    #[error("self-filter: box {index} is inverted or not finite (need min <= max on every axis)")]
+    InvalidBox { index: usize },
+}
+
+/// The lidar's pose in the base (pelvis) frame: `p_base = R_mount · p_sensor + xyz`, with
+/// `R_mount = Rz(yaw) · Ry(pitch) · Rx(roll)` and `rpy = [roll, pitch, yaw]` (URDF convention).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MountPose {
+    /// m, base frame.
+    pub xyz: [f32; 3],
+    /// rad.
+    pub rpy: [f32; 3],
+}
+
+impl MountPose {
+    /// MID-360 on the G1 per the latest unitree_ros URDF: `torso_link` at (-0.0039635, 0, 0.044)
+    /// from the pelvis (waist joints at zero), `mid360_link` at (0.0002835, 0.00003, 0.428434) from
+    /// the torso with rpy (π, 0.0511, 0), i.e. mounted upside down. Sources disagree (older URDF:
+    /// z 0.41618, rpy (0, 0.0401, 0)): treat it as a calibrated parameter.
+    pub const G1_MID360_DEFAULT: MountPose = MountPose {
+        xyz: [-0.00368, 0.00003, 0.472434],
+        rpy: [core::f32::consts::PI, 0.0511, 0.0],
+    };
+
+    /// Identity rotation, no offset.
+    pub const IDENTITY: MountPose = MountPose {
+        xyz: [0.0; 3],
+        rpy: [0.0; 3],
+    };
+}
+
+type M3 = [[f64; 3]; 3];
+
+fn rot_x(a: f64) -> M3 {
+    let (s, c) = a.sin_cos();
+    [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]
+}
+fn rot_y(a: f64) -> M3 {
+    let (s, c) = a.sin_cos();
+    [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+}
+fn rot_z(a: f64) -> M3 {
+    let (s, c) = a.sin_cos();
+    [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+}
+fn mat_mul(a: &M3, b: &M3) -> M3 {
+    core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+}
+fn mat_vec(a: &M3, v: [f64; 3]) -> [f64; 3] {
+    core::array::from_fn(|i| a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2])
+}
+
+/// Maps sensor-frame points into the gravity-aligned robot frame of the grid:
+/// `p_robot = Ry(pitch) · Rx(roll) · (R_mount · p_s + t_mount) + [0, 0, base_height]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobotFrame {
+    pub rot: [[f32; 3]; 3],
+    pub trans: [f32; 3],
+}
+
+impl RobotFrame {
+    /// `roll`, `pitch`: the base's attitude (rad, ZYX Euler angles, yaw left out); `base_height`:
+    /// height of the base origin above the ground under the robot, m. Composed in f64.
+    pub fn new(mount: &MountPose, roll: f32, pitch: f32, base_height: f32) -> Self {
+        let [mr, mp, my] = mount.rpy.map(f64::from);
+        let r_mount = mat_mul(&rot_z(my), &mat_mul(&rot_y(mp), &rot_x(mr)));
+        let r_level = mat_mul(&rot_y(pitch as f64), &rot_x(roll as f64));
+        let rot = mat_mul(&r_level, &r_mount);
+        let mut trans = mat_vec(&r_level, mount.xyz.map(f64::from));
+        trans[2] += base_height as f64;
+        Self {
+            rot: rot.map(|row| row.map(|v| v as f32)),
+            trans: trans.map(|v| v as f32),
+        }
+    }
+
+    /// `rot · p + trans`.
+    #[inline]
+    pub fn apply(&self, p: [f32; 3]) -> [f32; 3] {
+        let r = &self.rot;
+        [
+            r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + self.trans[0],
+            r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + self.trans[1],
+            r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + self.trans[2],
+        ]
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Self filter
+
+/// Axis-aligned box in the robot frame, m, bounds inclusive.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Aabb {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+impl Aabb {
+    #[inline]
+    pub fn contains(&self, p: [f32; 3]) -> bool {
+        (0..3).all(|k| p[k] >= self.min[k] && p[k] <= self.max[k])
+    }
+
+    fn is_valid(&self) -> bool {
+        (0..3).all(|k| self.min[k].is_finite() && self.max[k].is_finite() && self.min[k] <= self.max[k])
+    }
+}
+
+/// Most boxes a [`SelfFilter`] holds.
+pub const MAX_SELF_BOXES: usize = 8;
+
+/// Drops returns off the robot's own body: points inside any of up to [`MAX_SELF_BOXES`] boxes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SelfFilter {
+    boxes: [Aabb; MAX_SELF_BOXES],
+    count: usize,
+}
+
+const EMPTY_BOX: Aabb = Aabb {
+    min: [0.0; 3],
+    max: [0.0; 3],
+};
+
+impl SelfFilter {
+    /// The whole column around the G1's body: x ∈ [−0.35, 0.35], y ∈ [−0.40, 0.40],
+    /// z ∈ [−1.0, 2.5] (robot frame).
+    pub const G1_DEFAULT: SelfFilter = SelfFilter {
+        boxes: [
+            Aabb {
+                min: [-0.35, -0.40, -1.0],
+                max: [0.35, 0.40, 2.5],
+            },
+            EMPTY_BOX,
+            EMPTY_BOX,
+            EMPTY_BOX,
+            EMPTY_BOX,
+            EMPTY_BOX,
+            EMPTY_BOX,
+            EMPTY_BOX,
+        ],
+        count: 1,
+    };
+
+    /// Filters nothing.
+    pub const NONE: SelfFilter = SelfFilter {
+        boxes: [EMPTY_BOX; MAX_SELF_BOXES],
+        count: 0,
+    };
+
+    /// Rejects more than [`MAX_SELF_BOXES`] boxes and inverted or non-finite ones.
+    pub fn new(boxes: &[Aabb]) -> Result<Self, BevError> {
+        if boxes.len() > MAX_SELF_BOXES {
+            return Err(BevError::TooManyBoxes { count: boxes.len() });
+        }
+        if let Some(index) = boxes.iter().position(|b| !b.is_valid()) {
+            return Err(BevError::InvalidBox { index });
+        }
+        let mut f = Self::NONE;
+        f.boxes[..boxes.len()].copy_from_slice(boxes);
+        f.count = boxes.len();
+        Ok(f)
+    }
+
+    pub fn boxes(&self) -> &[Aabb] {
+        &self.boxes[..self.count]
+    }
+
+    #[inline]
+    pub fn contains(&self, p: [f32; 3]) -> bool {
+        self.boxes[..self.count].iter().any(|b| b.contains(p))
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Grid builder
+
+/// Cells in one grid.
+const CELLS: usize = BEV_CELLS * BEV_CELLS;
+
+/// What happened to a build's input points: `input = used + self_hits + outside + non_finite`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BevStats {
+    pub input: usize,
+    /// Points that landed in a cell.
+    pub used: usize,
+    /// Points inside the self filter.
+    pub self_hits: usize,
+    /// Points outside the window.
+    pub outside: usize,
+    /// Points with a NaN or infinite coordinate (after the transform).
+    pub non_finite: usize,
+}
+
+/// Builds [`BevGrid`]s from point clouds with fixed per-cell accumulators (point count, sum and sum
+/// of squares of z in f64, min and max z): one pass over the points, one over the cells, no
+/// allocation. Allocate once with [`new_boxed`](Self::new_boxed) (about 100 KB).
+pub struct BevBuilder {
+    count: [u32; CELLS],
+    sum: [f64; CELLS],
+    sum_sq: [f64; CELLS],
+    min: [f32; CELLS],
+    max: [f32; CELLS],
+}
+
+impl BevBuilder {
+    pub fn new_boxed() -> Box<Self> {
+        Box::new(Self {
+            count: [0; CELLS],
+            sum: [0.0; CELLS],
+            sum_sq: [0.0; CELLS],
+            min: [0.0; CELLS],
+            max: [0.0; CELLS],
+        })
+    }
+
+    /// Sensor-frame points (e.g. a lidar frame) → `frame` → drop those inside `filter` → grid.
+    pub fn build(
+        &mut self,
+        points: &[hal::LidarPoint],
+        frame: &RobotFrame,
+        filter: &SelfFilter,
+        out: &mut BevGrid,
+    ) -> BevStats {
+        self.reset();
+        let mut stats = BevStats {
+            input: points.len(),
+            ..BevStats::default()
+        };
+        for p in points {
+            let q = frame.apply(p.xyz);
+            if !(q[0].is_finite() && q[1].is_finite() && q[2].is_finite()) {
+                stats.non_finite += 1;
+            } else if filter.contains(q) {
+                stats.self_hits += 1;
+            } else if self.add(q) {
+                stats.used += 1;
+            } else {
+                stats.outside += 1;
+            }
+        }
+        self.finish(out);
+        stats
+    }
+
+    /// Points already in the robot frame, no self filter.
+    pub fn build_robot_points(&mut self, points: &[[f32; 3]], out: &mut BevGrid) -> BevStats {
+        self.reset();
+        let mut stats = BevStats {
+            input: points.len(),
+            ..BevStats::default()
+        };
+        for &q in points {
+            if !(q[0].is_finite() && q[1].is_finite() && q[2].is_finite()) {
+                stats.non_finite += 1;
+            } else if self.add(q) {
+                stats.used += 1;
+            } else {
+                stats.outside += 1;
+            }
+        }
+        self.finish(out);
+        stats
+    }
+
+    fn reset(&mut self) {
+        self.count.fill(0);
+        self.sum.fill(0.0);
+        self.sum_sq.fill(0.0);
+        self.min.fill(f32::INFINITY);
+        self.max.fill(f32::NEG_INFINITY);
+    }
+
+    /// Accumulates a finite robot-frame point; false when it is outside the window.
+    #[inline]
+    fn add(&mut self, q: [f32; 3]) -> bool {
+        let Some((ix, iy)) = BevGrid::cell_of(q[0], q[1]) else {
+            return false;
+        };
+        let c = ix * BEV_CELLS + iy;
+        let z = q[2];
+        self.count[c] += 1;
+        let zd = z as f64;
+        self.sum[c] += zd;
+        self.sum_sq[c] += zd * zd;
+        self.min[c] = self.min[c].min(z);
+        self.max[c] = self.max[c].max(z);
+        true
+    }
+
+    fn finish(&self, out: &mut BevGrid) {
+        let max_count = self.count.iter().copied().max().unwrap_or(0);
+        let inv_max = if max_count > 0 { 1.0 / max_count as f64 } else { 0.0 };
+        let (max_ch, rest) = out.data.split_at_mut(CELLS);
+        let (min_ch, rest) = rest.split_at_mut(CELLS);
+        let (mean_ch, rest) = rest.split_at_mut(CELLS);
+        let (range_ch, rest) = rest.split_at_mut(CELLS);
+        let (std_ch, density_ch) = rest.split_at_mut(CELLS);
+        for c in 0..CELLS {
+            let n = self.count[c];
+            if n == 0 {
+                max_ch[c] = 0.0;
+                min_ch[c] = 0.0;
+                mean_ch[c] = 0.0;
+                range_ch[c] = 0.0;
+                std_ch[c] = 0.0;
+                density_ch[c] = 0.0;
+                continue;
+            }
+            let nf = n as f64;
+            let mean = self.sum[c] / nf;
+            let var = (self.sum_sq[c] / nf - mean * mean).max(0.0);
+            max_ch[c] = self.max[c];
+            min_ch[c] = self.min[c];
+            mean_ch[c] = mean as f32;
+            range_ch[c] = self.max[c] - self.min[c];
+            std_ch[c] = var.sqrt() as f32;
+            density_ch[c] = (nf * inv_max) as f32;
+        }
+    }
+}
