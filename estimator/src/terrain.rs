@@ -6,15 +6,16 @@
 //! 1. collect the occupied cells (x, y, z = mean) that are finite, outside the self-hit box around
 //!    the robot and not outliers (|z| or max − min too large);
 //! 2. stair direction: for directions φ ∈ [−90°, 90°) (1° steps, then 0.1° around the best) project
-//!    the cells within a lateral band onto u = (cos φ, sin φ), bin them along u (2 cm) and take the
+//!    the cells within 1.5 m of the robot onto u = (cos φ, sin φ), bin them along u (2 cm) and take the
 //!    φ with the smallest mean within-bin height variance (a staircase's height depends on the
 //!    coordinate along u alone, so the right direction gives the sharpest 1-D profile);
 //! 3. the 1-D profile (median height per bin) is cut into plateaus: a bin joins the current plateau
 //!    when it is within `level_tol_m` of the plateau's local level and no data gap separates them;
 //!    short plateaus (riser cells, noise) are dropped, neighbours closer than `min_jump_m` merged;
-//! 4. risers = jumps between consecutive plateaus; a riser lies at the edge of the higher plateau
-//!    (for stairs seen from above the lower tread is shadowed next to the riser, from below the riser
-//!    face blurs the lower edge); the majority sign of the jumps along u gives up/down;
+//! 4. risers = jumps between consecutive plateaus; a riser seen from above (higher plateau on the
+//!    robot's side) lies at the edge of the higher plateau (the lower tread is shadowed next to it),
+//!    one seen from below in the middle of the gap (filled by the riser face's mixed cells, which
+//!    step 1 drops); the majority sign of the jumps along u gives up/down;
 //!    h = median jump (jumps across data gaps divided by their step count), d = median spacing of
 //!    consecutive risers, or, with fewer than two risers, the rise over run of the plateau centres,
 //!    or `default_depth_m`;
@@ -40,11 +41,16 @@ pub struct GeometricTerrainConfig {
     pub self_box_half_m: f32,
     /// Cells with |mean z| above this are ignored as garbage, m.
     pub max_abs_z_m: f32,
-    /// Cells whose max − min exceeds this are ignored (mixed returns, spray), m.
+    /// Cells whose max − min exceeds this are ignored (riser faces, mixed returns, spray): their
+    /// mean is neither tread's height, m.
     pub max_cell_range_m: f32,
     /// Fewer usable cells than this: flat with zero confidence.
     pub min_cells: usize,
-    /// Only cells within this distance across the stair direction make the profile, m.
+    /// The direction scan uses the cells within this distance of the robot (a disc, so that every
+    /// direction is scored on the same cells), m.
+    pub direction_radius_m: f32,
+    /// Only cells within this distance across the stair direction make the profile (narrow
+    /// staircases: a smaller band keeps the ground beside them out), m.
     pub lateral_half_width_m: f32,
     /// Coarse direction scan step over [−90°, 90°), degrees.
     pub coarse_step_deg: f32,
@@ -77,9 +83,10 @@ impl Default for GeometricTerrainConfig {
         Self {
             self_box_half_m: 0.4,
             max_abs_z_m: 2.5,
-            max_cell_range_m: 0.4,
+            max_cell_range_m: 0.06,
             min_cells: 60,
-            lateral_half_width_m: 1.2,
+            direction_radius_m: 3.0,
+            lateral_half_width_m: 3.0,
             coarse_step_deg: 1.0,
             fine_step_deg: 0.1,
             profile_bin_m: 0.02,
@@ -145,7 +152,7 @@ struct Plateau {
 #[derive(Clone, Copy, Debug, Default)]
 struct Riser {
     dz: f32,
-    /// Position along u (edge of the higher plateau), m.
+    /// Position along u, m.
     s: f32,
     /// Interval that contains the riser (the data gap between the plateaus, or s ± one bin), m.
     s_lo: f32,
@@ -464,7 +471,7 @@ impl GeometricTerrainEstimator {
     /// Mean within-bin height variance of the profile along φ (smaller = sharper).
     fn direction_score(&mut self, n: usize, phi: f32) -> f64 {
         let (c, s) = (phi.cos(), phi.sin());
-        let lat = self.cfg.lateral_half_width_m;
+        let r2 = self.cfg.direction_radius_m * self.cfg.direction_radius_m;
         let inv = 1.0 / self.bin_m;
         let nb = self.nbins;
         let w = &mut *self.w;
@@ -474,8 +481,7 @@ impl GeometricTerrainEstimator {
         let mut used = 0u32;
         for i in 0..n {
             let (x, y) = (w.x[i], w.y[i]);
-            let t = -x * s + y * c;
-            if t.abs() > lat {
+            if x * x + y * y > r2 {
                 continue;
             }
             let b = ((x * c + y * s + PROFILE_HALF_M) * inv) as usize;
@@ -641,7 +647,15 @@ impl GeometricTerrainEstimator {
             let dz = b.level - a.level;
             let a_end = (a.b1 as f32 + 1.0) * bin - PROFILE_HALF_M;
             let b_start = b.b0 as f32 * bin - PROFILE_HALF_M;
-            let s = if dz > 0.0 { b_start } else { a_end };
+            // Seen from above (higher plateau on the robot's side), the lower tread is shadowed
+            // next to the riser: the riser is at the higher plateau's edge. Seen from below, the
+            // riser face fills the gap (its cells are dropped as mixed): the middle of the gap.
+            let (hi_near, s_hi_edge) = if dz > 0.0 {
+                (b_start < 0.0, b_start)
+            } else {
+                (a_end > 0.0, a_end)
+            };
+            let s = if hi_near { s_hi_edge } else { 0.5 * (a_end + b_start) };
             let located = b_start - a_end <= max_gap;
             let (s_lo, s_hi) = if located { (s - bin, s + bin) } else { (a_end, b_start) };
             w.risers[nr] = Riser {
