@@ -446,8 +446,8 @@ impl GeometricTerrainEstimator {
         for ix in 0..BEV_CELLS {
             for iy in 0..BEV_CELLS {
                 let dens = grid.get(sensor_io::bev::CH_DENSITY, ix, iy);
-                // `!(d > 0)` also rejects NaN.
-                if !(dens > 0.0) {
+                // Also rejects NaN.
+                if dens.is_nan() || dens <= 0.0 {
                     continue;
                 }
                 let z = grid.get(CH_MEAN, ix, iy);
