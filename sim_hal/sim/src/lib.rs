@@ -201,8 +201,6 @@ pub enum MotorFault {
     Dead,
 }
 
-/// SplitMix64 + Box–Muller: tiny, seedable, allocation-free, and no dependency.
-#[derive(Clone, Debug)]
 /// The simulated G1 with its motor drivers.
 pub struct Simulator {
     data: MjData<Box<MjModel>>,
@@ -233,6 +231,16 @@ pub struct Simulator {
     /// Per-run biases: gyro xyz, accelerometer xyz; then roll and pitch error of the attitude.
     imu_bias: [f64; 6],
     attitude_offset: [f64; 2],
+    world: Option<world::World>,
+    lidar: Option<Box<LidarRig>>,
+}
+
+/// The simulated MID-360 and its packet stream, with per-tick buffers sized at attach time.
+struct LidarRig {
+    sensor: lidar::LidarSim,
+    stream: lidar::LivoxStream,
+    returns: Vec<lidar::Return>,
+    datagrams: Vec<u8>,
 }
 
 impl Simulator {
@@ -278,6 +286,8 @@ impl Simulator {
             imu_noise_now: [0.0; 6],
             imu_bias: [0.0; 6],
             attitude_offset: [0.0; 2],
+            world: world.cloned(),
+            lidar: None,
         };
         sim.reset();
         Ok(sim)
@@ -376,12 +386,54 @@ impl Simulator {
         self.steps += 1;
     }
 
-    /// Advances one control tick (`control_dt / physics_dt` physics steps).
+    /// Advances one control tick (`control_dt / physics_dt` physics steps); an attached lidar
+    /// fires the points due during the tick from the pose at its end.
     pub fn step_control_tick(&mut self) {
+        let t0_ns = self.time_ns();
         for _ in 0..self.substeps {
             self.physics_step();
         }
         self.draw_noise();
+        if let Some(rig) = self.lidar.as_deref_mut() {
+            let t1_ns = (self.data.time() * 1e9).round() as u64;
+            rig.returns.clear();
+            rig.datagrams.clear();
+            rig.sensor.scan(&mut self.data, t0_ns, t1_ns, &mut rig.returns);
+            rig.stream.push(&rig.returns, &mut rig.datagrams);
+        }
+    }
+
+    fn time_ns(&self) -> u64 {
+        (self.data.time() * 1e9).round() as u64
+    }
+
+    /// Mounts a simulated MID-360 (see [`lidar`]). From then on every control tick produces Livox
+    /// datagrams ([`Simulator::lidar_datagrams`]).
+    pub fn attach_lidar(&mut self, cfg: lidar::LidarConfig) -> Result<(), SimError> {
+        let per_tick = (cfg.points_per_second * self.config.control_dt).ceil() as usize + 8;
+        let sensor = lidar::LidarSim::new(self.data.model(), cfg, per_tick)?;
+        let packets = per_tick / sensor_io::livox::MID360_POINTS_PER_PACKET + 2;
+        self.lidar = Some(Box::new(LidarRig {
+            sensor,
+            stream: lidar::LivoxStream::new(cfg.frame_hz),
+            returns: Vec::with_capacity(per_tick),
+            datagrams: Vec::with_capacity(packets * (2 + sensor_io::livox::cartesian_high_len(96))),
+        }));
+        Ok(())
+    }
+
+    /// The Livox datagrams of the last control tick, length-prefixed (empty without a lidar).
+    pub fn lidar_datagrams(&self) -> &[u8] {
+        self.lidar.as_ref().map_or(&[], |r| &r.datagrams)
+    }
+
+    pub fn has_lidar(&self) -> bool {
+        self.lidar.is_some()
+    }
+
+    /// The terrain world, if any.
+    pub fn world(&self) -> Option<&world::World> {
+        self.world.as_ref()
     }
 
     fn draw_noise(&mut self) {
@@ -520,6 +572,11 @@ impl Simulator {
                 }
             }
         }
+        let terrain = self.world.as_ref().map(|w| {
+            let [qw, qx, qy, qz] = quat;
+            let yaw = (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
+            w.truth(pos[0], pos[1], yaw)
+        });
         Truth {
             sim_time_s: d.time(),
             base_pos: pos,
@@ -528,6 +585,7 @@ impl Simulator {
             base_lin_vel_body: v_body,
             base_ang_vel_body: w_body,
             foot_contact,
+            terrain,
         }
     }
 

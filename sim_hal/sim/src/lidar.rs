@@ -297,3 +297,65 @@ impl LidarSim {
         }
     }
 }
+
+/// Streams returns as Livox Cartesian-high packets the way the sensor does: a packet leaves when it
+/// holds [`MID360_POINTS_PER_PACKET`] points or when the frame ends; `udp_cnt` counts packets and
+/// `frame_cnt` frames. Output datagrams are appended to a byte buffer, each prefixed by its length
+/// (u16 LE), which is how the bridge carries UDP datagrams. No allocation after construction.
+pub struct LivoxStream {
+    pending: Vec<LidarPoint>,
+    pending_t0_ns: u64,
+    pending_frame: u64,
+    udp_cnt: u16,
+    packet: Vec<u8>,
+    period_ns: u64,
+}
+
+use sensor_io::livox::{encode_cartesian_high, PacketMeta, MID360_POINTS_PER_PACKET, MID360_POINT_PERIOD_NS};
+
+impl LivoxStream {
+    pub fn new(frame_hz: f64) -> Self {
+        Self {
+            pending: Vec::with_capacity(MID360_POINTS_PER_PACKET),
+            pending_t0_ns: 0,
+            pending_frame: 0,
+            udp_cnt: 0,
+            packet: vec![0; sensor_io::livox::cartesian_high_len(MID360_POINTS_PER_PACKET)],
+            period_ns: (1e9 / frame_hz).round() as u64,
+        }
+    }
+
+    /// Adds returns (in firing order) and appends every packet that completes to `out`.
+    pub fn push(&mut self, returns: &[Return], out: &mut Vec<u8>) {
+        for r in returns {
+            let frame = r.time_ns / self.period_ns;
+            if !self.pending.is_empty() && frame != self.pending_frame {
+                self.flush(out);
+            }
+            if self.pending.is_empty() {
+                self.pending_t0_ns = r.time_ns;
+                self.pending_frame = frame;
+            }
+            self.pending.push(r.point(self.pending_t0_ns));
+            if self.pending.len() == MID360_POINTS_PER_PACKET {
+                self.flush(out);
+            }
+        }
+    }
+
+    fn flush(&mut self, out: &mut Vec<u8>) {
+        let meta = PacketMeta {
+            udp_cnt: self.udp_cnt,
+            frame_cnt: self.pending_frame as u8,
+            timestamp_ns: self.pending_t0_ns,
+            time_interval: (self.pending.len() as u64 * MID360_POINT_PERIOD_NS as u64 / 100) as u16,
+            time_type: 0,
+        };
+        // Cannot fail: the buffer holds a full packet and `pending` never exceeds one.
+        if let Ok(n) = encode_cartesian_high(&meta, &self.pending, &mut self.packet) {
+            sim_hal::bridge::append_datagram(out, &self.packet[..n]);
+        }
+        self.udp_cnt = self.udp_cnt.wrapping_add(1);
+        self.pending.clear();
+    }
+}

@@ -77,6 +77,21 @@ struct Cli {
     #[arg(long = "fault", value_name = "SPEC")]
     faults: Vec<String>,
 
+    /// Terrain world: a preset (flat, stairs-up, stairs-down, outdoor), a scenario file (.toml, see
+    /// sim_hal/sim/src/world.rs) or random:SEED. The robot starts at the origin facing +x; ground
+    /// truth (terrain class, step height and depth, yaw to the stairs) goes out with `Truth`.
+    #[arg(long, value_name = "PRESET|FILE.toml|random:SEED")]
+    world: Option<String>,
+
+    /// Mount the simulated Livox MID-360 (200k points/s, 10 Hz frames, range noise, dropouts) and
+    /// stream its point packets to clients that ask for them.
+    #[arg(long)]
+    lidar: bool,
+
+    /// Range noise of the lidar, m (1 σ).
+    #[arg(long, value_name = "M", default_value_t = 0.02)]
+    lidar_noise: f64,
+
     /// Benchmark instead of serving: simulate SECONDS of simulated time with the same model and
     /// PD law holding the initial pose, no sockets or codecs, and print one JSON line
     /// {"sim_seconds_per_wall_second": X, "steps": N}.
@@ -121,7 +136,22 @@ fn run(cli: Cli) -> Result<ExitCode> {
     let model_name = cli.model.to_string();
     // Syntax errors before the (slow) model load; slot checks need the model.
     let faults = FaultPlan::parse(&cli.faults)?;
-    let mut sim = Simulator::load(cli.model, config).with_context(|| format!("loading model {model_name}"))?;
+    let world = cli
+        .world
+        .as_deref()
+        .map(g1_sim::world::World::resolve)
+        .transpose()
+        .context("--world")?;
+    let mut sim = Simulator::load_in(cli.model, config, world.as_ref())
+        .with_context(|| format!("loading model {model_name}"))?;
+    if cli.lidar {
+        let lidar = g1_sim::lidar::LidarConfig {
+            range_noise_std: cli.lidar_noise,
+            seed: cli.seed,
+            ..Default::default()
+        };
+        sim.attach_lidar(lidar).context("--lidar")?;
+    }
     if let Some(seconds) = cli.bench_bare {
         if !faults.is_empty() {
             bail!("--fault has no effect with --bench-bare (no bridge to inject into)");

@@ -127,7 +127,7 @@ struct Bufs {
 fn send_state<W: Write>(
     w: &mut W,
     sim: &mut Simulator,
-    truth: bool,
+    (truth, lidar): (bool, bool),
     b: &mut Bufs,
     faults: Option<&mut FaultInjector>,
     k: u64,
@@ -145,6 +145,9 @@ fn send_state<W: Write>(
         Wire::Frame => append_msg(&mut b.scratch, Kind::LowState, &b.state_bytes),
         Wire::NoFrame => append_msg_flags(&mut b.scratch, Kind::LowState, FLAG_NO_FRAME, &[]),
         Wire::Disconnect => return Ok(false),
+    }
+    if lidar {
+        append_msg(&mut b.scratch, Kind::LidarPackets, sim.lidar_datagrams());
     }
     if truth {
         append_msg(&mut b.scratch, Kind::Truth, &sim.truth().encode());
@@ -164,7 +167,7 @@ pub fn serve_stream<S: Read + Write + Blocking>(
     let mut s = Buffered(BufReader::with_capacity(16 * 1024, SpinStream::new(stream, opts.spin)?));
     let mut b = Bufs {
         payload: Vec::with_capacity(4096),
-        scratch: Vec::with_capacity(4096),
+        scratch: Vec::with_capacity(32 * 1024),
         state: LowState::default(),
         state_bytes: [0; LOW_STATE_LEN],
         cmd: LowCommand::default(),
@@ -191,7 +194,7 @@ fn session<S: Read + Write>(
     let mut faults = FaultInjector::new(plan, sim.config().control_dt, sim.motor_slots_present())
         .map_err(|e| ServeError::Setup(e.to_string()))?;
     // Hello: version u32 LE, want_truth u8, 3 zero bytes.
-    let want_truth = match read_msg(s, &mut b.payload)? {
+    let (want_truth, want_lidar) = match read_msg(s, &mut b.payload)? {
         Kind::Hello => {
             let p = &b.payload;
             if p.len() != 8 {
@@ -206,7 +209,12 @@ fn session<S: Read + Write>(
                     "client speaks protocol version {v}, this simulator speaks {PROTOCOL_VERSION}"
                 )));
             }
-            p[4] != 0
+            if p[5] != 0 && !sim.has_lidar() {
+                return Err(ServeError::BadHello(
+                    "the client wants lidar packets but this simulator has no lidar (start g1-sim with --lidar)".into(),
+                ));
+            }
+            (p[4] != 0, p[5] != 0)
         }
         got => return Err(ServeError::Unexpected { got, expected: "Hello" }),
     };
@@ -224,7 +232,7 @@ fn session<S: Read + Write>(
         ticks,
         sim_time_s: sim.time(),
     };
-    if !send_state(s, sim, want_truth, b, faults.as_mut(), 0)? {
+    if !send_state(s, sim, (want_truth, want_lidar), b, faults.as_mut(), 0)? {
         return Ok(fault_disconnect(0, sim));
     }
 
@@ -247,7 +255,7 @@ fn session<S: Read + Write>(
                 sim.apply_command(&b.cmd).expect("decoder rejects non-finite fields");
                 sim.step_control_tick();
                 ticks += 1;
-                if !send_state(s, sim, want_truth, b, faults.as_mut(), ticks)? {
+                if !send_state(s, sim, (want_truth, want_lidar), b, faults.as_mut(), ticks)? {
                     return Ok(fault_disconnect(ticks, sim));
                 }
             }

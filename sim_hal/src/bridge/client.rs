@@ -22,11 +22,12 @@ use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use hal::{ErrorKind, LowCommand, LowLevel, LowState, PointFrame, TickTime, TimeBase};
+use sensor_io::livox::{AssemblerStats, FrameAssembler};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::protocol::{
-    read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME, PROTOCOL_VERSION,
+    datagrams, read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME, PROTOCOL_VERSION,
 };
 use super::spin::SpinStream;
 
@@ -95,6 +96,42 @@ impl Write for Stream {
     }
 }
 
+/// Points a lidar frame can hold on the firmware side (the MID-360 sends ~20,000 per 10 Hz frame).
+pub const LIDAR_FRAME_CAP: usize = 32_768;
+
+/// What the client asks the simulator for besides the robot's state.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Wants {
+    /// Privileged ground truth every tick (evaluation only).
+    pub truth: bool,
+    /// The simulated MID-360's Livox datagrams every tick.
+    pub lidar: bool,
+}
+
+impl From<bool> for Wants {
+    /// `true`: truth, no lidar (what callers before the lidar asked for).
+    fn from(truth: bool) -> Self {
+        Wants { truth, lidar: false }
+    }
+}
+
+/// The lidar side of the bridge: datagrams → Livox decoder → frames.
+struct LidarIn {
+    assembler: FrameAssembler<LIDAR_FRAME_CAP>,
+    latest: Box<PointFrame<LIDAR_FRAME_CAP>>,
+    fresh: bool,
+    /// Bridge payloads whose datagram framing was inconsistent (rest of the payload dropped).
+    framing_errors: u64,
+    payload: Vec<u8>,
+}
+
+/// Lidar counters, for logs and reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LidarCounters {
+    pub decoder: AssemblerStats,
+    pub framing_errors: u64,
+}
+
 /// Lock-stepped simulator HAL. `wait_tick` receives the state the simulator produced for the
 /// command of the previous tick (the first call returns the initial state).
 pub struct BridgeHal {
@@ -102,6 +139,7 @@ pub struct BridgeHal {
     stream: BufReader<Stream>,
     welcome: Welcome,
     want_truth: bool,
+    lidar: Option<Box<LidarIn>>,
     /// Last frame that decoded.
     state: LowState,
     /// Decode target, copied to `state` only on success.
@@ -131,7 +169,7 @@ impl BridgeHal {
     /// starting). `alive` is polled between retries so a simulator that died is reported at once.
     pub fn connect_unix(
         path: &Path,
-        want_truth: bool,
+        want: impl Into<Wants>,
         timeout: Duration,
         mut alive: impl FnMut() -> Result<(), String>,
     ) -> Result<Self, BridgeError> {
@@ -140,7 +178,7 @@ impl BridgeHal {
             match UnixStream::connect(path) {
                 Ok(s) => {
                     let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
-                    return Self::handshake(Stream::Unix(s), want_truth);
+                    return Self::handshake(Stream::Unix(s), want.into());
                 }
                 Err(e) => {
                     let last = match alive() {
@@ -161,7 +199,7 @@ impl BridgeHal {
     }
 
     /// Connects over loopback TCP (any other address is refused).
-    pub fn connect_tcp(addr: SocketAddr, want_truth: bool) -> Result<Self, BridgeError> {
+    pub fn connect_tcp(addr: SocketAddr, want: impl Into<Wants>) -> Result<Self, BridgeError> {
         if !addr.ip().is_loopback() {
             return Err(BridgeError::NotLoopback(addr));
         }
@@ -172,16 +210,18 @@ impl BridgeHal {
         })?;
         s.set_nodelay(true).map_err(ProtocolError::from)?;
         let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
-        Self::handshake(Stream::Tcp(s), want_truth)
+        Self::handshake(Stream::Tcp(s), want.into())
     }
 
-    fn handshake(stream: Stream, want_truth: bool) -> Result<Self, BridgeError> {
+    fn handshake(stream: Stream, want: Wants) -> Result<Self, BridgeError> {
+        let want_truth = want.truth;
         let mut stream = BufReader::with_capacity(16 * 1024, stream);
         let mut scratch = Vec::with_capacity(4096);
         let mut payload = Vec::with_capacity(4096);
         let mut hello = [0u8; 8];
         hello[..4].copy_from_slice(&PROTOCOL_VERSION.to_le_bytes());
         hello[4] = want_truth as u8;
+        hello[5] = want.lidar as u8;
         write_msg(stream.get_mut(), Kind::Hello, &hello, &mut scratch)?;
         read_expect(&mut stream, &mut payload, Kind::Welcome)?;
         let welcome = Welcome::decode(&payload)?;
@@ -194,6 +234,17 @@ impl BridgeHal {
             stream,
             welcome,
             want_truth,
+            lidar: want.lidar.then(|| {
+                let mut latest = boxed_point_frame();
+                latest.clear(0);
+                Box::new(LidarIn {
+                    assembler: FrameAssembler::new_boxed(),
+                    latest,
+                    fresh: false,
+                    framing_errors: 0,
+                    payload: Vec::with_capacity(64 * 1024),
+                })
+            }),
             state: LowState::default(),
             decoded: LowState::default(),
             frame: Vec::with_capacity(LOW_STATE_LEN),
@@ -252,11 +303,33 @@ impl BridgeHal {
                 .into())
             }
         }
+        if let Some(l) = self.lidar.as_deref_mut() {
+            read_expect(&mut self.stream, &mut l.payload, Kind::LidarPackets)?;
+            for d in datagrams(&l.payload) {
+                let Ok(d) = d else {
+                    l.framing_errors += 1;
+                    break;
+                };
+                // Malformed packets are counted by the assembler and skipped.
+                if let Ok(Some(frame)) = l.assembler.push(d) {
+                    copy_frame(frame, &mut l.latest);
+                    l.fresh = true;
+                }
+            }
+        }
         if self.want_truth {
             read_expect(&mut self.stream, &mut self.payload, Kind::Truth)?;
             self.truth = Truth::decode(&self.payload)?;
         }
         Ok(())
+    }
+
+    /// Decoder and framing counters of the lidar stream (None without lidar).
+    pub fn lidar_counters(&self) -> Option<LidarCounters> {
+        self.lidar.as_ref().map(|l| LidarCounters {
+            decoder: *l.assembler.stats(),
+            framing_errors: l.framing_errors,
+        })
     }
 
     pub fn welcome(&self) -> &Welcome {
@@ -347,5 +420,38 @@ impl LowLevel for BridgeHal {
         write_msg(self.stream.get_mut(), Kind::LowCmd, &self.cmd_bytes, &mut self.scratch)?;
         self.command_sent = true;
         Ok(())
+    }
+}
+
+/// A zeroed frame built on the heap (a frame is ~800 KB: never on the stack).
+fn boxed_point_frame() -> Box<PointFrame<LIDAR_FRAME_CAP>> {
+    let b = Box::<PointFrame<LIDAR_FRAME_CAP>>::new_zeroed();
+    // SAFETY: PointFrame holds only integers and f32s (and arrays of them), for which all-zero
+    // bytes are valid values.
+    unsafe { b.assume_init() }
+}
+
+/// Copies a frame without a frame-sized temporary.
+fn copy_frame<const CAP: usize>(src: &PointFrame<CAP>, dst: &mut PointFrame<CAP>) {
+    dst.points[..src.len].copy_from_slice(&src.points[..src.len]);
+    dst.len = src.len;
+    dst.timestamp_ns = src.timestamp_ns;
+    dst.overflow = src.overflow;
+}
+
+impl hal::Lidar<LIDAR_FRAME_CAP> for BridgeHal {
+    type Error = BridgeError;
+
+    /// The newest frame the simulated MID-360 completed; `Ok(false)` when none is new (or the
+    /// bridge was opened without lidar).
+    fn read_frame(&mut self, out: &mut PointFrame<LIDAR_FRAME_CAP>) -> Result<bool, BridgeError> {
+        match self.lidar.as_deref_mut() {
+            Some(l) if l.fresh => {
+                copy_frame(&l.latest, out);
+                l.fresh = false;
+                Ok(true)
+            }
+            _ => Ok(false),
+        }
     }
 }

@@ -6,6 +6,6 @@ pub mod client;
 pub mod protocol;
 pub mod spin;
 
-pub use client::{BridgeError, BridgeHal};
+pub use client::{BridgeError, BridgeHal, LidarCounters, Wants, LIDAR_FRAME_CAP};
 pub use protocol::*;
 pub use spin::{Blocking, SpinStream};

@@ -2,21 +2,24 @@
 //!
 //! Every message is an 8-byte header — magic `b"G1"`, kind (u8), flags (u8), payload length (u32 LE)
 //! — followed by the payload. Sequence:
-//! 1. client → `Hello` (payload: protocol version u32, want_truth u8, 3 zero bytes)
-//! 2. server → `Welcome` ([`Welcome`]), then `LowState` (initial state) and, if asked, `Truth`
+//! 1. client → `Hello` (payload: protocol version u32, want_truth u8, want_lidar u8, 2 zero bytes)
+//! 2. server → `Welcome` ([`Welcome`]), then `LowState` (initial state), if asked `LidarPackets`,
+//!    and if asked `Truth`
 //! 3. per tick: client → `LowCmd` (1004 B unitree_hg frame); server steps one control tick →
-//!    `LowState` (2092 B) and, if asked, `Truth` ([`Truth`])
+//!    `LowState` (2092 B), if asked `LidarPackets` (the Livox UDP datagrams the simulated MID-360
+//!    sent during the tick, each prefixed by its u16 LE length; possibly none), and if asked
+//!    `Truth` ([`Truth`], with the terrain label when the simulator runs a world)
 //! 4. client → `Bye`; or server → `Error` (UTF-8 text) before closing.
 //!
 //! Flags (header byte 3): [`FLAG_NO_FRAME`] on a `LowState` means "this tick produced no frame"
 //! (the simulator's fault injection dropped it); its payload is then empty, and the lock-step still
 //! advanced one tick (the `Truth` of that tick follows if asked). All other bits, and any flag on
-//! other kinds, are reserved and sent as zero. Version 2 introduced the flag; version 1 peers are
-//! refused at `Hello`.
+//! other kinds, are reserved and sent as zero. Version 2 introduced the flag, version 3 the lidar and
+//! the terrain label; older peers are refused at `Hello`.
 use std::io::{self, Read, Write};
 
 pub const MAGIC: [u8; 2] = *b"G1";
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 pub const HEADER_LEN: usize = 8;
 /// `LowState` flag: no frame this tick (dropped); the payload is empty.
 pub const FLAG_NO_FRAME: u8 = 1 << 0;
@@ -33,6 +36,7 @@ pub enum Kind {
     Truth = 5,
     Bye = 6,
     Error = 7,
+    LidarPackets = 8,
 }
 
 impl Kind {
@@ -45,6 +49,7 @@ impl Kind {
             5 => Kind::Truth,
             6 => Kind::Bye,
             7 => Kind::Error,
+            8 => Kind::LidarPackets,
             _ => return None,
         })
     }
@@ -157,6 +162,36 @@ pub fn read_expect_flags<R: Read>(r: &mut R, payload: &mut Vec<u8>, expected: Ki
     }
 }
 
+/// Appends one datagram to a `LidarPackets` payload (u16 LE length, then the bytes).
+pub fn append_datagram(buf: &mut Vec<u8>, datagram: &[u8]) {
+    buf.extend_from_slice(&(datagram.len() as u16).to_le_bytes());
+    buf.extend_from_slice(datagram);
+}
+
+/// Splits a `LidarPackets` payload into its datagrams. A length that overruns the payload ends the
+/// iteration with `Err(bytes left)`: the rest cannot be framed.
+pub fn datagrams(payload: &[u8]) -> impl Iterator<Item = Result<&[u8], usize>> {
+    let mut rest = payload;
+    let mut failed = false;
+    std::iter::from_fn(move || {
+        if failed || rest.is_empty() {
+            return None;
+        }
+        let n = if rest.len() >= 2 {
+            u16::from_le_bytes([rest[0], rest[1]]) as usize
+        } else {
+            usize::MAX
+        };
+        if n == usize::MAX || rest.len() < 2 + n {
+            failed = true;
+            return Some(Err(rest.len()));
+        }
+        let d = &rest[2..2 + n];
+        rest = &rest[2 + n..];
+        Some(Ok(d))
+    })
+}
+
 /// What the simulator tells the client once, after `Hello`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Welcome {
@@ -215,10 +250,13 @@ pub struct Truth {
     pub base_ang_vel_body: [f64; 3],
     /// Left and right foot touching anything other than the robot.
     pub foot_contact: [bool; 2],
+    /// Ground-truth terrain token at the base's pose, when the simulator runs a terrain world.
+    pub terrain: Option<hal::TerrainToken>,
 }
 
 impl Truth {
-    pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
+    pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2 + 1 + 12;
+    const TERRAIN_AT: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
     pub fn encode(&self) -> [u8; Self::LEN] {
         let mut b = [0u8; Self::LEN];
         // No intermediate Vec: this runs every tick when truth is requested.
@@ -235,8 +273,19 @@ impl Truth {
         for (i, v) in vals {
             b[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
         }
-        b[Self::LEN - 2] = self.foot_contact[0] as u8;
-        b[Self::LEN - 1] = self.foot_contact[1] as u8;
+        let t = Self::TERRAIN_AT;
+        b[t - 2] = self.foot_contact[0] as u8;
+        b[t - 1] = self.foot_contact[1] as u8;
+        // Class byte 0xFF: no terrain world.
+        match self.terrain {
+            None => b[t] = 0xFF,
+            Some(z) => {
+                b[t] = z.class as u8;
+                b[t + 1..t + 5].copy_from_slice(&z.step_height_m.to_le_bytes());
+                b[t + 5..t + 9].copy_from_slice(&z.step_depth_m.to_le_bytes());
+                b[t + 9..t + 13].copy_from_slice(&z.yaw_rad.to_le_bytes());
+            }
+        }
         b
     }
     pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
@@ -248,6 +297,8 @@ impl Truth {
             });
         }
         let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+        let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
+        let t = Self::TERRAIN_AT;
         let a3 = |i: usize| [f(i), f(i + 1), f(i + 2)];
         Ok(Self {
             sim_time_s: f(0),
@@ -256,7 +307,16 @@ impl Truth {
             base_lin_vel_world: a3(8),
             base_lin_vel_body: a3(11),
             base_ang_vel_body: a3(14),
-            foot_contact: [b[Self::LEN - 2] != 0, b[Self::LEN - 1] != 0],
+            foot_contact: [b[t - 2] != 0, b[t - 1] != 0],
+            terrain: match hal::TerrainClass::from_index(b[t] as usize) {
+                None => None,
+                Some(class) => Some(hal::TerrainToken {
+                    class,
+                    step_height_m: f32_at(t + 1),
+                    step_depth_m: f32_at(t + 5),
+                    yaw_rad: f32_at(t + 9),
+                }),
+            },
         })
     }
 }
@@ -320,6 +380,21 @@ mod tests {
     }
 
     #[test]
+    fn datagrams_frame_and_stop_at_a_bad_length() {
+        let mut p = Vec::new();
+        append_datagram(&mut p, &[1, 2, 3]);
+        append_datagram(&mut p, &[]);
+        append_datagram(&mut p, &[9]);
+        let got: Vec<_> = datagrams(&p).collect();
+        assert_eq!(got, vec![Ok(&[1u8, 2, 3][..]), Ok(&[][..]), Ok(&[9u8][..])]);
+        let mut bad = p.clone();
+        bad[0] = 200;
+        let got: Vec<_> = datagrams(&bad).collect();
+        assert_eq!(got, vec![Err(bad.len())]);
+        assert_eq!(datagrams(&[7]).collect::<Vec<_>>(), vec![Err(1)]);
+    }
+
+    #[test]
     fn welcome_and_truth_round_trip() {
         let w = Welcome {
             protocol_version: 1,
@@ -337,6 +412,17 @@ mod tests {
             base_lin_vel_body: [0.4, 0.1, 0.0],
             base_ang_vel_body: [0.0, 0.0, 0.2],
             foot_contact: [true, false],
+            terrain: None,
+        };
+        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
+        let t = Truth {
+            terrain: Some(hal::TerrainToken {
+                class: hal::TerrainClass::StairsDown,
+                step_height_m: 0.15,
+                step_depth_m: 0.3,
+                yaw_rad: -0.2,
+            }),
+            ..t
         };
         assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
         assert!(Truth::decode(&[0u8; 3]).is_err());
