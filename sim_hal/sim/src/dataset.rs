@@ -46,7 +46,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc;
 
-use estimator::terrain::{GeometricTerrainConfig, GeometricTerrainEstimator};
+use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator};
 use hal::{wrap_angle, LidarPoint, PointFrame, TerrainClass, TerrainToken};
 use mujoco_rs::prelude::*;
 use sensor_io::bev::{BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_CHANNELS};
@@ -776,6 +776,9 @@ pub struct EvalStats {
     pub class_accuracy: f64,
     /// `confusion[true][predicted]`, classes flat, stairs-up, stairs-down.
     pub confusion: [[usize; 3]; 3],
+    /// Estimates that `estimator::terrain::plausible` rejects (the firmware would not use them;
+    /// they are counted in the errors above all the same).
+    pub implausible: usize,
     #[serde(skip)]
     sums: [f64; 4],
 }
@@ -796,6 +799,9 @@ impl EvalStats {
             }
         }
         self.confusion[truth.class.index()][est.class.index()] += 1;
+        if !plausible(est) {
+            self.implausible += 1;
+        }
         self.finish();
     }
 
@@ -815,7 +821,7 @@ impl std::fmt::Display for EvalStats {
         writeln!(
             f,
             "{} samples: MAE(h) {:.2} cm, MAE(d) {:.2} cm, MAE(yaw) {:.2} deg over {} stairs samples \
-             ({:.2} deg over {} where both are stairs), class accuracy {:.1} %",
+             ({:.2} deg over {} where both are stairs), class accuracy {:.1} %, {} implausible estimates",
             self.samples,
             self.mae_h_cm,
             self.mae_d_cm,
@@ -823,7 +829,8 @@ impl std::fmt::Display for EvalStats {
             self.stairs_samples,
             self.mae_yaw_deg_both_stairs,
             self.both_stairs_samples,
-            100.0 * self.class_accuracy
+            100.0 * self.class_accuracy,
+            self.implausible
         )?;
         writeln!(f, "  confusion (rows true, columns predicted): flat / up / down")?;
         for (name, row) in ["flat", "up", "down"].iter().zip(&self.confusion) {

@@ -15,7 +15,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 /// Every sample is a scripted kinematic pose of the robot (no physics) on or around a world's
 /// staircase, one simulated 0.1 s lidar frame (20 000 rays) sent through the Livox packet codec,
 /// the robot's 6×60×60 BEV grid and the world's ground-truth terrain token (class, h, d, yaw).
-/// Output is deterministic in the seeds and settings (not in --jobs).
+/// Output is deterministic in the seeds and settings and does not depend on --jobs.
 #[derive(Parser, Debug)]
 #[command(name = "g1-dataset", version, about, long_about)]
 struct Cli {
