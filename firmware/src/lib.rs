@@ -17,6 +17,7 @@ pub mod log;
 pub mod log_tools;
 pub mod nn;
 pub mod obs;
+pub mod perception;
 pub mod operator;
 pub mod plot;
 pub mod replay;

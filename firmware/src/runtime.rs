@@ -20,6 +20,7 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
+use crate::perception::{LidarFrame, Perception, PerceptionSummary};
 use estimator::StateEstimator;
 
 /// The state estimate of one tick (attitude, base velocity and height, foot contacts).
@@ -55,6 +56,8 @@ pub struct TickSummary {
     pub counters: SafetyCounters,
     pub clamped_targets: u64,
     pub estimate: Estimate,
+    /// Set on perception steps.
+    pub perception: Option<PerceptionSummary>,
     pub timing: TickTiming,
     /// Groups over budget this tick: bit 0 fast, 1 perception, 2 policy.
     pub overruns: u8,
@@ -75,6 +78,7 @@ impl TickSummary {
             counters: SafetyCounters::default(),
             clamped_targets: 0,
             estimate: Estimate::default(),
+            perception: None,
             timing: TickTiming::default(),
             overruns: 0,
         }
@@ -97,6 +101,9 @@ pub struct Runtime {
     overruns: Overruns,
     trip: Option<(u64, DampingReason)>,
     estimator: StateEstimator,
+    perception: Perception,
+    /// A new lidar frame is in `perception`'s buffer for this tick's perception step.
+    lidar_fresh: bool,
     stats: TimingStats,
 }
 
@@ -111,6 +118,8 @@ impl Runtime {
             overruns: Overruns::default(),
             trip: None,
             estimator: StateEstimator::new(spec.kinematics.clone(), spec.estimator.config(), spec.control_dt()),
+            perception: Perception::new(&spec.perception),
+            lidar_fresh: false,
             stats: TimingStats::new(),
             controller,
         }
@@ -141,6 +150,18 @@ impl Runtime {
     }
     pub fn estimator(&self) -> &StateEstimator {
         &self.estimator
+    }
+    pub fn perception(&self) -> &Perception {
+        &self.perception
+    }
+    /// Tick `k` runs the perception group.
+    pub fn perception_due(&self, k: u64) -> bool {
+        k.is_multiple_of(self.perception_decimation)
+    }
+    /// On a perception tick, lets `source` put its newest lidar frame into the perception buffer
+    /// (before [`Runtime::tick`]).
+    pub fn load_lidar<S: FrameSource + ?Sized>(&mut self, k: u64, source: &mut S) {
+        self.lidar_fresh = self.perception_due(k) && source.read_lidar(self.perception.frame_mut());
     }
 
     fn latch(&mut self, k: u64, reason: DampingReason, summary: &mut TickSummary) {
@@ -187,6 +208,7 @@ impl Runtime {
             counters: SafetyCounters::default(),
             clamped_targets: 0,
             estimate: *self.estimator.estimate(),
+            perception: None,
             timing: TickTiming::default(),
             overruns: 0,
         };
@@ -217,7 +239,8 @@ impl Runtime {
         let mut t2 = t1;
         if k.is_multiple_of(self.perception_decimation) {
             s.perception_step = true;
-            // The terrain pipeline (BEV, terrain token) runs here once it exists.
+            let fresh = std::mem::take(&mut self.lidar_fresh);
+            s.perception = Some(self.perception.step(fresh, self.estimator.estimate()));
             t2 = Instant::now();
         }
 
@@ -356,6 +379,10 @@ pub trait FrameSource {
     fn truth(&self) -> Option<&sim_hal::bridge::Truth> {
         None
     }
+    /// Puts the newest complete lidar frame into `out`; false when there is none new (or no lidar).
+    fn read_lidar(&mut self, _out: &mut LidarFrame) -> bool {
+        false
+    }
 }
 
 /// Everything about one tick, for loggers, evaluators and the replay comparator.
@@ -446,6 +473,7 @@ where
             }
         };
         let op = operator.at(tick);
+        rt.load_lidar(k, hal);
         let summary = rt.tick(tick, frame, &state, op, &mut cmd);
         let last = k >= last_tick;
         if !last {

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use sim_hal::bridge::{BridgeHal, Truth};
+use sim_hal::bridge::{Wants, BridgeHal, Truth};
 
 use crate::controller::{Controller, Mode};
 use crate::log::{LogOptions, LogStats, Logger, RunMeta};
@@ -22,6 +22,9 @@ impl FrameSource for BridgeHal {
     }
     fn truth(&self) -> Option<&Truth> {
         Some(BridgeHal::truth(self))
+    }
+    fn read_lidar(&mut self, out: &mut crate::perception::LidarFrame) -> bool {
+        hal::Lidar::read_frame(self, out).unwrap_or(false)
     }
 }
 
@@ -50,6 +53,9 @@ pub struct SimOptions {
     pub faults: Vec<String>,
     /// IMU error model for the simulator (`g1-sim --imu-noise` grammar, e.g. `realistic`).
     pub imu_noise: Option<String>,
+    /// Terrain world for the simulator (`g1-sim --world`: preset, scenario file or random:SEED).
+    /// With a world the simulator also streams its MID-360 and the perception group runs.
+    pub world: Option<String>,
     /// Record an MCAP log here.
     pub log: Option<PathBuf>,
     pub log_options: LogOptions,
@@ -73,6 +79,7 @@ impl Default for SimOptions {
             progress: false,
             faults: Vec::new(),
             imu_noise: None,
+            world: None,
             log: None,
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
@@ -120,8 +127,82 @@ pub struct Report {
     /// kinematics in the spec).
     #[serde(flatten)]
     pub estimator: EstimatorReport,
+    /// Perception against the world's ground truth (`null` without `--world`).
+    pub terrain: Option<TerrainReport>,
     #[serde(flatten)]
     pub timing: Timing,
+}
+
+/// The terrain token of every fresh lidar frame against the ground truth at that tick. MAE(h),
+/// MAE(d) over all frames (flat: 0), MAE(yaw) over frames whose truth is stairs.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TerrainReport {
+    pub world: String,
+    pub frames: u64,
+    pub class_acc: Option<f64>,
+    pub mae_h_cm: Option<f64>,
+    pub mae_d_cm: Option<f64>,
+    pub mae_yaw_deg: Option<f64>,
+    /// Frames whose geometric estimate was implausible (token held).
+    pub held_frames: u64,
+    /// Mean points per frame after decoding.
+    pub mean_points: Option<f64>,
+    pub lidar_malformed_packets: u64,
+    pub lidar_lost_packets: u64,
+    /// Truth class counts (flat, up, down) over the frames.
+    pub truth_classes: [u64; 3],
+}
+
+#[derive(Default)]
+struct TerrainEval {
+    frames: u64,
+    correct: u64,
+    err_h: f64,
+    err_d: f64,
+    err_yaw: f64,
+    stairs: u64,
+    held: u64,
+    points: u64,
+    classes: [u64; 3],
+}
+
+impl TerrainEval {
+    fn add(&mut self, t: &Truth, v: &TickView) {
+        let (Some(p), Some(z)) = (v.summary.perception, t.terrain) else { return };
+        if !p.fresh {
+            return;
+        }
+        let e = p.geometric.token;
+        self.frames += 1;
+        self.points += p.points as u64;
+        self.held += p.held as u64;
+        self.classes[z.class.index()] += 1;
+        self.correct += (e.class == z.class) as u64;
+        self.err_h += (e.step_height_m - z.step_height_m).abs() as f64;
+        self.err_d += (e.step_depth_m - z.step_depth_m).abs() as f64;
+        if z.class != hal::TerrainClass::Flat {
+            self.stairs += 1;
+            self.err_yaw += hal::wrap_angle((e.yaw_rad - z.yaw_rad) as f64).abs();
+        }
+    }
+
+    fn report(&self, world: &str, lidar: Option<sim_hal::bridge::LidarCounters>) -> TerrainReport {
+        let n = self.frames as f64;
+        let per = |v: f64, k: u64, scale: f64| (k > 0).then(|| v / k as f64 * scale);
+        TerrainReport {
+            world: world.to_string(),
+            frames: self.frames,
+            class_acc: per(self.correct as f64, self.frames, 1.0),
+            mae_h_cm: per(self.err_h, self.frames, 100.0),
+            mae_d_cm: per(self.err_d, self.frames, 100.0),
+            mae_yaw_deg: per(self.err_yaw, self.stairs, 180.0 / std::f64::consts::PI),
+            held_frames: self.held,
+            mean_points: (self.frames > 0).then(|| self.points as f64 / n),
+            lidar_malformed_packets: lidar.map_or(0, |c| c.decoder.malformed.total() + c.framing_errors),
+            lidar_lost_packets: lidar.map_or(0, |c| c.decoder.lost_packets),
+            truth_classes: self.classes,
+        }
+    }
 }
 
 /// Estimator errors over every fast tick from the first valid estimate on (body-frame velocity,
@@ -266,6 +347,7 @@ fn spawn_sim(opts: &SimOptions, control_dt: f64) -> Result<SimChild> {
         .args(["--control-dt", &control_dt.to_string()])
         .args(opts.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
         .args(opts.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
+        .args(opts.world.iter().flat_map(|w| ["--world", w.as_str(), "--lidar"]))
         .arg("--quiet")
         .stdin(Stdio::null())
         .spawn()
@@ -310,12 +392,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
 
     let mut child = None;
+    let want = Wants {
+        truth: true,
+        lidar: opts.world.is_some(),
+    };
     let mut hal = match &opts.connect {
-        Some(path) => BridgeHal::connect_unix(path, true, Duration::from_secs(10), || Ok(()))?,
+        Some(path) => BridgeHal::connect_unix(path, want, Duration::from_secs(10), || Ok(()))?,
         None => {
             let mut c = spawn_sim(opts, control_dt)?;
             let socket = c.socket.clone();
-            let hal = BridgeHal::connect_unix(&socket, true, Duration::from_secs(30), || c.status_line())?;
+            let hal = BridgeHal::connect_unix(&socket, want, Duration::from_secs(30), || c.status_line())?;
             child = Some(c);
             hal
         }
@@ -354,6 +440,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let mut hasher = Sha256::new();
     let mut agg = Aggregate::new(&opts.schedule, total_ticks as usize);
     let mut est_eval = EstimatorEval::new(controller.spec().kinematics.clone(), control_dt);
+    let mut terrain_eval = TerrainEval::default();
     let mut runtime = Runtime::new(controller);
     let mut operator = opts.schedule.source(welcome.control_dt_ns);
     let wall = Instant::now();
@@ -377,6 +464,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         if let Some(truth) = v.truth {
             agg.add(truth, k as f64 * control_dt, opts.duration_s, v);
             est_eval.add(truth, v);
+            terrain_eval.add(truth, v);
         }
         observe(v);
         if let Some(pb) = &progress {
@@ -397,6 +485,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     }
     let wall_s = wall.elapsed().as_secs_f64();
     let repeated = hal.repeated_commands();
+    let lidar_counters = hal.lidar_counters();
     hal.close();
     let gone = simulator_gone(&mut child);
     drop(child);
@@ -466,6 +555,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         end: end_text,
         log: log_stats,
         estimator: est_eval.report(),
+        terrain: opts.world.as_ref().map(|w| terrain_eval.report(w, lidar_counters)),
         timing: Timing {
             sim_seconds_per_wall_second: time_s / wall_s.max(1e-9),
             fast_group_us: runtime.timing_stats().fast(),

@@ -42,6 +42,8 @@ pub struct DeploySpec {
     pub safety: Safety,
     #[serde(default)]
     pub estimator: EstimatorSpec,
+    #[serde(default)]
+    pub perception: PerceptionSpec,
     pub observation: Observation,
     /// Directory of the spec file; relative paths resolve against it.
     #[serde(skip)]
@@ -55,6 +57,60 @@ pub struct DeploySpec {
     /// Leg kinematics read from `estimator.model` at load time (`None` without one).
     #[serde(skip)]
     pub kinematics: Option<estimator::LegKinematics>,
+}
+
+/// `[perception]`: the lidar's mount and the BEV self-filter. Defaults: the G1's MID-360 (latest
+/// unitree_ros URDF, upside down on the torso; the waist is taken at zero) and one box around the
+/// robot's body. Perception runs whenever the HAL delivers lidar frames.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerceptionSpec {
+    /// Sensor position in the pelvis frame, m.
+    pub mount_xyz: [f32; 3],
+    /// Sensor roll, pitch, yaw in the pelvis frame, rad (R = Rz·Ry·Rx).
+    pub mount_rpy: [f32; 3],
+    /// Robot-body boxes in the gravity-aligned robot frame, `[xmin, ymin, zmin, xmax, ymax, zmax]`
+    /// (m, z from the ground under the robot); points inside are self-hits. At most 8.
+    pub self_filter: Vec<[f32; 6]>,
+    /// Base height used for the BEV when the estimator has no leg kinematics, m.
+    pub fallback_base_height_m: f32,
+}
+
+impl Default for PerceptionSpec {
+    fn default() -> Self {
+        let m = sensor_io::bev::MountPose::G1_MID360_DEFAULT;
+        Self {
+            mount_xyz: m.xyz,
+            mount_rpy: m.rpy,
+            self_filter: sensor_io::bev::SelfFilter::G1_DEFAULT
+                .boxes()
+                .iter()
+                .map(|b| [b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]])
+                .collect(),
+            fallback_base_height_m: 0.76,
+        }
+    }
+}
+
+impl PerceptionSpec {
+    pub fn mount(&self) -> sensor_io::bev::MountPose {
+        sensor_io::bev::MountPose {
+            xyz: self.mount_xyz,
+            rpy: self.mount_rpy,
+        }
+    }
+
+    pub fn self_filter(&self) -> Result<sensor_io::bev::SelfFilter, sensor_io::bev::BevError> {
+        let boxes: Vec<_> = self
+            .self_filter
+            .iter()
+            .map(|b| sensor_io::bev::Aabb {
+                min: [b[0], b[1], b[2]],
+                max: [b[3], b[4], b[5]],
+            })
+            .collect();
+        sensor_io::bev::SelfFilter::new(&boxes)
+    }
 }
 
 /// `[estimator]`: where the leg kinematics come from and the estimator's tuning. Without `model`
@@ -511,6 +567,16 @@ impl DeploySpec {
                 "estimator.ground_height_noise_m",
                 "must be >= 0 (0 turns the prior off)",
             ));
+        }
+        let pc = &self.perception;
+        if let Err(e) = pc.self_filter() {
+            return Err(self.invalid("perception.self_filter", e.to_string()));
+        }
+        if !pc.mount_xyz.iter().chain(&pc.mount_rpy).all(|v| v.is_finite()) {
+            return Err(self.invalid("perception.mount_xyz / mount_rpy", "must be finite numbers"));
+        }
+        if !(pc.fallback_base_height_m.is_finite() && pc.fallback_base_height_m > 0.0) {
+            return Err(self.invalid("perception.fallback_base_height_m", "must be > 0"));
         }
         let r = &self.rates;
         if r.perception_hz == 0 || !r.control_hz.is_multiple_of(r.perception_hz) {

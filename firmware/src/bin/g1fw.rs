@@ -98,6 +98,13 @@ struct SimArgs {
     /// and yaw drift), or numbers as `g1-sim --imu-noise` takes them. Off by default.
     #[arg(long, value_name = "realistic|STD[,...]")]
     imu_noise: Option<String>,
+    /// Terrain world: a preset (flat, stairs-up, stairs-down, outdoor), a scenario file
+    /// (SCENARIO.toml) or random:SEED. The simulator then streams its MID-360 (Livox packets), the
+    /// perception group builds the BEV grid and a terrain token every frame, and the report gains
+    /// `terrain` (token vs ground truth). The log carries /lidar/points, /perception/bev,
+    /// /perception/terrain and /truth/terrain.
+    #[arg(long, value_name = "PRESET|SCENARIO.toml")]
+    world: Option<String>,
     /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
     #[arg(long)]
     rt_priority: Option<i32>,
@@ -270,6 +277,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         faults: a.faults,
         imu_noise: a.imu_noise,
+        world: a.world,
         log: a.log.clone(),
         log_options: Default::default(),
         rt: firmware::rt::RtOptions {

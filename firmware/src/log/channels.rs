@@ -15,6 +15,12 @@ pub const SAFETY_STATE: &str = "/safety/state";
 pub const SAFETY_EVENT: &str = "/safety/event";
 pub const TIMING: &str = "/timing/tick";
 pub const TRUTH: &str = "/sim/truth";
+pub const LIDAR_POINTS: &str = "/lidar/points";
+pub const PERCEPTION_BEV: &str = "/perception/bev";
+pub const PERCEPTION_TERRAIN: &str = "/perception/terrain";
+pub const TRUTH_TERRAIN: &str = "/truth/terrain";
+/// Frame id of the gravity-aligned robot frame the cloud and the grid are drawn in.
+pub const ROBOT_FRAME_ID: &str = "g1_gravity_aligned";
 
 /// Name of the MCAP metadata record that pins the run (spec, weights, options).
 pub const RUN_METADATA: &str = "g1fw.run";
@@ -36,8 +42,32 @@ bool sent          # handed to the HAL (false on the final tick of a run)
 uint8[] data       # unitree_hg LowCmd_ wire bytes (1004)
 ";
 
+const FOXGLOVE_COMMON: &str = r#""timestamp":{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}},"frame_id":{"type":"string"},"pose":{"type":"object","properties":{"position":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}},"orientation":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}}},"fields":{"type":"array","items":{"type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer"},"type":{"type":"integer"}}}},"data":{"type":"string","contentEncoding":"base64"}"#;
+
+/// Foxglove's `foxglove.PointCloud` (x, y, z, intensity as float32) in JSON.
+pub fn point_cloud_schema() -> String {
+    format!(r#"{{"type":"object","properties":{{{FOXGLOVE_COMMON},"point_stride":{{"type":"integer"}}}}}}"#)
+}
+
+/// Foxglove's `foxglove.Grid` (the six BEV channels as float32 fields) in JSON.
+pub fn grid_schema() -> String {
+    format!(
+        r#"{{"type":"object","properties":{{{FOXGLOVE_COMMON},"column_count":{{"type":"integer"}},"cell_size":{{"type":"object","properties":{{"x":{{"type":"number"}},"y":{{"type":"number"}}}}}},"row_stride":{{"type":"integer"}},"cell_stride":{{"type":"integer"}}}}}}"#
+    )
+}
+
 /// `(topic, schema name, JSON Schema)` of every JSON channel.
 pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
+    (
+        PERCEPTION_TERRAIN,
+        "g1fw.TerrainEstimate",
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"class":{"type":"string"},"step_height_m":{"type":"number"},"step_depth_m":{"type":"number"},"yaw_deg":{"type":"number"},"source":{"type":"string"},"held":{"type":"boolean"},"geometric":{"type":"object"},"points":{"type":"integer"},"bev":{"type":"object"},"base_height_m":{"type":"number"},"roll":{"type":"number"},"pitch":{"type":"number"}}}"#,
+    ),
+    (
+        TRUTH_TERRAIN,
+        "g1fw.TerrainTruth",
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"class":{"type":"string"},"step_height_m":{"type":"number"},"step_depth_m":{"type":"number"},"yaw_deg":{"type":"number"}}}"#,
+    ),
     (
         HAL_EVENT,
         "g1fw.HalEvent",

@@ -20,7 +20,9 @@ use sim_hal::bridge::Truth;
 
 use super::channels::{self as ch, encode_low_cmd_frame, encode_low_state_frame};
 use crate::controller::Mode;
+use crate::perception::PerceptionSummary;
 use crate::runtime::{HalFailure, TickSummary, TickView};
+use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CELL_M, BEV_CHANNELS, BEV_HALF_EXTENT_M, CHANNEL_NAMES};
 
 /// Largest observation / action the log record holds.
 pub const MAX_OBS: usize = 1024;
@@ -107,6 +109,52 @@ impl Record {
     }
 }
 
+/// One perception step with a fresh lidar frame: the cloud in the robot frame, the BEV grid and the
+/// token. Large (~600 KB), so a small separate pool.
+pub struct PerceptionRecord {
+    pub tick: u64,
+    pub time_ns: u64,
+    pub summary: PerceptionSummary,
+    pub truth: Option<hal::TerrainToken>,
+    pub n: usize,
+    /// x, y, z (robot frame, m) and reflectivity.
+    pub points: Box<[[f32; 4]]>,
+    pub grid: Box<BevGrid>,
+}
+
+impl PerceptionRecord {
+    fn boxed() -> Box<PerceptionRecord> {
+        Box::new(PerceptionRecord {
+            tick: 0,
+            time_ns: 0,
+            summary: PerceptionSummary::default(),
+            truth: None,
+            n: 0,
+            points: vec![[0.0; 4]; sim_hal::bridge::LIDAR_FRAME_CAP].into_boxed_slice(),
+            grid: Box::new(BevGrid::zeroed()),
+        })
+    }
+
+    fn fill(&mut self, v: &TickView, p: &PerceptionSummary) {
+        let per = v.runtime.perception();
+        let f = per.frame();
+        let tf = per.robot_frame();
+        self.tick = v.summary.tick.index;
+        self.time_ns = v.summary.tick.time_ns;
+        self.summary = *p;
+        self.truth = v.truth.and_then(|t| t.terrain);
+        self.n = f.len.min(self.points.len());
+        for (dst, src) in self.points.iter_mut().zip(f.as_slice()) {
+            let q = tf.apply(src.xyz);
+            *dst = [q[0], q[1], q[2], src.reflectivity as f32];
+        }
+        self.grid.data.copy_from_slice(&per.grid().data);
+    }
+}
+
+/// Perception records in the pool (frames arrive at 10 Hz; the writer keeps up easily).
+const PERCEPTION_POOL: usize = 4;
+
 /// What pins a run: everything replay needs besides the recorded inputs.
 #[derive(Clone, Debug, Default)]
 pub struct RunMeta {
@@ -154,6 +202,8 @@ pub struct LogStats {
 pub struct Logger {
     free: Arc<ArrayQueue<Box<Record>>>,
     full: Arc<ArrayQueue<Box<Record>>>,
+    pfree: Arc<ArrayQueue<Box<PerceptionRecord>>>,
+    pfull: Arc<ArrayQueue<Box<PerceptionRecord>>>,
     stop: Arc<AtomicBool>,
     flushed_ticks: Arc<AtomicU64>,
     thread: Option<JoinHandle<Result<LogStats, LogError>>>,
@@ -188,14 +238,20 @@ impl Logger {
             let _ = free.push(Record::boxed());
         }
         let full = Arc::new(ArrayQueue::new(opts.pool));
+        let pfree = Arc::new(ArrayQueue::new(PERCEPTION_POOL));
+        for _ in 0..PERCEPTION_POOL {
+            let _ = pfree.push(PerceptionRecord::boxed());
+        }
+        let pfull = Arc::new(ArrayQueue::new(PERCEPTION_POOL));
         let stop = Arc::new(AtomicBool::new(false));
         let flushed_ticks = Arc::new(AtomicU64::new(0));
         let thread = {
             let (free, full, stop, flushed) = (free.clone(), full.clone(), stop.clone(), flushed_ticks.clone());
+            let (pfree, pfull) = (pfree.clone(), pfull.clone());
             let every = opts.flush_every_ticks.max(1);
             std::thread::Builder::new()
                 .name("g1fw-log".into())
-                .spawn(move || writer_loop(w, &free, &full, &stop, &flushed, every))
+                .spawn(move || writer_loop(w, (&free, &full), (&pfree, &pfull), &stop, &flushed, every))
                 .map_err(|source| LogError::Io {
                     path: path.into(),
                     source,
@@ -204,6 +260,8 @@ impl Logger {
         Ok(Self {
             free,
             full,
+            pfree,
+            pfull,
             stop,
             flushed_ticks,
             thread: Some(thread),
@@ -240,6 +298,22 @@ impl Logger {
         self.dropped = 0;
         // Cannot fail: the pool and the queue have the same capacity.
         let _ = self.full.push(rec);
+        if let Some(p) = view.summary.perception.filter(|p| p.fresh) {
+            let prec = loop {
+                match self.pfree.pop() {
+                    Some(r) => break Some(r),
+                    None if self.block_when_full && !self.writer_gone() => std::thread::yield_now(),
+                    None => break None,
+                }
+            };
+            match prec {
+                Some(mut r) => {
+                    r.fill(view, &p);
+                    let _ = self.pfull.push(r);
+                }
+                None => self.dropped_total += 1,
+            }
+        }
         true
     }
 
@@ -267,16 +341,26 @@ impl Drop for Logger {
     }
 }
 
+type Pool<T> = ArrayQueue<Box<T>>;
+
 fn writer_loop(
     mut w: McapSink,
-    free: &ArrayQueue<Box<Record>>,
-    full: &ArrayQueue<Box<Record>>,
+    (free, full): (&Pool<Record>, &Pool<Record>),
+    (pfree, pfull): (&Pool<PerceptionRecord>, &Pool<PerceptionRecord>),
     stop: &AtomicBool,
     flushed: &AtomicU64,
     every: u64,
 ) -> Result<LogStats, LogError> {
     let mut since_flush = 0u64;
     let result = loop {
+        // Perception records are pushed right after their tick's record.
+        if let Some(p) = pfull.pop() {
+            let r = w.perception(&p);
+            let _ = pfree.push(p);
+            if let Err(e) = r {
+                break Err(e);
+            }
+        }
         match full.pop() {
             Some(rec) => {
                 let r = w.record(&rec);
@@ -296,7 +380,7 @@ fn writer_loop(
             }
             None if stop.load(Ordering::Acquire) => {
                 // The control thread pushes before it sets `stop`, so the queue is drained.
-                if full.is_empty() {
+                if full.is_empty() && pfull.is_empty() {
                     break Ok(());
                 }
             }
@@ -353,6 +437,14 @@ impl McapSink {
         let low_cmd = w.add_channel(s, ch::LOW_CMD, "cdr", &none).map_err(mk)?;
         let mut json = BTreeMap::new();
         for &(topic, name, schema) in ch::JSON_CHANNELS {
+            let s = w.add_schema(name, "jsonschema", schema.as_bytes()).map_err(mk)?;
+            json.insert(topic, w.add_channel(s, topic, "json", &none).map_err(mk)?);
+        }
+        // Foxglove's own schemas by name, so its 3D panel draws the cloud and the grid.
+        for (topic, name, schema) in [
+            (ch::LIDAR_POINTS, "foxglove.PointCloud", ch::point_cloud_schema()),
+            (ch::PERCEPTION_BEV, "foxglove.Grid", ch::grid_schema()),
+        ] {
             let s = w.add_schema(name, "jsonschema", schema.as_bytes()).map_err(mk)?;
             json.insert(topic, w.add_channel(s, topic, "json", &none).map_err(mk)?);
         }
@@ -582,6 +674,128 @@ impl McapSink {
         Ok(())
     }
 
+    /// `/lidar/points`, `/perception/bev`, `/perception/terrain`.
+    fn perception(&mut self, p: &PerceptionRecord) -> Result<(), LogError> {
+        use base64::Engine as _;
+        let (k, t) = (p.tick, p.time_ns);
+        let stamp = Stamp {
+            sec: (t / 1_000_000_000) as u32,
+            nsec: (t % 1_000_000_000) as u32,
+        };
+        let mut bytes = Vec::with_capacity(p.n * 16);
+        for q in &p.points[..p.n] {
+            for v in q {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        let f32_field = |name: &'static str, offset: u32| Field { name, offset, r#type: 7 };
+        self.put_json(
+            ch::LIDAR_POINTS,
+            t,
+            &PointCloudMsg {
+                timestamp: stamp,
+                frame_id: ch::ROBOT_FRAME_ID,
+                pose: Pose::IDENTITY,
+                point_stride: 16,
+                fields: [
+                    f32_field("x", 0),
+                    f32_field("y", 4),
+                    f32_field("z", 8),
+                    f32_field("intensity", 12),
+                ],
+                data: base64::engine::general_purpose::STANDARD.encode(&bytes),
+            },
+        )?;
+        // foxglove.Grid: column = ix (x), row = iy (y), six float32 fields per cell.
+        bytes.clear();
+        for iy in 0..BEV_CELLS {
+            for ix in 0..BEV_CELLS {
+                for c in 0..BEV_CHANNELS {
+                    bytes.extend_from_slice(&p.grid.get(c, ix, iy).to_le_bytes());
+                }
+            }
+        }
+        let mut fields = [f32_field("", 0); BEV_CHANNELS];
+        for (c, f) in fields.iter_mut().enumerate() {
+            *f = f32_field(CHANNEL_NAMES[c], 4 * c as u32);
+        }
+        self.put_json(
+            ch::PERCEPTION_BEV,
+            t,
+            &GridMsg {
+                timestamp: stamp,
+                frame_id: ch::ROBOT_FRAME_ID,
+                pose: Pose {
+                    position: Xyz64 {
+                        x: -BEV_HALF_EXTENT_M as f64,
+                        y: -BEV_HALF_EXTENT_M as f64,
+                        z: 0.0,
+                    },
+                    ..Pose::IDENTITY
+                },
+                column_count: BEV_CELLS as u32,
+                cell_size: CellSize {
+                    x: BEV_CELL_M as f64,
+                    y: BEV_CELL_M as f64,
+                },
+                row_stride: (BEV_CELLS * BEV_CHANNELS * 4) as u32,
+                cell_stride: (BEV_CHANNELS * 4) as u32,
+                fields,
+                data: base64::engine::general_purpose::STANDARD.encode(&bytes),
+            },
+        )?;
+        let s = &p.summary;
+        self.put_json(
+            ch::PERCEPTION_TERRAIN,
+            t,
+            &TerrainMsg {
+                tick: k,
+                class: s.token.class.name(),
+                step_height_m: s.token.step_height_m,
+                step_depth_m: s.token.step_depth_m,
+                yaw_deg: s.token.yaw_rad.to_degrees(),
+                source: "geometric",
+                held: s.held,
+                geometric: GeometricMsg {
+                    class: s.geometric.token.class.name(),
+                    step_height_m: s.geometric.token.step_height_m,
+                    step_depth_m: s.geometric.token.step_depth_m,
+                    yaw_deg: s.geometric.token.yaw_rad.to_degrees(),
+                    confidence: s.geometric.confidence,
+                    cells_used: s.geometric.cells_used,
+                    levels: s.geometric.levels,
+                    risers: s.geometric.risers,
+                },
+                points: s.points,
+                frame_timestamp_ns: s.frame_timestamp_ns,
+                bev: BevStatsMsg {
+                    input: s.bev.input,
+                    used: s.bev.used,
+                    self_hits: s.bev.self_hits,
+                    outside: s.bev.outside,
+                    non_finite: s.bev.non_finite,
+                },
+                base_height_m: s.base_height,
+                roll: s.roll,
+                pitch: s.pitch,
+            },
+        )?;
+        if let Some(z) = p.truth {
+            self.put_json(
+                ch::TRUTH_TERRAIN,
+                t,
+                &TruthTerrainMsg {
+                    tick: k,
+                    class: z.class.name(),
+                    step_height_m: z.step_height_m,
+                    step_depth_m: z.step_depth_m,
+                    yaw_deg: z.yaw_rad.to_degrees(),
+                },
+            )?;
+        }
+        Ok(())
+    }
+
     fn flush(&mut self) -> Result<(), LogError> {
         self.w.flush().map_err(|e| self.err(e))?;
         self.stats.chunks_flushed += 1;
@@ -606,6 +820,123 @@ pub fn mode_name(m: Mode) -> &'static str {
         Mode::Policy => "policy",
         Mode::Damping(_) => "damping",
     }
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct Stamp {
+    sec: u32,
+    nsec: u32,
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct Orientation {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct Pose {
+    position: Xyz64,
+    orientation: Orientation,
+}
+
+impl Pose {
+    const IDENTITY: Pose = Pose {
+        position: Xyz64 { x: 0.0, y: 0.0, z: 0.0 },
+        orientation: Orientation {
+            x: 0.0,
+            y: 0.0,
+            z: 0.0,
+            w: 1.0,
+        },
+    };
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct Field {
+    name: &'static str,
+    offset: u32,
+    /// foxglove.PackedElementField numeric type (7 = FLOAT32).
+    r#type: u8,
+}
+
+#[derive(Serialize)]
+struct PointCloudMsg {
+    timestamp: Stamp,
+    frame_id: &'static str,
+    pose: Pose,
+    point_stride: u32,
+    fields: [Field; 4],
+    data: String,
+}
+
+#[derive(Serialize, Clone, Copy)]
+struct CellSize {
+    x: f64,
+    y: f64,
+}
+
+#[derive(Serialize)]
+struct GridMsg {
+    timestamp: Stamp,
+    frame_id: &'static str,
+    pose: Pose,
+    column_count: u32,
+    cell_size: CellSize,
+    row_stride: u32,
+    cell_stride: u32,
+    fields: [Field; BEV_CHANNELS],
+    data: String,
+}
+
+#[derive(Serialize)]
+struct GeometricMsg {
+    class: &'static str,
+    step_height_m: f32,
+    step_depth_m: f32,
+    yaw_deg: f32,
+    confidence: f32,
+    cells_used: u32,
+    levels: u32,
+    risers: u32,
+}
+
+#[derive(Serialize)]
+struct TerrainMsg {
+    tick: u64,
+    class: &'static str,
+    step_height_m: f32,
+    step_depth_m: f32,
+    yaw_deg: f32,
+    source: &'static str,
+    held: bool,
+    geometric: GeometricMsg,
+    points: u32,
+    frame_timestamp_ns: u64,
+    bev: BevStatsMsg,
+    base_height_m: f32,
+    roll: f32,
+    pitch: f32,
+}
+
+#[derive(Serialize)]
+struct BevStatsMsg {
+    input: usize,
+    used: usize,
+    self_hits: usize,
+    outside: usize,
+    non_finite: usize,
+}
+
+#[derive(Serialize)]
+struct TruthTerrainMsg {
+    tick: u64,
+    class: &'static str,
+    step_height_m: f32,
+    step_depth_m: f32,
+    yaw_deg: f32,
 }
 
 #[derive(Serialize)]
@@ -650,7 +981,7 @@ impl From<[f32; 3]> for Xyz {
     }
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Clone, Copy)]
 struct Xyz64 {
     x: f64,
     y: f64,
