@@ -10,8 +10,11 @@ fn reference_bev(points_robot: &[[f32; 3]]) -> Vec<f32> {
         if !p.iter().all(|v| v.is_finite()) {
             continue;
         }
-        if let Some((ix, iy)) = BevGrid::cell_of(p[0], p[1]) {
-            cells[ix * BEV_CELLS + iy].push(p[2] as f64);
+        // The layout's formula, spelled out (independently of `BevGrid::cell_of`).
+        let ix = ((p[0] + 1.5) / 0.05).floor();
+        let iy = ((p[1] + 1.5) / 0.05).floor();
+        if (0.0..60.0).contains(&ix) && (0.0..60.0).contains(&iy) {
+            cells[ix as usize * BEV_CELLS + iy as usize].push(p[2] as f64);
         }
     }
     let fullest = cells.iter().map(|c| c.len()).max().unwrap_or(0);
@@ -179,12 +182,12 @@ fn empty_cloud_and_empty_cells_are_exactly_zero() {
     b.build_robot_points(&[[0.01, 0.01, -0.2]], &mut out);
     let (ix, iy) = BevGrid::cell_of(0.01, 0.01).unwrap();
     assert_eq!((ix, iy), (30, 30));
-    for ch in 0..BEV_CHANNELS {
+    for (ch, name) in CHANNEL_NAMES.iter().enumerate() {
         for x in 0..BEV_CELLS {
             for y in 0..BEV_CELLS {
                 let v = out.get(ch, x, y);
                 if (x, y) != (ix, iy) {
-                    assert_eq!(v.to_bits(), 0, "{} ({x}, {y})", CHANNEL_NAMES[ch]);
+                    assert_eq!(v.to_bits(), 0, "{name} ({x}, {y})");
                 }
             }
         }
