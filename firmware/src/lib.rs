@@ -12,13 +12,14 @@
 //! - [`rt`]: real-time process set-up (SCHED_FIFO, CPU pinning, mlockall).
 //! - [`robot`]: the G1's joint ranges.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
+pub mod bev_render;
 pub mod controller;
 pub mod log;
 pub mod log_tools;
 pub mod nn;
 pub mod obs;
-pub mod perception;
 pub mod operator;
+pub mod perception;
 pub mod plot;
 pub mod replay;
 pub mod robot;

@@ -19,8 +19,8 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
-use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use crate::perception::{LidarFrame, Perception, PerceptionSummary};
+use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use estimator::StateEstimator;
 
 /// The state estimate of one tick (attitude, base velocity and height, foot contacts).
@@ -217,6 +217,7 @@ impl Runtime {
         if frame == FrameStatus::Fresh {
             self.estimator.update(k, state);
         }
+        self.perception.record_pose(tick.time_ns, self.estimator.estimate());
 
         // 3. safety and operator
         if let Some(reason) = self.supervisor.check_frame(k, frame, state) {
@@ -240,7 +241,7 @@ impl Runtime {
         if k.is_multiple_of(self.perception_decimation) {
             s.perception_step = true;
             let fresh = std::mem::take(&mut self.lidar_fresh);
-            s.perception = Some(self.perception.step(fresh, self.estimator.estimate()));
+            s.perception = Some(self.perception.step(tick.time_ns, fresh, self.estimator.estimate()));
             t2 = Instant::now();
         }
 

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use sim_hal::bridge::{Wants, BridgeHal, Truth};
+use sim_hal::bridge::{BridgeHal, Truth, Wants};
 
 use crate::controller::{Controller, Mode};
 use crate::log::{LogOptions, LogStats, Logger, RunMeta};
@@ -168,7 +168,9 @@ struct TerrainEval {
 
 impl TerrainEval {
     fn add(&mut self, t: &Truth, v: &TickView) {
-        let (Some(p), Some(z)) = (v.summary.perception, t.terrain) else { return };
+        let (Some(p), Some(z)) = (v.summary.perception, t.terrain) else {
+            return;
+        };
         if !p.fresh {
             return;
         }

@@ -43,6 +43,19 @@ enum Cmd {
         #[arg(long, short)]
         out: PathBuf,
     },
+    /// Render one perception frame of a `g1fw sim --world` log to PNG: the six BEV channels
+    /// (max z, min z, mean z, max−min, std, density; forward is up), the robot-centred cloud from
+    /// above and from the side, and the terrain estimate against ground truth.
+    Bev {
+        /// A log written by `g1fw sim --world ... --log`.
+        log: PathBuf,
+        /// Log time of the frame, s (the nearest frame; default: the last).
+        #[arg(long)]
+        at: Option<f64>,
+        /// Output PNG.
+        #[arg(long, short)]
+        out: PathBuf,
+    },
     /// Summarise a log: run metadata, messages per channel, safety events, whether it was cut short.
     LogInfo { log: PathBuf },
 }
@@ -236,6 +249,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Cmd::Plot { log, out } => {
             firmware::log_tools::plot_log(&log, &out)?;
+            eprintln!("wrote {}", out.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Bev { log, at, out } => {
+            let info = firmware::bev_render::render_bev_png(&log, at, &out)?;
+            println!("{}", serde_json::to_string_pretty(&info)?);
             eprintln!("wrote {}", out.display());
             Ok(ExitCode::SUCCESS)
         }

@@ -117,7 +117,8 @@ pub struct PerceptionRecord {
     pub summary: PerceptionSummary,
     pub truth: Option<hal::TerrainToken>,
     pub n: usize,
-    /// x, y, z (robot frame, m) and reflectivity.
+    /// x, y, z (robot frame, m, motion-compensated, self-hits removed) and intensity (0: the
+    /// simulated sensor reports none worth drawing).
     pub points: Box<[[f32; 4]]>,
     pub grid: Box<BevGrid>,
 }
@@ -137,16 +138,14 @@ impl PerceptionRecord {
 
     fn fill(&mut self, v: &TickView, p: &PerceptionSummary) {
         let per = v.runtime.perception();
-        let f = per.frame();
-        let tf = per.robot_frame();
+        let pts = per.robot_points();
         self.tick = v.summary.tick.index;
         self.time_ns = v.summary.tick.time_ns;
         self.summary = *p;
         self.truth = v.truth.and_then(|t| t.terrain);
-        self.n = f.len.min(self.points.len());
-        for (dst, src) in self.points.iter_mut().zip(f.as_slice()) {
-            let q = tf.apply(src.xyz);
-            *dst = [q[0], q[1], q[2], src.reflectivity as f32];
+        self.n = pts.len().min(self.points.len());
+        for (dst, q) in self.points.iter_mut().zip(pts) {
+            *dst = [q[0], q[1], q[2], 0.0];
         }
         self.grid.data.copy_from_slice(&per.grid().data);
     }
@@ -688,7 +687,11 @@ impl McapSink {
                 bytes.extend_from_slice(&v.to_le_bytes());
             }
         }
-        let f32_field = |name: &'static str, offset: u32| Field { name, offset, r#type: 7 };
+        let f32_field = |name: &'static str, offset: u32| Field {
+            name,
+            offset,
+            r#type: 7,
+        };
         self.put_json(
             ch::LIDAR_POINTS,
             t,

@@ -19,8 +19,8 @@
 pub mod dataset;
 pub mod faults;
 pub mod lidar;
-pub mod rng;
 pub mod model;
+pub mod rng;
 pub mod server;
 pub mod slots;
 pub mod world;
@@ -31,8 +31,8 @@ use hal::{ImuState, LowCommand, LowState, MotorState, MOTOR_MODE_ENABLED, NUM_MO
 pub use model::ModelChoice;
 use model::SlotMap;
 use mujoco_rs::prelude::*;
-pub use sim_hal::bridge::Truth;
 use rng::Rng;
+pub use sim_hal::bridge::Truth;
 
 /// Errors of the simulator library.
 #[derive(Debug, thiserror::Error)]

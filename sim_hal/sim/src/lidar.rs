@@ -277,7 +277,7 @@ impl LidarSim {
             let (g, dist) = (self.geom[i], self.dist[i]);
             let lost = self.rng.chance(self.cfg.dropout);
             let noise = self.rng.gaussian() * self.cfg.range_noise_std;
-            if g < 0 || !(dist >= 0.0) || dist > self.cfg.max_range || lost {
+            if g < 0 || dist.is_nan() || dist < 0.0 || dist > self.cfg.max_range || lost {
                 out.push(Return {
                     xyz: [0.0; 3],
                     reflectivity: 0,

@@ -142,8 +142,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
         .map(g1_sim::world::World::resolve)
         .transpose()
         .context("--world")?;
-    let mut sim = Simulator::load_in(cli.model, config, world.as_ref())
-        .with_context(|| format!("loading model {model_name}"))?;
+    let mut sim =
+        Simulator::load_in(cli.model, config, world.as_ref()).with_context(|| format!("loading model {model_name}"))?;
     if cli.lidar {
         let lidar = g1_sim::lidar::LidarConfig {
             range_noise_std: cli.lidar_noise,

@@ -22,7 +22,6 @@ impl Rng {
     }
 }
 
-
 impl Rng {
     /// Uniform in [lo, hi).
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {

@@ -195,8 +195,17 @@ pub struct Riser {
 /// A static MuJoCo geom: a box (half sizes) or a cylinder (radius, half length), pose in the world.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Primitive {
-    Box { pos: [f64; 3], quat: [f64; 4], half: [f64; 3] },
-    Cylinder { pos: [f64; 3], quat: [f64; 4], radius: f64, half_len: f64 },
+    Box {
+        pos: [f64; 3],
+        quat: [f64; 4],
+        half: [f64; 3],
+    },
+    Cylinder {
+        pos: [f64; 3],
+        quat: [f64; 4],
+        radius: f64,
+        half_len: f64,
+    },
 }
 
 /// A built staircase.
@@ -264,7 +273,12 @@ impl TerrainSpec {
         check("width", self.width, 0.6, 10.0)?;
         check("yaw_deg", self.yaw_deg, -60.0, 60.0)?;
         check("start_distance", self.start_distance, 0.3, 10.0)?;
-        check("lateral_offset", self.lateral_offset, -0.5 * self.width, 0.5 * self.width)?;
+        check(
+            "lateral_offset",
+            self.lateral_offset,
+            -0.5 * self.width,
+            0.5 * self.width,
+        )?;
         check("landing_after", self.landing_after, 0.5, 20.0)?;
         // The robot starts on the first landing (it must hold its feet).
         check("landing_before", self.landing_before, self.start_distance + 0.4, 20.0)?;
@@ -355,7 +369,7 @@ impl World {
 
     /// A world drawn from `seed` (same seed → same world on every machine).
     pub fn random(seed: u64, r: &RandomRanges) -> World {
-        let mut rng = Rng(seed ^ 0x5EED_0F_57A1_B5);
+        let mut rng = Rng(seed ^ 0x0000_5EED_0F57_A1B5);
         let kind = if rng.chance(r.p_flat) {
             TerrainKind::Flat
         } else if rng.chance(0.5) {
@@ -494,7 +508,8 @@ impl Staircase {
     fn layout(spec: &TerrainSpec) -> Staircase {
         let n = spec.steps;
         let mut rng = Rng(spec.outdoor.map_or(0, |o| o.seed) ^ 0xA5A5_5A5A);
-        let (mut heights, mut depths, mut slopes) = (vec![spec.step_height; n], vec![spec.step_depth; n], vec![0.0; n + 1]);
+        let (mut heights, mut depths, mut slopes) =
+            (vec![spec.step_height; n], vec![spec.step_depth; n], vec![0.0; n + 1]);
         if let Some(o) = &spec.outdoor {
             for i in 0..n {
                 heights[i] *= 1.0 + rng.range(-o.height_jitter, o.height_jitter);
@@ -564,7 +579,11 @@ impl Staircase {
     /// Axis range of level segment `k` (0 = start landing, n = end landing).
     fn segment(&self, k: usize) -> (f64, f64) {
         let n = self.risers.len();
-        let a = if k == 0 { -self.landing_before } else { self.risers[k - 1].s };
+        let a = if k == 0 {
+            -self.landing_before
+        } else {
+            self.risers[k - 1].s
+        };
         let b = if k == n { self.end_s } else { self.risers[k].s };
         (a, b)
     }

@@ -62,7 +62,10 @@ fn lidar_frames_and_terrain_truth_cross_the_bridge() {
     assert_eq!(counters.decoder.malformed.total(), 0);
     assert_eq!(counters.decoder.lost_packets, 0);
     assert_eq!(counters.framing_errors, 0);
-    assert!(counters.decoder.near_dropped > 0, "dropouts arrive as zero points and are dropped");
+    assert!(
+        counters.decoder.near_dropped > 0,
+        "dropouts arrive as zero points and are dropped"
+    );
 }
 
 #[test]

@@ -19,7 +19,10 @@ fn stairs_up_preset_labels() {
     // First riser 1.2 m ahead: inside the look-ahead box.
     let z = w.truth(0.0, 0.0, 0.0);
     assert_eq!(z.class, TerrainClass::StairsUp);
-    assert!(near(z.step_height_m, 0.15, 1e-6) && near(z.step_depth_m, 0.30, 1e-6), "{z:?}");
+    assert!(
+        near(z.step_height_m, 0.15, 1e-6) && near(z.step_depth_m, 0.30, 1e-6),
+        "{z:?}"
+    );
     assert!(near(z.yaw_rad, 0.0, 1e-9));
     // Turned left by 0.3 rad: θ = +0.3.
     assert!(near(w.truth(0.0, 0.0, 0.3).yaw_rad, 0.3, 1e-6));
@@ -46,7 +49,10 @@ fn stairs_up_preset_labels() {
 #[test]
 fn stairs_down_and_flat_presets() {
     let w = World::preset("stairs-down").unwrap();
-    assert!((w.start()[2] - 0.9).abs() < 1e-9, "robot starts on the 6 × 0.15 m platform");
+    assert!(
+        (w.start()[2] - 0.9).abs() < 1e-9,
+        "robot starts on the 6 × 0.15 m platform"
+    );
     let z = w.truth(0.0, 0.0, 0.0);
     assert_eq!(z.class, TerrainClass::StairsDown);
     assert!(near(z.step_height_m, 0.15, 1e-6));
@@ -110,7 +116,11 @@ fn outdoor_steps_vary_and_labels_follow_the_step() {
         let before_y = st.origin[1] + s * (r.s - 0.1);
         let z = w.truth(before, before_y, st.yaw);
         assert_eq!(z.class, TerrainClass::StairsUp, "step {i}");
-        assert!(near(z.step_height_m, heights[i], 1e-6), "step {i}: {z:?} vs {}", heights[i]);
+        assert!(
+            near(z.step_height_m, heights[i], 1e-6),
+            "step {i}: {z:?} vs {}",
+            heights[i]
+        );
         assert!(near(z.step_depth_m, depths[i], 1e-6));
     }
 }
@@ -137,7 +147,16 @@ fn random_worlds_are_reproducible_and_in_range() {
 #[test]
 fn bad_scenarios_say_what_is_wrong() {
     let e = World::from_toml("[terrain]\nkind = \"stairs-up\"\nstep_height = 0.9\n", "a.toml").unwrap_err();
-    assert!(matches!(e, WorldError::Invalid { field: "step_height", .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            WorldError::Invalid {
+                field: "step_height",
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert!(e.to_string().contains("step_height"));
     let e = World::from_toml("[terrain]\nkind = \"stairs-up\"\nstep_hieght = 0.1\n", "b.toml").unwrap_err();
     assert!(e.to_string().contains("step_hieght"), "{e}");
@@ -153,7 +172,16 @@ fn bad_scenarios_say_what_is_wrong() {
         "d.toml",
     )
     .unwrap_err();
-    assert!(matches!(e, WorldError::Invalid { field: "landing_before", .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            WorldError::Invalid {
+                field: "landing_before",
+                ..
+            }
+        ),
+        "{e}"
+    );
 }
 
 /// Every lidar return that hits the terrain lies on the analytic surface (treads) or on a riser.
@@ -175,7 +203,10 @@ fn mujoco_geometry_matches_the_analytic_world() {
         assert_eq!(out.len(), 20_000);
         // Sensor pose from the MuJoCo body and the mount, to bring points to the world.
         let d = sim.data();
-        let body = d.model().name_to_id(mujoco_rs::prelude::MjtObjBase::mjOBJ_BODY, "torso_link").unwrap();
+        let body = d
+            .model()
+            .name_to_id(mujoco_rs::prelude::MjtObjBase::mjOBJ_BODY, "torso_link")
+            .unwrap();
         let (xp, xm) = (d.xpos()[body], d.xmat()[body]);
         let (mp, mount_rot) = (cfg.mount_xyz, g1_sim::lidar::rpy_matrix(cfg.mount_rpy));
         let (mut on_surface, mut on_riser, mut off, mut terrain_hits) = (0, 0, 0, 0);
@@ -183,7 +214,9 @@ fn mujoco_geometry_matches_the_analytic_world() {
             if r.geom < 0 {
                 continue;
             }
-            let gname = d.model().id_to_name(mujoco_rs::prelude::MjtObjBase::mjOBJ_GEOM, r.geom as usize);
+            let gname = d
+                .model()
+                .id_to_name(mujoco_rs::prelude::MjtObjBase::mjOBJ_GEOM, r.geom as usize);
             if !gname.is_some_and(|n| n.starts_with("terrain_") || n == "floor") {
                 continue;
             }
@@ -202,9 +235,17 @@ fn mujoco_geometry_matches_the_analytic_world() {
                 off += 1;
             }
         }
-        println!("{name}: {terrain_hits} terrain hits, {on_surface} on treads, {on_riser} on risers/nosings, {off} off");
-        assert!(terrain_hits > 5_000, "{name}: the sensor sees the ground ({terrain_hits})");
-        assert!(off as f64 <= 0.01 * terrain_hits as f64, "{name}: {off} points off the analytic surface");
+        println!(
+            "{name}: {terrain_hits} terrain hits, {on_surface} on treads, {on_riser} on risers/nosings, {off} off"
+        );
+        assert!(
+            terrain_hits > 5_000,
+            "{name}: the sensor sees the ground ({terrain_hits})"
+        );
+        assert!(
+            off as f64 <= 0.01 * terrain_hits as f64,
+            "{name}: {off} points off the analytic surface"
+        );
         assert!(on_surface as f64 >= 0.8 * terrain_hits as f64, "{name}");
     }
 }

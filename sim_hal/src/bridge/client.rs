@@ -27,7 +27,8 @@ use sensor_io::livox::{AssemblerStats, FrameAssembler};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::protocol::{
-    datagrams, read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME, PROTOCOL_VERSION,
+    datagrams, read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME,
+    PROTOCOL_VERSION,
 };
 use super::spin::SpinStream;
 

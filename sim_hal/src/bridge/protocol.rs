@@ -308,15 +308,12 @@ impl Truth {
             base_lin_vel_body: a3(11),
             base_ang_vel_body: a3(14),
             foot_contact: [b[t - 2] != 0, b[t - 1] != 0],
-            terrain: match hal::TerrainClass::from_index(b[t] as usize) {
-                None => None,
-                Some(class) => Some(hal::TerrainToken {
-                    class,
-                    step_height_m: f32_at(t + 1),
-                    step_depth_m: f32_at(t + 5),
-                    yaw_rad: f32_at(t + 9),
-                }),
-            },
+            terrain: hal::TerrainClass::from_index(b[t] as usize).map(|class| hal::TerrainToken {
+                class,
+                step_height_m: f32_at(t + 1),
+                step_depth_m: f32_at(t + 5),
+                yaw_rad: f32_at(t + 9),
+            }),
         })
     }
 }
