@@ -184,7 +184,7 @@ fn draw(out: &Path, grid: &BevGrid, points: &[[f32; 3]], f: &Frame) -> DrawResul
     let cell = 4i32;
     let size = cell * BEV_CELLS as i32;
     // Six channels, 3 × 2, row 0 (x = −1.5 m) at the bottom so forward is up; y to the left.
-    for c in 0..BEV_CHANNELS {
+    for (c, name) in CHANNEL_NAMES.iter().enumerate() {
         let (ox, oy) = (20 + (c as i32 % 3) * (size + 40), 70 + (c as i32 / 3) * (size + 60));
         let vals: Vec<f32> = (0..BEV_CELLS * BEV_CELLS)
             .map(|i| grid.data[c * BEV_CELLS * BEV_CELLS + i])
@@ -200,7 +200,7 @@ fn draw(out: &Path, grid: &BevGrid, points: &[[f32; 3]], f: &Frame) -> DrawResul
             }
         }
         root.draw(&Text::new(
-            format!("{} [{:.2}, {:.2}]", CHANNEL_NAMES[c], lo, hi),
+            format!("{name} [{lo:.2}, {hi:.2}]"),
             (ox, oy - 22),
             ("sans-serif", 15).into_font(),
         ))?;

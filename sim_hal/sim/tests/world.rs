@@ -264,3 +264,18 @@ fn near_riser(world: &World, w: [f64; 3]) -> bool {
     let (s, _) = st.to_axis(w[0], w[1]);
     st.risers.iter().any(|r| (s - r.s).abs() < 0.05)
 }
+
+#[test]
+fn committed_scenario_files_load() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../specs/worlds");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&dir).expect("specs/worlds exists") {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let w = World::from_file(&path).unwrap_or_else(|e| panic!("{e}"));
+            assert!(w.stairs.is_some(), "{}", path.display());
+            n += 1;
+        }
+    }
+    assert!(n >= 2, "scenario examples in {}", dir.display());
+}
