@@ -5,23 +5,28 @@
 //! Algorithm, per grid (deterministic, allocation-free after [`GeometricTerrainEstimator::new`]):
 //! 1. collect the occupied cells (x, y, z = mean) that are finite, outside the self-hit box around
 //!    the robot and not outliers (|z| or max − min too large);
-//! 2. stair direction: for directions φ ∈ [−90°, 90°) (1° steps, then 0.1° around the best) project
-//!    the cells within 1.5 m of the robot onto u = (cos φ, sin φ), bin them along u (2 cm) and take the
-//!    φ with the smallest mean within-bin height variance (a staircase's height depends on the
-//!    coordinate along u alone, so the right direction gives the sharpest 1-D profile);
+//! 2. stair direction: connected regions of cells at one level (treads, landings, floor) vote with
+//!    their minor axis (elongated, narrow regions weigh most) for a first guess; around it (± 20°,
+//!    2° then 0.25° steps; all of [−90°, 90°) without a guess) the cells within
+//!    `lateral_half_width_m` across the direction u = (cos φ, sin φ) are binned along u (2 cm) and
+//!    the φ with the smallest within-bin / total height variance wins (a staircase's height depends
+//!    on the coordinate along u alone; the band keeps the floor beside a narrow staircase out);
 //! 3. the 1-D profile (median height per bin) is cut into plateaus: a bin joins the current plateau
 //!    when it is within `level_tol_m` of the plateau's local level and no data gap separates them;
 //!    short plateaus (riser cells, noise) are dropped, neighbours closer than `min_jump_m` merged;
-//! 4. risers = jumps between consecutive plateaus; a riser seen from above (higher plateau on the
-//!    robot's side) lies at the edge of the higher plateau (the lower tread is shadowed next to it),
+//! 4. risers = jumps between consecutive plateaus, except jumps above 0.30 m per step that fits in
+//!    the gap between them (drops beside a staircase or a platform); a riser seen from above
+//!    (higher plateau on the robot's side) lies at the edge of the higher plateau (the lower tread
+//!    is shadowed next to it),
 //!    one seen from below in the middle of the gap (filled by the riser face's mixed cells, which
 //!    step 1 drops); the majority sign of the jumps along u gives up/down;
 //!    h = median jump (jumps across data gaps divided by their step count), d = median spacing of
 //!    consecutive risers, or, with fewer than two risers, the rise over run of the plateau centres,
 //!    or `default_depth_m`;
-//! 5. class: stairs when a riser (or the data gap that hides one) crosses the look-ahead box,
-//!    else flat; yaw θ = −φ (the token's convention: the stairs run at −θ in the robot frame), with
-//!    u always pointing forward (x ≥ 0), so |θ| ≤ 90°.
+//! 5. class: stairs when a riser (or the data gap that hides one, if it can be one step or steps of
+//!    its sign were seen) crosses the look-ahead box, else flat; yaw θ = −φ (the token's
+//!    convention: the stairs run at −θ in the robot frame), with u always pointing forward
+//!    (x ≥ 0), so |θ| ≤ 90°.
 use hal::{wrap_angle, TerrainClass, TerrainToken};
 use sensor_io::bev::{BevGrid, BEV_CELLS, CH_MEAN, CH_RANGE};
 
@@ -33,6 +38,21 @@ const PROFILE_HALF_M: f32 = 2.15;
 const MAX_BINS: usize = 448;
 /// Plateaus at most (more are dropped; a staircase in the window has < 25).
 const MAX_SEGS: usize = 96;
+/// Level differences above this are boundaries (side drops of a staircase or a platform), not
+/// risers, m (steps are at most 0.25 m + 10 % jitter).
+const MAX_STEP_M: f32 = 0.30;
+/// Shallowest tread, m (bounds the steps hidden in a data gap).
+const MIN_TREAD_M: f32 = 0.18;
+/// Neighbouring cells within this height difference belong to one tread (level region), m.
+const TREAD_TOL_M: f32 = 0.025;
+/// Level regions with fewer cells do not vote for the direction.
+const TREAD_MIN_CELLS: usize = 8;
+/// The direction scan covers the tread direction ± this, degrees.
+const DIR_WINDOW_DEG: f32 = 20.0;
+/// The direction scan needs at least this many cells in the band.
+const DIR_MIN_CELLS: u32 = 40;
+/// Height noise variance added to both sides of the direction score's variance ratio, m².
+const DIR_NOISE_M2: f64 = 0.01 * 0.01;
 
 /// Thresholds of the geometric estimator. Heights are in the BEV frame (z = 0 under the robot).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -49,8 +69,8 @@ pub struct GeometricTerrainConfig {
     /// The direction scan uses the cells within this distance of the robot (a disc, so that every
     /// direction is scored on the same cells), m.
     pub direction_radius_m: f32,
-    /// Only cells within this distance across the stair direction make the profile (narrow
-    /// staircases: a smaller band keeps the ground beside them out), m.
+    /// Only cells within this distance across the stair direction score a direction and make the
+    /// profile (narrow staircases: a smaller band keeps the ground beside them out), m.
     pub lateral_half_width_m: f32,
     /// Coarse direction scan step over [−90°, 90°), degrees.
     pub coarse_step_deg: f32,
@@ -86,9 +106,9 @@ impl Default for GeometricTerrainConfig {
             max_cell_range_m: 0.06,
             min_cells: 60,
             direction_radius_m: 3.0,
-            lateral_half_width_m: 3.0,
-            coarse_step_deg: 1.0,
-            fine_step_deg: 0.1,
+            lateral_half_width_m: 1.2,
+            coarse_step_deg: 2.0,
+            fine_step_deg: 0.25,
             profile_bin_m: 0.02,
             level_tol_m: 0.02,
             min_jump_m: 0.03,
@@ -177,7 +197,16 @@ struct Scratch {
     levels: [Plateau; MAX_SEGS],
     risers: [Riser; MAX_SEGS],
     vals: [f32; MAX_SEGS],
+    /// Grid cell (ix * 60 + iy) → usable cell index, or `NONE`.
+    cell_idx: [u16; MAX_CELLS],
+    /// Usable cell → grid cell.
+    grid_idx: [u16; MAX_CELLS],
+    /// Component visited flag per usable cell; flood-fill stack.
+    seen: [bool; MAX_CELLS],
+    stack: [u16; MAX_CELLS],
 }
+
+const NONE: u16 = u16::MAX;
 
 /// The geometric terrain estimator. Construct once; [`estimate`](Self::estimate) does not allocate.
 pub struct GeometricTerrainEstimator {
@@ -227,6 +256,10 @@ impl GeometricTerrainEstimator {
             levels: [Plateau::default(); MAX_SEGS],
             risers: [Riser::default(); MAX_SEGS],
             vals: [0.0; MAX_SEGS],
+            cell_idx: [NONE; MAX_CELLS],
+            grid_idx: [0; MAX_CELLS],
+            seen: [false; MAX_CELLS],
+            stack: [0; MAX_CELLS],
         });
         Self { cfg, bin_m, nbins, w }
     }
@@ -249,13 +282,17 @@ impl GeometricTerrainEstimator {
         }
         let data_conf = (n as f32 / (4.0 * self.cfg.min_cells.max(1) as f32)).min(1.0);
 
-        // Direction: coarse scan over [−90°, 90°), then fine around the best.
+        // Direction: the treads' orientation (connected level regions) gives a first guess; the
+        // profile sharpness refines it within ± DIR_WINDOW_DEG (a full scan when there is no guess).
         let coarse = self.cfg.coarse_step_deg.clamp(0.1, 15.0);
         let fine = self.cfg.fine_step_deg.clamp(0.01, coarse);
         let mut best = (f64::INFINITY, 0.0f32);
-        let steps = (180.0 / coarse).round() as i32;
+        let (lo, steps) = match self.tread_direction(n) {
+            Some(g) => (g - DIR_WINDOW_DEG, (2.0 * DIR_WINDOW_DEG / coarse).round() as i32 + 1),
+            None => (-90.0, (180.0 / coarse).round() as i32),
+        };
         for k in 0..steps {
-            let phi = -90.0 + k as f32 * coarse;
+            let phi = lo + k as f32 * coarse;
             let sc = self.direction_score(n, phi.to_radians());
             if sc < best.0 {
                 best = (sc, phi);
@@ -275,9 +312,10 @@ impl GeometricTerrainEstimator {
         }
         // u must point forward: fold φ into [−90°, 90°].
         let mut phi = best.1;
-        if phi < -90.0 {
+        while phi < -90.0 {
             phi += 180.0;
-        } else if phi > 90.0 {
+        }
+        while phi > 90.0 {
             phi -= 180.0;
         }
         out.fit_residual_m = if best.0.is_finite() {
@@ -331,9 +369,15 @@ impl GeometricTerrainEstimator {
             box_lo = box_lo.min(p);
             box_hi = box_hi.max(p);
         }
-        let in_box = w.risers[..nris]
-            .iter()
-            .any(|r| r.dz * sign > 0.0 && r.s_hi >= box_lo && r.s_lo <= box_hi);
+        // A jump across a data gap counts only when it can be one step, or when steps of its sign
+        // were seen elsewhere (else it is a drop beside a platform or staircase).
+        let seen_located = w.risers[..nris].iter().any(|r| r.dz * sign > 0.0 && r.located);
+        let in_box = w.risers[..nris].iter().any(|r| {
+            r.dz * sign > 0.0
+                && (r.located || seen_located || r.dz.abs() <= MAX_STEP_M)
+                && r.s_hi >= box_lo
+                && r.s_lo <= box_hi
+        });
         if !in_box {
             out.confidence = data_conf * 0.5 * agree;
             return out;
@@ -443,6 +487,7 @@ impl GeometricTerrainEstimator {
         let cfg = &self.cfg;
         let w = &mut *self.w;
         let mut n = 0;
+        w.cell_idx.fill(NONE);
         for ix in 0..BEV_CELLS {
             for iy in 0..BEV_CELLS {
                 let dens = grid.get(sensor_io::bev::CH_DENSITY, ix, iy);
@@ -462,10 +507,82 @@ impl GeometricTerrainEstimator {
                 w.x[n] = x;
                 w.y[n] = y;
                 w.z[n] = z;
+                w.cell_idx[ix * BEV_CELLS + iy] = n as u16;
+                w.grid_idx[n] = (ix * BEV_CELLS + iy) as u16;
                 n += 1;
             }
         }
         n
+    }
+
+    /// Stair direction guess, degrees in [−90°, 90°): connected regions of cells at one level
+    /// (8-neighbours within `TREAD_TOL_M`) are treads, landings or floor; an elongated region's
+    /// minor axis is the stair direction. Axial mean weighted by cells × elongation², narrow
+    /// regions (treads) preferred. None without elongated regions.
+    fn tread_direction(&mut self, n: usize) -> Option<f32> {
+        let w = &mut *self.w;
+        w.seen[..n].fill(false);
+        let (mut ac, mut as_) = (0.0f64, 0.0f64);
+        for seed in 0..n {
+            if w.seen[seed] {
+                continue;
+            }
+            w.seen[seed] = true;
+            w.stack[0] = seed as u16;
+            let mut top = 1;
+            let (mut k, mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0u32, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64);
+            while top > 0 {
+                top -= 1;
+                let i = w.stack[top] as usize;
+                let (x, y) = (w.x[i] as f64, w.y[i] as f64);
+                k += 1;
+                sx += x;
+                sy += y;
+                sxx += x * x;
+                syy += y * y;
+                sxy += x * y;
+                let g = w.grid_idx[i] as usize;
+                let (ix, iy) = ((g / BEV_CELLS) as isize, (g % BEV_CELLS) as isize);
+                for dx in -1isize..=1 {
+                    for dy in -1isize..=1 {
+                        let (px, py) = (ix + dx, iy + dy);
+                        if px < 0 || py < 0 || px >= BEV_CELLS as isize || py >= BEV_CELLS as isize {
+                            continue;
+                        }
+                        let j = w.cell_idx[px as usize * BEV_CELLS + py as usize];
+                        if j == NONE || w.seen[j as usize] {
+                            continue;
+                        }
+                        if (w.z[j as usize] - w.z[i]).abs() <= TREAD_TOL_M {
+                            w.seen[j as usize] = true;
+                            w.stack[top] = j;
+                            top += 1;
+                        }
+                    }
+                }
+            }
+            if (k as usize) < TREAD_MIN_CELLS {
+                continue;
+            }
+            let kf = k as f64;
+            let (mx, my) = (sx / kf, sy / kf);
+            let (a, c, b) = (sxx / kf - mx * mx, syy / kf - my * my, sxy / kf - mx * my);
+            let r = (0.25 * (a - c) * (a - c) + b * b).sqrt();
+            let tr = a + c;
+            if tr <= 0.0 || r <= 0.0 {
+                continue;
+            }
+            let elong = 2.0 * r / tr;
+            let minor_sd = (0.5 * tr - r).max(0.0).sqrt();
+            let wgt = kf * elong * elong * if minor_sd < 0.2 { 1.0 } else { 0.1 };
+            // Minor axis in doubled-angle form: −(cos 2θ_major, sin 2θ_major).
+            ac -= wgt * (a - c) / (2.0 * r);
+            as_ -= wgt * b / r;
+        }
+        if ac * ac + as_ * as_ <= 0.0 {
+            return None;
+        }
+        Some((0.5 * as_.atan2(ac)).to_degrees() as f32)
     }
 
     /// Mean within-bin height variance of the profile along φ (smaller = sharper).
@@ -478,12 +595,16 @@ impl GeometricTerrainEstimator {
         w.bin_n[..nb].fill(0);
         w.bin_sum[..nb].fill(0.0);
         w.bin_sq[..nb].fill(0.0);
+        let lat = self.cfg.lateral_half_width_m;
         let mut used = 0u32;
+        let (mut tot, mut tot2) = (0.0f64, 0.0f64);
         for i in 0..n {
             let (x, y) = (w.x[i], w.y[i]);
-            if x * x + y * y > r2 {
+            if x * x + y * y > r2 || (-x * s + y * c).abs() > lat {
                 continue;
             }
+            tot += w.z[i] as f64;
+            tot2 += (w.z[i] as f64) * (w.z[i] as f64);
             let b = ((x * c + y * s + PROFILE_HALF_M) * inv) as usize;
             if b >= nb {
                 continue;
@@ -494,7 +615,7 @@ impl GeometricTerrainEstimator {
             w.bin_sq[b] += z * z;
             used += 1;
         }
-        if used < 2 {
+        if used < DIR_MIN_CELLS {
             return f64::INFINITY;
         }
         let mut sse = 0.0;
@@ -504,7 +625,8 @@ impl GeometricTerrainEstimator {
                 sse += w.bin_sq[b] - w.bin_sum[b] * w.bin_sum[b] / k as f64;
             }
         }
-        sse / used as f64
+        let sst = tot2 - tot * tot / used as f64;
+        (sse + DIR_NOISE_M2 * used as f64) / (sst + DIR_NOISE_M2 * used as f64)
     }
 
     /// Sorts the cells in the lateral band by their coordinate along φ and stores each bin's
@@ -647,6 +769,12 @@ impl GeometricTerrainEstimator {
             let dz = b.level - a.level;
             let a_end = (a.b1 as f32 + 1.0) * bin - PROFILE_HALF_M;
             let b_start = b.b0 as f32 * bin - PROFILE_HALF_M;
+            // A jump larger than the steps that fit in the gap between the plateaus is a drop to
+            // the floor beside a staircase or a platform, not a step.
+            let fit = 1.0 + ((b_start - a_end) / MIN_TREAD_M).max(0.0).floor();
+            if dz.abs() > MAX_STEP_M * fit {
+                continue;
+            }
             // Seen from above (higher plateau on the robot's side), the lower tread is shadowed
             // next to the riser: the riser is at the higher plateau's edge. Seen from below, the
             // riser face fills the gap (its cells are dropped as mixed): the middle of the gap.

@@ -687,3 +687,74 @@ fn randomized_sweep() {
     assert!(clear_acc >= 0.97, "class accuracy {clear_acc} without boundary cases");
     assert!(mh <= 0.015 && md <= 0.05 && my <= 4.0, "MAE h {mh} d {md} yaw {my}");
 }
+
+/// Development harness: figures on grids exported by `g1-dataset export` (converted to raw little
+/// endian f32: `$TERRAIN_DS/bev.bin` [n, 6, 60, 60], `$TERRAIN_DS/lab.bin` [n, 5] = class, h, d,
+/// yaw, mode). Skipped unless TERRAIN_DS is set.
+#[test]
+fn dataset_figures() {
+    let Some(dir) = std::env::var_os("TERRAIN_DS") else {
+        return;
+    };
+    let dir = std::path::PathBuf::from(dir);
+    let rd = |name: &str| -> Vec<f32> {
+        std::fs::read(dir.join(name))
+            .unwrap()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect()
+    };
+    let bev = rd("bev.bin");
+    let lab = rd("lab.bin");
+    let n = lab.len() / 5;
+    let len = sensor_io::bev::BEV_LEN;
+    let mut est = GeometricTerrainEstimator::new(GeometricTerrainConfig::default());
+    let mut g = Box::new(BevGrid::zeroed());
+    let mut conf = [[0u32; 3]; 3];
+    let (mut eh, mut ed, mut ey, mut ns, mut implausible) = (0.0f64, 0.0f64, 0.0f64, 0usize, 0usize);
+    let verbose = std::env::var_os("TERRAIN_VERBOSE").is_some();
+    let t0 = std::time::Instant::now();
+    for i in 0..n {
+        g.data.copy_from_slice(&bev[i * len..(i + 1) * len]);
+        let e = est.estimate(&g);
+        let l = &lab[i * 5..i * 5 + 5];
+        let class = [TerrainClass::Flat, TerrainClass::StairsUp, TerrainClass::StairsDown][l[0] as usize];
+        let t = e.token;
+        conf[class.index()][t.class.index()] += 1;
+        eh += (l[1] - t.step_height_m).abs() as f64;
+        ed += (l[2] - t.step_depth_m).abs() as f64;
+        if class != TerrainClass::Flat {
+            ey += hal::wrap_angle(l[3] as f64 - t.yaw_rad as f64).abs().to_degrees();
+            ns += 1;
+        }
+        implausible += !plausible(&t) as usize;
+        let bad = class != t.class
+            || (class != TerrainClass::Flat
+                && ((l[1] - t.step_height_m).abs() > 0.04 || deg(l[3] - t.yaw_rad).abs() > 10.0));
+        if verbose && bad {
+            println!(
+                "{i}: truth {:?} h {:.3} d {:.3} yaw {:.1} | est {:?} h {:.3} d {:.3} yaw {:.1} lev {} ris {} res {:.3}",
+                class,
+                l[1],
+                l[2],
+                deg(l[3]),
+                t.class,
+                t.step_height_m,
+                t.step_depth_m,
+                deg(t.yaw_rad),
+                e.levels,
+                e.risers,
+                e.fit_residual_m
+            );
+        }
+    }
+    let correct: u32 = (0..3).map(|i| conf[i][i]).sum();
+    println!(
+        "dataset {n}: acc {:.1} % MAE h {:.2} cm d {:.2} cm yaw {:.2} deg implausible {implausible} conf {conf:?} ({:.2} ms/grid)",
+        100.0 * correct as f64 / n as f64,
+        100.0 * eh / n as f64,
+        100.0 * ed / n as f64,
+        ey / ns.max(1) as f64,
+        t0.elapsed().as_secs_f64() * 1e3 / n as f64
+    );
+}
