@@ -11,7 +11,7 @@
 //! allocated in [`Perception::new`]; a step does not allocate.
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
 use hal::{PointFrame, TerrainToken};
-use sensor_io::bev::{BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter};
+use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter};
 use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::runtime::Estimate;
@@ -67,17 +67,8 @@ pub struct Perception {
     builder: Box<BevBuilder>,
     grid: Box<BevGrid>,
     frame: Box<LidarFrame>,
-    robot_frame: RobotFrame,
     geometric: GeometricTerrainEstimator,
     last: PerceptionSummary,
-}
-
-/// A zeroed frame built on the heap (~800 KB).
-pub fn boxed_lidar_frame() -> Box<LidarFrame> {
-    let b = Box::<LidarFrame>::new_zeroed();
-    // SAFETY: PointFrame holds only integers and f32s (and arrays of them), for which all-zero
-    // bytes are valid values.
-    unsafe { b.assume_init() }
 }
 
 impl Perception {
@@ -95,8 +86,7 @@ impl Perception {
             fallback_height: spec.fallback_base_height_m,
             builder: BevBuilder::new_boxed(),
             grid: Box::new(BevGrid::zeroed()),
-            frame: boxed_lidar_frame(),
-            robot_frame: RobotFrame::new(&mount, 0.0, 0.0, spec.fallback_base_height_m),
+            frame: sensor_io::livox::boxed_point_frame(),
             geometric: GeometricTerrainEstimator::new(GeometricTerrainConfig::default()),
             last: PerceptionSummary {
                 token: TerrainToken::FLAT,
@@ -110,16 +100,8 @@ impl Perception {
         &mut self.frame
     }
 
-    pub fn frame(&self) -> &LidarFrame {
-        &self.frame
-    }
-
     pub fn grid(&self) -> &BevGrid {
         &self.grid
-    }
-
-    pub fn robot_frame(&self) -> &RobotFrame {
-        &self.robot_frame
     }
 
     pub fn last(&self) -> &PerceptionSummary {
@@ -167,8 +149,7 @@ impl Perception {
             return self.last;
         }
         let (roll, pitch, height) = robot_frame_inputs(est, self.fallback_height);
-        self.robot_frame = RobotFrame::new(&self.mount, roll, pitch, height);
-        let bev = self.grid_frame(now_ns);
+        let bev = self.grid_frame(now_ns, &RobotFrame::new(&self.mount, roll, pitch, height));
         let geometric = self.geometric.estimate(&self.grid);
         let ok = plausible(&geometric.token);
         self.last = PerceptionSummary {
@@ -189,15 +170,7 @@ impl Perception {
 }
 
 fn rpy_rows(roll: f32, pitch: f32, yaw: f32) -> [[f32; 3]; 3] {
-    let (sr, cr) = (roll as f64).sin_cos();
-    let (sp, cp) = (pitch as f64).sin_cos();
-    let (sy, cy) = (yaw as f64).sin_cos();
-    [
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ]
-    .map(|r| r.map(|v| v as f32))
+    rpy_rotation([roll, pitch, yaw].map(f64::from)).map(|r| r.map(|v| v as f32))
 }
 
 fn mat_vec(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
@@ -207,12 +180,12 @@ fn mat_vec(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
 impl Perception {
     /// Maps the frame's points through the pose of the tick each was fired in into the robot frame
     /// at `now_ns` (yaw and translation since then included), drops self-hits, and grids them.
-    fn grid_frame(&mut self, now_ns: u64) -> BevStats {
+    /// Without pose history (first tick) every point goes through `current`.
+    fn grid_frame(&mut self, now_ns: u64, current: &RobotFrame) -> BevStats {
         let Some(now) = self.pose_at(now_ns).copied() else {
-            // No pose history (first tick): the current attitude for every point.
             return self
                 .builder
-                .build(self.frame.as_slice(), &self.robot_frame, &self.filter, &mut self.grid);
+                .build(self.frame.as_slice(), current, &self.filter, &mut self.grid);
         };
         // Heading frame → robot frame at `now`: undo yaw only (roll and pitch stay gravity-aligned).
         let yaw_now = now.rot[1][0].atan2(now.rot[0][0]);

@@ -142,6 +142,11 @@ fn rot_z(a: f64) -> M3 {
     let (s, c) = a.sin_cos();
     [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
 }
+/// Rotation matrix (rows) of roll, pitch, yaw: `Rz(yaw) · Ry(pitch) · Rx(roll)` (URDF / ZYX Euler).
+pub fn rpy_rotation(rpy: [f64; 3]) -> [[f64; 3]; 3] {
+    mat_mul(&rot_z(rpy[2]), &mat_mul(&rot_y(rpy[1]), &rot_x(rpy[0])))
+}
+
 fn mat_mul(a: &M3, b: &M3) -> M3 {
     core::array::from_fn(|i| core::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
 }
@@ -161,8 +166,7 @@ impl RobotFrame {
     /// `roll`, `pitch`: the base's attitude (rad, ZYX Euler angles, yaw left out); `base_height`:
     /// height of the base origin above the ground under the robot, m. Composed in f64.
     pub fn new(mount: &MountPose, roll: f32, pitch: f32, base_height: f32) -> Self {
-        let [mr, mp, my] = mount.rpy.map(f64::from);
-        let r_mount = mat_mul(&rot_z(my), &mat_mul(&rot_y(mp), &rot_x(mr)));
+        let r_mount = rpy_rotation(mount.rpy.map(f64::from));
         let r_level = mat_mul(&rot_y(pitch as f64), &rot_x(roll as f64));
         let rot = mat_mul(&r_level, &r_mount);
         let mut trans = mat_vec(&r_level, mount.xyz.map(f64::from));

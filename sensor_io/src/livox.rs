@@ -680,7 +680,8 @@ pub struct FrameAssembler<const CAP: usize> {
     stats: AssemblerStats,
 }
 
-fn boxed_frame<const CAP: usize>() -> Box<PointFrame<CAP>> {
+/// A zeroed point frame built in place on the heap (for buffers that must not allocate later).
+pub fn boxed_point_frame<const CAP: usize>() -> Box<PointFrame<CAP>> {
     // Built in place on the heap: a large frame (CAP × 24 bytes) would not fit a thread's stack.
     let b = Box::<PointFrame<CAP>>::new_zeroed();
     // SAFETY: every field of PointFrame (and of LidarPoint) is an integer or an f32 (arrays of
@@ -692,8 +693,8 @@ impl<const CAP: usize> FrameAssembler<CAP> {
     /// Allocates the two frames (being built, last completed) on the heap.
     pub fn new_boxed() -> Self {
         Self {
-            building: boxed_frame(),
-            done: boxed_frame(),
+            building: boxed_point_frame(),
+            done: boxed_point_frame(),
             frame_cnt: None,
             last_udp_cnt: None,
             stats: AssemblerStats::default(),

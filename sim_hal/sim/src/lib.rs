@@ -572,11 +572,10 @@ impl Simulator {
                 }
             }
         }
-        let terrain = self.world.as_ref().map(|w| {
-            let [qw, qx, qy, qz] = quat;
-            let yaw = (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
-            w.truth(pos[0], pos[1], yaw)
-        });
+        let terrain = self
+            .world
+            .as_ref()
+            .map(|w| w.truth(pos[0], pos[1], quat_to_rpy(quat)[2]));
         Truth {
             sim_time_s: d.time(),
             base_pos: pos,
@@ -667,7 +666,7 @@ pub fn quat_to_rpy(q: [f64; 4]) -> [f64; 3] {
 }
 
 /// Hamilton product `a ⊗ b` of quaternions (w, x, y, z).
-fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+pub(crate) fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
     [
         a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
         a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],

@@ -13,6 +13,8 @@ use hal::LidarPoint;
 use mujoco_rs::mujoco_c::{mjData, mjModel, mj_multiRay};
 use mujoco_rs::prelude::*;
 
+use sensor_io::livox::{encode_cartesian_high, PacketMeta, MID360_POINTS_PER_PACKET, MID360_POINT_PERIOD_NS};
+
 use crate::rng::Rng;
 use crate::SimError;
 
@@ -98,19 +100,9 @@ impl LidarConfig {
 
 /// Rotation matrix (row-major) from roll, pitch, yaw: Rz(yaw)·Ry(pitch)·Rx(roll).
 pub fn rpy_matrix(rpy: [f64; 3]) -> [f64; 9] {
-    let (sr, cr) = rpy[0].sin_cos();
-    let (sp, cp) = rpy[1].sin_cos();
-    let (sy, cy) = rpy[2].sin_cos();
+    let r = sensor_io::bev::rpy_rotation(rpy);
     [
-        cy * cp,
-        cy * sp * sr - sy * cr,
-        cy * sp * cr + sy * sr,
-        sy * cp,
-        sy * sp * sr + cy * cr,
-        sy * sp * cr - cy * sr,
-        -sp,
-        cp * sr,
-        cp * cr,
+        r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
     ]
 }
 
@@ -310,8 +302,6 @@ pub struct LivoxStream {
     packet: Vec<u8>,
     period_ns: u64,
 }
-
-use sensor_io::livox::{encode_cartesian_high, PacketMeta, MID360_POINTS_PER_PACKET, MID360_POINT_PERIOD_NS};
 
 impl LivoxStream {
     pub fn new(frame_hz: f64) -> Self {

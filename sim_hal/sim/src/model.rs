@@ -8,6 +8,7 @@
 //! - one `motor` actuator (gear 1, ctrlrange = effort limit) per slot joint that has no direct
 //!   torque actuator (gear 1, fixed gain 1, no bias, no dynamics);
 //! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it.
+use crate::quat_mul;
 use crate::world::{Primitive, World};
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -182,15 +183,6 @@ pub fn load(choice: &ModelChoice, physics_dt: f64, world: Option<&World>) -> Res
         q[qa + 3..qa + 7].copy_from_slice(&m);
     }
     Ok(loaded)
-}
-
-fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ]
 }
 
 /// The world's static geoms (named `terrain_N`, grey, colliding like the floor).

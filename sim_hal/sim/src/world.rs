@@ -21,6 +21,7 @@ use std::path::Path;
 use hal::{wrap_angle, TerrainClass, TerrainToken};
 use serde::{Deserialize, Serialize};
 
+use crate::quat_mul;
 use crate::rng::Rng;
 
 /// Look-ahead box for labels, robot frame: x range, half width (m).
@@ -708,12 +709,4 @@ fn quat_y(a: f64) -> [f64; 4] {
 }
 fn quat_x(a: f64) -> [f64; 4] {
     [(0.5 * a).cos(), (0.5 * a).sin(), 0.0, 0.0]
-}
-fn quat_mul(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
-    ]
 }

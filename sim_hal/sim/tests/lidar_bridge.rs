@@ -11,6 +11,22 @@ use g1_sim::{ModelChoice, SimConfig, Simulator};
 use hal::{Lidar, LowLevel, PointFrame, TerrainClass, TimeBase};
 use sim_hal::bridge::{BridgeHal, Wants, LIDAR_FRAME_CAP};
 
+type Server = std::thread::JoinHandle<Result<g1_sim::server::SessionSummary, g1_sim::server::ServeError>>;
+
+/// Serves `sim` on a fresh Unix socket in a thread.
+fn serve_in_thread(tag: &str, mut sim: Simulator) -> (std::path::PathBuf, Server) {
+    let path = std::env::temp_dir().join(format!("g1-{tag}-{}.sock", std::process::id()));
+    let p2 = path.clone();
+    let opts = ServeOptions {
+        quiet: true,
+        ..ServeOptions::default()
+    };
+    (
+        path,
+        std::thread::spawn(move || serve_unix(&p2, &mut sim, &opts, || {})),
+    )
+}
+
 #[test]
 fn lidar_frames_and_terrain_truth_cross_the_bridge() {
     common::require_deps();
@@ -18,13 +34,7 @@ fn lidar_frames_and_terrain_truth_cross_the_bridge() {
     let mut sim = Simulator::load_in(ModelChoice::G1_29Dof, SimConfig::default(), Some(&world)).unwrap();
     sim.attach_lidar(LidarConfig::default()).unwrap();
     let hold = sim.hold_initial_pose_command();
-    let path = std::env::temp_dir().join(format!("g1-lidar-bridge-{}.sock", std::process::id()));
-    let p2 = path.clone();
-    let opts = ServeOptions {
-        quiet: true,
-        ..ServeOptions::default()
-    };
-    let server = std::thread::spawn(move || serve_unix(&p2, &mut sim, &opts, || {}));
+    let (path, server) = serve_in_thread("lidar-bridge", sim);
     let want = Wants {
         truth: true,
         lidar: true,
@@ -71,14 +81,8 @@ fn lidar_frames_and_terrain_truth_cross_the_bridge() {
 #[test]
 fn asking_for_lidar_without_one_is_refused_clearly() {
     common::require_deps();
-    let mut sim = Simulator::load(ModelChoice::G1_29Dof, SimConfig::default()).unwrap();
-    let path = std::env::temp_dir().join(format!("g1-nolidar-{}.sock", std::process::id()));
-    let p2 = path.clone();
-    let opts = ServeOptions {
-        quiet: true,
-        ..ServeOptions::default()
-    };
-    let server = std::thread::spawn(move || serve_unix(&p2, &mut sim, &opts, || {}));
+    let sim = Simulator::load(ModelChoice::G1_29Dof, SimConfig::default()).unwrap();
+    let (path, server) = serve_in_thread("nolidar", sim);
     let want = Wants {
         truth: false,
         lidar: true,

@@ -23,7 +23,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, PointFrame, TickTime, TimeBase};
-use sensor_io::livox::{AssemblerStats, FrameAssembler};
+use sensor_io::livox::{boxed_point_frame, AssemblerStats, FrameAssembler};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::protocol::{
@@ -422,14 +422,6 @@ impl LowLevel for BridgeHal {
         self.command_sent = true;
         Ok(())
     }
-}
-
-/// A zeroed frame built on the heap (a frame is ~800 KB: never on the stack).
-fn boxed_point_frame() -> Box<PointFrame<LIDAR_FRAME_CAP>> {
-    let b = Box::<PointFrame<LIDAR_FRAME_CAP>>::new_zeroed();
-    // SAFETY: PointFrame holds only integers and f32s (and arrays of them), for which all-zero
-    // bytes are valid values.
-    unsafe { b.assume_init() }
 }
 
 /// Copies a frame without a frame-sized temporary.
