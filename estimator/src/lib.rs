@@ -17,6 +17,7 @@ pub mod filter;
 pub mod kinematics;
 pub mod state;
 pub mod terrain;
+pub mod terrain_cnn;
 
 pub use attitude::{projected_gravity, rpy, tilt_rad};
 pub use kinematics::{KinematicsError, LegKinematics, Side};

@@ -28,3 +28,4 @@ pub mod runtime;
 pub mod sim_run;
 pub mod spec;
 pub mod supervisor;
+pub mod terrain_net;

@@ -166,7 +166,7 @@ fn validate(s: &VelocitySeries) -> Result<(f64, f64), PlotError> {
 }
 
 /// Registers a sans-serif TTF with plotters once per process.
-pub(crate) fn ensure_font() -> Result<(), PlotError> {
+pub fn ensure_font() -> Result<(), PlotError> {
     static READY: Mutex<bool> = Mutex::new(false);
     let mut ready = READY.lock().unwrap_or_else(PoisonError::into_inner);
     if *ready {

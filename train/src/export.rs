@@ -1,0 +1,137 @@
+//! Export in the firmware's format: BatchNorm folded into each conv's weight and bias, written as
+//! a safetensors file, plus the `firmware::nn::NetworkDesc` that lists the same layers.
+//!
+//! Folding (per output channel c): `s = γ / sqrt(σ² + ε)`, `W'[c] = s · W[c]`,
+//! `b'[c] = β − s · μ`, computed in f64 and rounded once to f32. After folding, conv → ReLU in
+//! the firmware equals conv → BatchNorm(eval) → ReLU in training.
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{ensure, Context};
+use candle_core::Tensor;
+use candle_nn::VarMap;
+use firmware::nn::{LayerDesc, NetworkDesc};
+use safetensors::tensor::{Dtype, TensorView};
+
+use crate::data::GRID;
+use crate::model::{BN_EPS, CONV_BLOCKS, PADDING, STRIDE};
+use sensor_io::bev::{BEV_CELLS, BEV_CHANNELS};
+
+/// File names inside an export directory.
+pub const WEIGHTS_FILE: &str = "terrain_cnn.safetensors";
+pub const DESC_FILE: &str = "terrain_cnn.toml";
+
+/// The folded tensors (name → (shape, data)) and the description that uses them.
+pub struct Exported {
+    pub tensors: BTreeMap<String, (Vec<usize>, Vec<f32>)>,
+    pub desc: NetworkDesc,
+}
+
+fn var(vm: &VarMap, name: &str) -> anyhow::Result<Tensor> {
+    let data = vm.data().lock().map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
+    data.get(name)
+        .map(|v| v.as_tensor().clone())
+        .with_context(|| format!("checkpoint has no variable `{name}`"))
+}
+
+fn flat(t: &Tensor) -> anyhow::Result<Vec<f32>> {
+    Ok(t.flatten_all()?.to_vec1::<f32>()?)
+}
+
+/// Folds the trained variables into the firmware's layers.
+pub fn fold(vm: &VarMap) -> anyhow::Result<Exported> {
+    let mut tensors = BTreeMap::new();
+    let mut layers = Vec::new();
+    for (i, &(cin, cout)) in CONV_BLOCKS.iter().enumerate() {
+        let (conv, bn) = (format!("conv{}", i + 1), format!("bn{}", i + 1));
+        let w = var(vm, &format!("{conv}.weight"))?;
+        let dims = w.dims().to_vec();
+        ensure!(dims[0] == cout && dims[1] == cin, "{conv}.weight has shape {dims:?}");
+        let w = flat(&w)?;
+        let gamma = flat(&var(vm, &format!("{bn}.weight"))?)?;
+        let beta = flat(&var(vm, &format!("{bn}.bias"))?)?;
+        let mean = flat(&var(vm, &format!("{bn}.running_mean"))?)?;
+        let var_ = flat(&var(vm, &format!("{bn}.running_var"))?)?;
+        let per_out = w.len() / cout;
+        let mut wf = Vec::with_capacity(w.len());
+        let mut bf = Vec::with_capacity(cout);
+        for c in 0..cout {
+            let s = gamma[c] as f64 / (var_[c] as f64 + BN_EPS).sqrt();
+            wf.extend(w[c * per_out..(c + 1) * per_out].iter().map(|&v| (v as f64 * s) as f32));
+            bf.push((beta[c] as f64 - s * mean[c] as f64) as f32);
+        }
+        tensors.insert(format!("{conv}.weight"), (dims, wf));
+        tensors.insert(format!("{conv}.bias"), (vec![cout], bf));
+        layers.push(LayerDesc::Conv2d {
+            weight: format!("{conv}.weight"),
+            bias: format!("{conv}.bias"),
+            stride: STRIDE,
+            padding: PADDING,
+        });
+        layers.push(LayerDesc::Relu);
+    }
+    for (name, relu) in [("fc", true), ("head", false)] {
+        let w = var(vm, &format!("{name}.weight"))?;
+        let b = var(vm, &format!("{name}.bias"))?;
+        tensors.insert(format!("{name}.weight"), (w.dims().to_vec(), flat(&w)?));
+        tensors.insert(format!("{name}.bias"), (b.dims().to_vec(), flat(&b)?));
+        layers.push(LayerDesc::Linear {
+            weight: format!("{name}.weight"),
+            bias: format!("{name}.bias"),
+        });
+        if relu {
+            layers.push(LayerDesc::Relu);
+        }
+    }
+    Ok(Exported {
+        tensors,
+        desc: NetworkDesc {
+            input: GRID,
+            input_shape: Some(vec![BEV_CHANNELS, BEV_CELLS, BEV_CELLS]),
+            layers,
+        },
+    })
+}
+
+impl Exported {
+    /// The safetensors bytes (tensors sorted by name; `metadata` goes into the header).
+    pub fn safetensors_bytes(&self, metadata: &BTreeMap<String, String>) -> anyhow::Result<Vec<u8>> {
+        let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self
+            .tensors
+            .iter()
+            .map(|(n, (shape, data))| (n.clone(), shape.clone(), data.iter().flat_map(|v| v.to_le_bytes()).collect()))
+            .collect();
+        let views = bytes
+            .iter()
+            .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b)?)))
+            .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
+            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let meta: std::collections::HashMap<String, String> = metadata.clone().into_iter().collect();
+        safetensors::serialize(views, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))
+    }
+
+    /// The description as TOML, with a header saying what it is.
+    pub fn desc_toml(&self) -> anyhow::Result<String> {
+        Ok(format!(
+            "# Terrain CNN (BEV 6x60x60 -> class logits, h cm, d cm, yaw vector), written by `g1-train`.\n\
+             # BatchNorm is folded into the conv weights; outputs are decoded by estimator::terrain_cnn.\n{}",
+            toml::to_string(&self.desc)?
+        ))
+    }
+
+    /// Writes `terrain_cnn.safetensors` and `terrain_cnn.toml` into `dir`.
+    pub fn write(&self, dir: &Path, metadata: &BTreeMap<String, String>) -> anyhow::Result<()> {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let w = dir.join(WEIGHTS_FILE);
+        std::fs::write(&w, self.safetensors_bytes(metadata)?).with_context(|| format!("writing {}", w.display()))?;
+        let d = dir.join(DESC_FILE);
+        std::fs::write(&d, self.desc_toml()?).with_context(|| format!("writing {}", d.display()))?;
+        Ok(())
+    }
+}
+
+/// Reads a description file written by [`Exported::write`].
+pub fn read_desc(path: &Path) -> anyhow::Result<NetworkDesc> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    toml::from_str(&text).with_context(|| format!("parsing network description {}", path.display()))
+}

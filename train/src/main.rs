@@ -1,0 +1,297 @@
+//! `g1-train`: train, export and evaluate the terrain CNN. See the crate docs and `--help`.
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use candle_core::Device;
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use train::data::{split_by_world, Dataset};
+use train::export::{fold, DESC_FILE, WEIGHTS_FILE};
+use train::fit::{fit, FitConfig, LAMBDA_CLS, LAMBDA_D, LAMBDA_H, LAMBDA_YAW};
+
+/// Terrain CNN for the G1: BEV grid (6×60×60) → terrain token (class, step height, step depth, yaw).
+///
+/// Typical use: `g1-dataset export --worlds 4000 --poses-per-world 8 --out data/train`, then
+/// `g1-train fit --data data/train --out runs/cnn`, then
+/// `g1-train eval-terrain --worlds 1000 --weights runs/cnn --report eval.json`.
+#[derive(Parser, Debug)]
+#[command(name = "g1-train", version, about, long_about)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand, Debug)]
+enum Cmd {
+    /// Train on g1-dataset exports; writes the firmware export (terrain_cnn.safetensors + .toml),
+    /// checkpoint.safetensors (unfolded), history.json and training.png into --out.
+    Fit {
+        /// Dataset directories (g1-dataset export --out); repeat for several.
+        #[arg(long, required = true)]
+        data: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 30)]
+        epochs: usize,
+        #[arg(long, default_value_t = 64)]
+        batch: usize,
+        /// Peak learning rate (AdamW; cosine decay).
+        #[arg(long, default_value_t = 2e-3)]
+        lr: f64,
+        /// Fraction of worlds (by seed) held out for validation.
+        #[arg(long, default_value_t = 0.1)]
+        val_fraction: f64,
+        /// Train only on samples whose true step height is at most this (m): the out-of-range
+        /// experiment (paper Table III) trains at ≤ 0.16 and tests up to 0.22.
+        #[arg(long)]
+        max_train_h: Option<f32>,
+        /// Stop after this many optimiser steps (smoke tests).
+        #[arg(long, default_value_t = 0)]
+        max_steps: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// No left–right mirror augmentation.
+        #[arg(long)]
+        no_mirror: bool,
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Fold a checkpoint (checkpoint.safetensors from `fit`) into the firmware's format again.
+    Export {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        /// Directory for terrain_cnn.safetensors and terrain_cnn.toml.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Evaluate the CNN (run by the firmware's executor) and the geometric baseline side by side
+    /// on held-out rendered worlds; prints MAE(h) cm, MAE(d) cm, MAE(yaw) deg and class accuracy.
+    ///
+    /// --worlds N renders World::random(1 000 000 + SEED + i), i < N (never used in training:
+    /// exports start at seed 0); --worlds FILE.toml,PRESET,... evaluates scenario files or presets
+    /// (flat, stairs-up, stairs-down, outdoor, random:SEED) instead.
+    EvalTerrain {
+        /// N (random held-out worlds) or a comma-separated list of scenario files / presets.
+        #[arg(long, default_value = "1000")]
+        worlds: String,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = 2)]
+        poses_per_world: usize,
+        /// standing, walking or mixed.
+        #[arg(long, default_value = "mixed")]
+        mode: g1_sim::dataset::ModeChoice,
+        /// Directory holding terrain_cnn.safetensors + terrain_cnn.toml (default: the weights
+        /// built into the firmware).
+        #[arg(long)]
+        weights: Option<PathBuf>,
+        /// Write the figures (and every sample's truth and estimates) as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// Plot of the errors versus true step height (PNG).
+        #[arg(long, default_value = "eval_terrain.png")]
+        plot: PathBuf,
+        #[arg(long, default_value_t = default_jobs())]
+        jobs: usize,
+        #[arg(long)]
+        quiet: bool,
+    },
+}
+
+fn default_jobs() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terrain_net::TerrainNet> {
+    Ok(match weights {
+        None => firmware::terrain_net::TerrainNet::embedded()?,
+        Some(dir) => firmware::terrain_net::TerrainNet::load(&dir.join(DESC_FILE), &dir.join(WEIGHTS_FILE))
+            .with_context(|| format!("loading the terrain CNN from {} (written by `g1-train fit`)", dir.display()))?,
+    })
+}
+
+fn bar(total: usize, quiet: bool, what: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(total as u64);
+    pb.set_style(
+        ProgressStyle::with_template(&format!(
+            "{{elapsed_precise}} [{{bar:40}}] {{pos}}/{{len}} {what} ({{per_sec}}, eta {{eta}}) {{msg}}"
+        ))
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    pb
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::Fit {
+            data,
+            out,
+            epochs,
+            batch,
+            lr,
+            val_fraction,
+            max_train_h,
+            max_steps,
+            seed,
+            no_mirror,
+            quiet,
+        } => {
+            let t_load = Instant::now();
+            let mut ds = Dataset::default();
+            for d in &data {
+                let part = Dataset::load_dir(d)?;
+                ds.bev.extend(part.bev);
+                ds.class.extend(part.class);
+                ds.step_height.extend(part.step_height);
+                ds.step_depth.extend(part.step_depth);
+                ds.yaw.extend(part.yaw);
+                ds.world_seed.extend(part.world_seed);
+                ds.heading.extend(part.heading);
+                ds.mode.extend(part.mode);
+            }
+            let (mut tr, val) = split_by_world(&ds, val_fraction);
+            if let Some(hmax) = max_train_h {
+                tr.retain(|&i| ds.step_height[i] <= hmax);
+            }
+            println!(
+                "{} samples loaded in {:.1} s: {} train, {} validation (split by world seed)",
+                ds.len(),
+                t_load.elapsed().as_secs_f64(),
+                tr.len(),
+                val.len()
+            );
+            let cfg = FitConfig {
+                epochs,
+                batch,
+                lr,
+                seed,
+                mirror: !no_mirror,
+                max_steps,
+                ..FitConfig::default()
+            };
+            let dev = Device::Cpu;
+            let steps = (epochs * tr.len().div_ceil(batch)).min(if max_steps > 0 { max_steps } else { usize::MAX });
+            let pb = bar(steps, quiet, "steps");
+            let t = Instant::now();
+            let (varmap, _model, history) = fit(
+                &cfg,
+                &ds,
+                &tr,
+                &val,
+                &dev,
+                &mut |s, _, l| {
+                    pb.set_position(s as u64);
+                    if s % 20 == 0 {
+                        pb.set_message(format!("loss {l:.3}"));
+                    }
+                },
+                &mut |e| {
+                    let v = e.val.as_ref().map_or(String::new(), |v| {
+                        format!(
+                            " | val: class {:.2} %, MAE h {:.2} cm, d {:.2} cm, yaw {:.2} deg",
+                            100.0 * v.class_accuracy,
+                            v.mae_h_cm,
+                            v.mae_d_cm,
+                            v.mae_yaw_deg
+                        )
+                    });
+                    let line = format!(
+                        "epoch {:>3} ({:.0} s) loss {:.4} (ce {:.4} h {:.3} d {:.3} yaw {:.3}){v}",
+                        e.epoch, e.seconds, e.train.total, e.train.ce, e.train.h, e.train.d, e.train.yaw
+                    );
+                    if pb.is_hidden() {
+                        println!("{line}");
+                    } else {
+                        pb.println(line);
+                    }
+                },
+            )?;
+            pb.finish_and_clear();
+            let secs = t.elapsed().as_secs_f64();
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            varmap.save(out.join("checkpoint.safetensors"))?;
+            let mut meta = BTreeMap::new();
+            meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
+            meta.insert("train_samples".into(), tr.len().to_string());
+            meta.insert("steps".into(), history.last().map_or(0, |e| e.steps).to_string());
+            meta.insert("fit".into(), serde_json::to_string(&cfg)?);
+            meta.insert(
+                "loss".into(),
+                format!("{LAMBDA_CLS}*CE + {LAMBDA_H}*SmoothL1(h cm) + {LAMBDA_D}*SmoothL1(d cm) + {LAMBDA_YAW}*SmoothL1(yaw vector deg)"),
+            );
+            fold(&varmap)?.write(&out, &meta)?;
+            train::plot::training_png(&out.join("training.png"), &history)?;
+            let hist = serde_json::json!({ "config": cfg, "train_seconds": secs, "epochs": history });
+            std::fs::write(out.join("history.json"), serde_json::to_string_pretty(&hist)? + "\n")?;
+            println!(
+                "trained {} steps in {:.1} s ({:.0} samples/s); wrote {}/{{{WEIGHTS_FILE}, {DESC_FILE}, checkpoint.safetensors, history.json}}",
+                history.last().map_or(0, |e| e.steps),
+                secs,
+                history.last().map_or(0, |e| e.steps) as f64 * batch as f64 / secs,
+                out.display()
+            );
+        }
+        Cmd::Export { checkpoint, out } => {
+            let mut vm = candle_nn::VarMap::new();
+            let _model = train::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
+                &vm,
+                candle_core::DType::F32,
+                &Device::Cpu,
+            ))?;
+            vm.load(&checkpoint)
+                .with_context(|| format!("loading {}", checkpoint.display()))?;
+            let mut meta = BTreeMap::new();
+            meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
+            fold(&vm)?.write(&out, &meta)?;
+            println!("wrote {}/{{{WEIGHTS_FILE}, {DESC_FILE}}}", out.display());
+        }
+        Cmd::EvalTerrain {
+            worlds,
+            seed,
+            poses_per_world,
+            mode,
+            weights,
+            report,
+            plot,
+            jobs,
+            quiet,
+        } => {
+            use g1_sim::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
+            let set = match worlds.trim().parse::<usize>() {
+                Ok(count) => WorldSet::Random {
+                    first_seed: EVAL_SEED_BASE + seed,
+                    count,
+                },
+                Err(_) => WorldSet::Named {
+                    args: worlds.split(',').map(|w| w.trim().to_string()).filter(|w| !w.is_empty()).collect(),
+                    seed: EVAL_SEED_BASE + seed,
+                },
+            };
+            anyhow::ensure!(!set.is_empty(), "--worlds: no worlds given");
+            let mut net = load_net(weights.as_deref())?;
+            let cfg = DatasetConfig {
+                mode,
+                ..DatasetConfig::default()
+            };
+            let pb = bar(set.len() * poses_per_world, quiet, "samples");
+            let r = train::eval::evaluate(&set, poses_per_world, cfg, jobs, &mut net, &|| pb.inc(1))?;
+            pb.finish_and_clear();
+            print!("{r}");
+            let title = format!("terrain token errors vs step height: {} ({} samples)", r.world_set, r.cnn.samples);
+            train::plot::error_vs_height_png(&plot, &r.by_step_height, &title)?;
+            println!("plot: {}", plot.display());
+            if let Some(path) = report {
+                train::eval::write_report(&path, &r)?;
+                println!("report: {}", path.display());
+            }
+        }
+    }
+    Ok(())
+}
