@@ -277,7 +277,11 @@ fn check_linear_then(act: Option<LayerDesc>, f: fn(f64) -> f64, n_in: usize, n_o
     file.add("b", &[n_out], &rng.vec(n_out, 1.0));
     let mut layers = vec![linear_desc("w", "b")];
     layers.extend(act);
-    let desc = NetworkDesc { input: n_in, layers };
+    let desc = NetworkDesc {
+        input: n_in,
+        input_shape: None,
+        layers,
+    };
     let mut net = Network::from_safetensors_bytes(&desc, &file.bytes()).unwrap();
     assert_eq!((net.input_dim(), net.output_dim()), (n_in, n_out));
     let mut y = vec![0.0f32; n_out];
@@ -327,6 +331,7 @@ fn lstm_cell_matches_reference() {
         add_lstm(&mut file, &mut rng, "m", n_in, hsz, initial);
         let desc = NetworkDesc {
             input: n_in,
+            input_shape: None,
             layers: vec![lstm_desc("m", initial)],
         };
         let mut net = Network::from_safetensors_bytes(&desc, &file.bytes()).unwrap();
@@ -358,6 +363,7 @@ fn small_recurrent(initial: bool) -> (NetworkDesc, Vec<u8>) {
     f.add("a2.b", &[3], &rng.vec(3, 0.5));
     let desc = NetworkDesc {
         input: 6,
+        input_shape: None,
         layers: vec![
             lstm_desc("m", initial),
             linear_desc("a0.w", "a0.b"),
@@ -439,7 +445,11 @@ fn error_wrong_shapes() {
     f.add("w3d", &[2, 2, 6], &rng.vec(24, 1.0));
     f.add("w2", &[3, 5], &rng.vec(15, 1.0));
     let bytes = f.bytes();
-    let net = |input, layers| NetworkDesc { input, layers };
+    let net = |input, layers| NetworkDesc {
+        input,
+        input_shape: None,
+        layers,
+    };
 
     // Bias length disagrees with weight rows.
     let (e, s) = load_err(&net(6, vec![linear_desc("w", "b5")]), &bytes);
@@ -497,6 +507,7 @@ fn error_dtype_format_io_and_params() {
     let bytes = f.bytes();
     let one = |w: &str| NetworkDesc {
         input: 1,
+        input_shape: None,
         layers: vec![linear_desc(w, "b")],
     };
     let (e, s) = load_err(&one("w"), &bytes);
@@ -516,11 +527,13 @@ fn error_dtype_format_io_and_params() {
     // Bad parameters and empty descriptions.
     let elu = NetworkDesc {
         input: 1,
+        input_shape: None,
         layers: vec![LayerDesc::Elu { alpha: f32::NAN }],
     };
     assert!(matches!(load_err(&elu, &bytes).0, NnError::Param { .. }));
     let empty = NetworkDesc {
         input: 1,
+        input_shape: None,
         layers: vec![],
     };
     assert!(matches!(load_err(&empty, &bytes).0, NnError::NoLayers));

@@ -59,6 +59,7 @@ fn step_does_not_allocate() {
     let bytes = safetensors::serialize(views, &None).unwrap();
     let desc = NetworkDesc {
         input: 5,
+        input_shape: None,
         layers: vec![
             LayerDesc::Lstm {
                 weight_ih: "w_ih".into(),
@@ -88,4 +89,62 @@ fn step_does_not_allocate() {
     net.step(&x, &mut y).unwrap();
     let after = ALLOCS.with(Cell::get);
     assert_eq!(after - before, 0, "step/reset allocated {} times", after - before);
+}
+
+#[test]
+fn conv_step_does_not_allocate() {
+    // A small terrain-CNN-shaped net: conv (stride 2, padding 1) -> relu -> conv -> relu -> linear.
+    let tensors: Vec<(&str, Vec<usize>)> = vec![
+        ("c1.w", vec![10, 3, 3, 3]),
+        ("c1.b", vec![10]),
+        ("c2.w", vec![17, 10, 3, 3]),
+        ("c2.b", vec![17]),
+        ("l.w", vec![5, 17 * 4 * 4]),
+        ("l.b", vec![5]),
+    ];
+    let data: Vec<Vec<u8>> = tensors
+        .iter()
+        .map(|(_, s)| {
+            let n: usize = s.iter().product();
+            (0..n)
+                .flat_map(|i| ((i % 11) as f32 * 0.05 - 0.25).to_le_bytes())
+                .collect()
+        })
+        .collect();
+    let views: Vec<(&str, TensorView<'_>)> = tensors
+        .iter()
+        .zip(&data)
+        .map(|((n, s), d)| (*n, TensorView::new(Dtype::F32, s.clone(), d).unwrap()))
+        .collect();
+    let bytes = safetensors::serialize(views, &None).unwrap();
+    let conv = |w: &str, b: &str, stride| LayerDesc::Conv2d {
+        weight: w.into(),
+        bias: b.into(),
+        stride,
+        padding: 1,
+    };
+    let desc = NetworkDesc {
+        input: 3 * 15 * 15,
+        input_shape: Some(vec![3, 15, 15]),
+        layers: vec![
+            conv("c1.w", "c1.b", 2),
+            LayerDesc::Relu,
+            conv("c2.w", "c2.b", 2),
+            LayerDesc::Relu,
+            LayerDesc::Linear {
+                weight: "l.w".into(),
+                bias: "l.b".into(),
+            },
+        ],
+    };
+    let mut net = Network::from_safetensors_bytes(&desc, &bytes).unwrap();
+    let x: Vec<f32> = (0..3 * 15 * 15).map(|i| (i as f32 * 0.37).sin()).collect();
+    let mut y = [0.0f32; 5];
+    let before = ALLOCS.with(Cell::get);
+    for _ in 0..200 {
+        net.step(&x, &mut y).unwrap();
+    }
+    let after = ALLOCS.with(Cell::get);
+    assert_eq!(after - before, 0, "conv step allocated {} times", after - before);
+    assert!(y.iter().all(|v| v.is_finite()));
 }

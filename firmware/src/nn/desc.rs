@@ -1,6 +1,7 @@
 //! Serde-deserializable description of a network: which layers, in which order, and which
-//! tensors of the weight file feed them. Shapes come from the weight file, never from here, so
-//! the description cannot silently disagree with the weights.
+//! tensors of the weight file feed them. Layer shapes come from the weight file, never from here,
+//! so the description cannot silently disagree with the weights; the only shape given here is how
+//! the flat input is laid out as an image (`input_shape`), which convolutions need.
 
 use serde::{Deserialize, Serialize};
 
@@ -12,6 +13,11 @@ use serde::{Deserialize, Serialize};
 pub struct NetworkDesc {
     /// Length of the input vector (the observation); checked against the first layer's weights.
     pub input: usize,
+    /// The input's image shape `[C, H, W]` (product = `input`), stored CHW-flattened exactly as
+    /// PyTorch's `x.flatten()`. Needed when the first shaped layer is a [`LayerDesc::Conv2d`];
+    /// absent for vector inputs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_shape: Option<Vec<usize>>,
     /// Layers applied in order; the output of the last one is the network output.
     pub layers: Vec<LayerDesc>,
 }
@@ -20,7 +26,12 @@ pub struct NetworkDesc {
 ///
 /// Tagged by `type` (snake_case) so each layer is a self-describing TOML table; unknown keys are
 /// rejected so a typo in an optional field (e.g. `initial_hiden`) is an error, not a silent default.
-/// New layer kinds (Conv2d, BatchNorm, ...) are added as new variants.
+/// New layer kinds (BatchNorm, pooling, ...) are added as new variants.
+///
+/// Activations carry a shape: `[n]` for vectors, `[C, H, W]` for images (from
+/// [`NetworkDesc::input_shape`] or a `conv2d`), always stored CHW-flattened. Element-wise layers
+/// keep the shape; `linear` and `lstm` consume the flat vector (like `nn.Flatten` first) and
+/// produce `[out]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LayerDesc {
@@ -47,6 +58,22 @@ pub enum LayerDesc {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         initial_cell: Option<String>,
     },
+    /// 2-D convolution, PyTorch `nn.Conv2d` layout with square stride and zero padding:
+    /// `weight` is `[cout, cin, kh, kw]`, `bias` is `[cout]`. Input `[cin, H, W]`, output
+    /// `[cout, (H + 2 padding - kh) / stride + 1, (W + 2 padding - kw) / stride + 1]`.
+    /// (Fold BatchNorm into `weight`/`bias` before export.)
+    Conv2d {
+        weight: String,
+        bias: String,
+        #[serde(default = "one")]
+        stride: usize,
+        #[serde(default)]
+        padding: usize,
+    },
+}
+
+fn one() -> usize {
+    1
 }
 
 impl LayerDesc {
@@ -58,6 +85,7 @@ impl LayerDesc {
             LayerDesc::Relu => "relu",
             LayerDesc::Tanh => "tanh",
             LayerDesc::Lstm { .. } => "lstm",
+            LayerDesc::Conv2d { .. } => "conv2d",
         }
     }
 }

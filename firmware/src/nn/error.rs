@@ -19,6 +19,15 @@ pub enum NnError {
     NoLayers,
     #[error("network input dimension must be > 0")]
     ZeroInput,
+    #[error(
+        "input_shape {shape:?} has {product} elements, but input = {input}: the shape must be \
+         [C, H, W] (or any shape) whose product is input"
+    )]
+    InputShape {
+        shape: Vec<usize>,
+        product: usize,
+        input: usize,
+    },
     #[error("{layer}: tensor `{tensor}` ({role}) not found in weight file (available: {available})")]
     MissingTensor {
         layer: String,
@@ -61,6 +70,9 @@ pub enum NnError {
     },
     #[error("{layer}: invalid parameter: {message}")]
     Param { layer: String, message: String },
+    /// A convolution's input or geometry does not fit (no image shape, channels, kernel size).
+    #[error("{layer}: {message}")]
+    ConvShape { layer: String, message: String },
     #[error("step: input slice has length {found}, network input dimension is {expected}")]
     InputLen { expected: usize, found: usize },
     #[error("step: output slice has length {found}, network output dimension is {expected}")]

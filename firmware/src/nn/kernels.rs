@@ -1,4 +1,5 @@
-//! Numeric kernels: a packed matrix-vector product and branch-free activation functions.
+//! Numeric kernels: a packed matrix-vector product, a packed 2-D convolution and branch-free
+//! activation functions.
 //!
 //! Determinism contract: every output element is computed by the same sequence of IEEE-754 f32
 //! additions, multiplications and divisions in a fixed order, independent of SIMD width. Rust
@@ -18,11 +19,16 @@ pub(crate) const BLOCK: usize = 32;
 /// The compiler vectorizes this across rows (no horizontal reductions), and each row's sum is
 /// `b + W[r][0] x[0] + W[r][1] x[1] + ...` in exactly that order — the same as a naive loop.
 /// Rows past `rows` in the last panel are zero padding and are never written out.
+///
+/// With AVX2 (detected at run time on x86-64) the same loop runs on 256-bit vectors, two panels
+/// at a time (eight independent accumulator registers hide the add latency); every row's sum is
+/// still the same sequence of operations, so the results are bit-identical.
 pub(crate) struct PackedMatrix {
     rows: usize,
     cols: usize,
     panels: Vec<[f32; BLOCK]>,
     bias: Vec<[f32; BLOCK]>,
+    isa: Isa,
 }
 
 impl PackedMatrix {
@@ -44,11 +50,19 @@ impl PackedMatrix {
             cols,
             panels,
             bias: packed_bias,
+            isa: Isa::detect(),
         }
     }
 
     pub(crate) fn rows(&self) -> usize {
         self.rows
+    }
+
+    /// Selects the kernel, like [`PackedConv::set_isa`].
+    pub(crate) fn set_isa(&mut self, isa: Isa) {
+        if isa == Isa::Portable || isa == Isa::detect() {
+            self.isa = isa;
+        }
     }
 
     /// `y[..rows] = W x + b`. `x.len() == cols` and `y.len() == rows` are checked by the caller
@@ -57,14 +71,55 @@ impl PackedMatrix {
     pub(crate) fn matvec(&self, x: &[f32], y: &mut [f32]) {
         debug_assert_eq!(x.len(), self.cols);
         debug_assert_eq!(y.len(), self.rows);
-        let x = &x[..self.cols];
-        for ((panel, bias), y_panel) in self
-            .panels
-            .chunks_exact(self.cols)
-            .zip(&self.bias)
-            .zip(y.chunks_mut(BLOCK))
-        {
+        match self.isa {
+            Isa::Portable => self.matvec_panels::<false>(x, y),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx2` is only ever set from `Isa::detect()` (`pack` stores its result,
+            // `set_isa` checks it), which checked at run time that this CPU supports AVX2.
+            Isa::Avx2 => unsafe { self.matvec_avx2(x, y) },
+        }
+    }
+
+    /// The AVX2 copy of [`Self::matvec_panels`], two panels at a time (no FMA: see
+    /// [`conv_avx2`]).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn matvec_avx2(&self, x: &[f32], y: &mut [f32]) {
+        self.matvec_panels::<true>(x, y);
+    }
+
+    /// The product, panel by panel, or two panels side by side when `PAIRS` (more independent
+    /// accumulators; needs the registers of AVX2 or wider).
+    #[inline(always)]
+    fn matvec_panels<const PAIRS: bool>(&self, x: &[f32], y: &mut [f32]) {
+        let cols = self.cols;
+        let x = &x[..cols];
+        let mut panels = self.panels.chunks_exact(cols).zip(&self.bias).zip(y.chunks_mut(BLOCK));
+        while let Some(((panel, bias), y_panel)) = panels.next() {
             let mut acc = *bias;
+            if PAIRS {
+                if let Some(((panel1, bias1), y_panel1)) = panels.next() {
+                    let mut acc1 = *bias1;
+                    for ((&xj, w), w1) in x.iter().zip(panel).zip(panel1) {
+                        for k in 0..BLOCK {
+                            acc[k] += w[k] * xj;
+                        }
+                        for k in 0..BLOCK {
+                            acc1[k] += w1[k] * xj;
+                        }
+                    }
+                    for (yk, ak) in y_panel.iter_mut().zip(acc) {
+                        *yk = ak;
+                    }
+                    for (yk, ak) in y_panel1.iter_mut().zip(acc1) {
+                        *yk = ak;
+                    }
+                    continue;
+                }
+            }
             for (&xj, w) in x.iter().zip(panel) {
                 for k in 0..BLOCK {
                     acc[k] += w[k] * xj;
@@ -72,6 +127,454 @@ impl PackedMatrix {
             }
             for (yk, ak) in y_panel.iter_mut().zip(acc) {
                 *yk = ak;
+            }
+        }
+    }
+}
+
+/// Output channels per convolution weight panel: one AVX register, two SSE / NEON registers.
+pub(crate) const CONV_LANES: usize = 8;
+
+/// One tap's weights for [`CONV_LANES`] output channels. 32-byte aligned so that no load of a
+/// panel entry straddles a cache line.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[repr(C, align(32))]
+pub(crate) struct Lanes(pub(crate) [f32; CONV_LANES]);
+
+/// Tile widths (output pixels along a row) a kernel is compiled for; a layer uses the one that
+/// wastes the fewest pixel slots on its output width. A tile keeps `2 panels x P` accumulators in
+/// registers: x86-64 SSE2 (16 xmm) 4 x 3 = 12 at most; NEON (32 registers) and AVX2 (16 ymm,
+/// 2 x 6 = 12) up to 6.
+const TILES_PORTABLE: &[usize] = if cfg!(target_arch = "aarch64") {
+    &[4, 5, 6]
+} else {
+    &[2, 3]
+};
+#[cfg(target_arch = "x86_64")]
+const TILES_AVX2: &[usize] = &[3, 4, 5];
+/// Widest tile of any kernel (sizes the slack after the padded input).
+const TILE_MAX: usize = 6;
+
+/// Geometry of a 2-D convolution (validated by the caller before [`PackedConv::pack`]):
+/// `kh <= h + 2 pad`, `kw <= w + 2 pad`, `stride >= 1`, every size >= 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvGeom {
+    pub(crate) cin: usize,
+    pub(crate) h: usize,
+    pub(crate) w: usize,
+    pub(crate) cout: usize,
+    pub(crate) kh: usize,
+    pub(crate) kw: usize,
+    pub(crate) stride: usize,
+    pub(crate) pad: usize,
+}
+
+impl ConvGeom {
+    /// Output height `(h + 2 pad - kh) / stride + 1`.
+    pub(crate) fn ho(&self) -> usize {
+        (self.h + 2 * self.pad - self.kh) / self.stride + 1
+    }
+
+    /// Output width `(w + 2 pad - kw) / stride + 1`.
+    pub(crate) fn wo(&self) -> usize {
+        (self.w + 2 * self.pad - self.kw) / self.stride + 1
+    }
+
+    /// Taps per output element, `cin * kh * kw`.
+    pub(crate) fn taps(&self) -> usize {
+        self.cin * self.kh * self.kw
+    }
+}
+
+/// Which instruction set [`PackedConv::forward`] uses; all give bit-identical results.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Isa {
+    Portable,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+}
+
+impl Isa {
+    /// The best kernel this CPU runs (AVX2 on x86-64 when present).
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Isa::Avx2;
+        }
+        Isa::Portable
+    }
+
+    fn tiles(self) -> &'static [usize] {
+        match self {
+            Isa::Portable => TILES_PORTABLE,
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => TILES_AVX2,
+        }
+    }
+}
+
+/// The tile width for output width `wo`: fewest pixel slots `ceil(wo / P) * P`, then the widest.
+fn pick_tile(wo: usize, tiles: &[usize]) -> usize {
+    let mut best = tiles[0];
+    for &p in tiles {
+        if wo.div_ceil(p) * p <= wo.div_ceil(best) * best {
+            best = p;
+        }
+    }
+    best
+}
+
+/// A 2-D convolution (PyTorch `nn.Conv2d`, zero padding, CHW-flattened input and output) with
+/// weights packed into panels of [`CONV_LANES`] output channels, grouped in pairs.
+///
+/// Pair `g`, tap `t = (ci * kh + ky) * kw + kx` holds `[W[16g .. 16g+8][ci][ky][kx],
+/// W[16g+8 .. 16g+16][ci][ky][kx]]` contiguously (an odd last panel has its own array). A step
+/// copies the input into a zero-padded buffer (border and tail zeroed once, at pack time), then
+/// walks each output row in tiles of `P` pixels; for each pair of panels a `P x 2 x LANES` block
+/// of accumulators runs over the taps: per tap, one weight load per panel and one broadcast of
+/// the input per pixel, read straight from the padded input. For 3x3 kernels with stride 1 or 2
+/// (compile-time constants) the `3 + (P - 1) * stride` inputs of a kernel row are one fixed-size
+/// array, so the nine taps of an input channel run without a single bounds check; other shapes
+/// take a generic loop (one check per tap). No im2col copy, no padding branches.
+///
+/// Determinism: every output element is `bias + w[t0] x[t0] + w[t1] x[t1] + ...` over all taps in
+/// `(ci, ky, kx)` order, padding taps included (they add `w * 0`), exactly like a naive loop, for
+/// any tile width, loop variant and instruction set. Lanes past `cout` in the last panel and
+/// pixels past the row end in the last tile are computed on padding and never written out.
+pub(crate) struct PackedConv {
+    g: ConvGeom,
+    /// Padded input height and width.
+    hp: usize,
+    wp: usize,
+    /// `[n_pairs * taps]`, pair-major.
+    pairs: Vec<[Lanes; 2]>,
+    pair_bias: Vec<[Lanes; 2]>,
+    /// The odd last panel: `[taps]` and its bias, or empty.
+    single: Vec<[Lanes; 1]>,
+    single_bias: Vec<[Lanes; 1]>,
+    /// Offset of tap `t` in the padded input, relative to the output pixel's top-left input.
+    tap_off: Vec<usize>,
+    /// Zero-padded input `[cin][hp][wp]`, then `TILE_MAX * stride` zeros of slack read by the
+    /// last tile of the last row.
+    xpad: Vec<f32>,
+    isa: Isa,
+    /// Tile width for `isa`.
+    tile: usize,
+}
+
+impl PackedConv {
+    /// Packs a `[cout, cin, kh, kw]` weight and a `[cout]` bias for input `[cin, h, w]`.
+    /// Callers guarantee the geometry is valid (see [`ConvGeom`]) and the lengths match.
+    pub(crate) fn pack(g: ConvGeom, weight: &[f32], bias: &[f32], isa: Isa) -> Self {
+        let taps = g.taps();
+        let n_panels = g.cout.div_ceil(CONV_LANES);
+        let n_pairs = n_panels / 2;
+        let mut pairs = vec![[Lanes::default(); 2]; n_pairs * taps];
+        let mut pair_bias = vec![[Lanes::default(); 2]; n_pairs];
+        let odd = n_panels % 2;
+        let mut single = vec![[Lanes::default(); 1]; odd * taps];
+        let mut single_bias = vec![[Lanes::default(); 1]; odd];
+        for co in 0..g.cout {
+            let (q, lane) = (co / CONV_LANES, co % CONV_LANES);
+            let (pair, j) = (q / 2, q % 2);
+            let w = &weight[co * taps..(co + 1) * taps];
+            if pair < n_pairs {
+                pair_bias[pair][j].0[lane] = bias[co];
+                for (t, &v) in w.iter().enumerate() {
+                    pairs[pair * taps + t][j].0[lane] = v;
+                }
+            } else {
+                single_bias[0][0].0[lane] = bias[co];
+                for (t, &v) in w.iter().enumerate() {
+                    single[t][0].0[lane] = v;
+                }
+            }
+        }
+        let (hp, wp) = (g.h + 2 * g.pad, g.w + 2 * g.pad);
+        let mut tap_off = Vec::with_capacity(taps);
+        for ci in 0..g.cin {
+            for ky in 0..g.kh {
+                for kx in 0..g.kw {
+                    tap_off.push((ci * hp + ky) * wp + kx);
+                }
+            }
+        }
+        Self {
+            g,
+            hp,
+            wp,
+            pairs,
+            pair_bias,
+            single,
+            single_bias,
+            tap_off,
+            xpad: vec![0.0; g.cin * hp * wp + TILE_MAX * g.stride],
+            isa,
+            tile: pick_tile(g.wo(), isa.tiles()),
+        }
+    }
+
+    pub(crate) fn geom(&self) -> &ConvGeom {
+        &self.g
+    }
+
+    /// Output length `cout * ho * wo`.
+    pub(crate) fn output_len(&self) -> usize {
+        self.g.cout * self.g.ho() * self.g.wo()
+    }
+
+    /// Selects the kernel (tests and benchmarks compare them). Anything but `Portable` is taken
+    /// only if [`Isa::detect`] returns it, so `forward` never runs an instruction set the CPU
+    /// lacks.
+    pub(crate) fn set_isa(&mut self, isa: Isa) {
+        if isa == Isa::Portable || isa == Isa::detect() {
+            self.isa = isa;
+            self.tile = pick_tile(self.g.wo(), isa.tiles());
+        }
+    }
+
+    /// Forces a tile width of the current instruction set (tests cover every compiled width).
+    #[cfg(test)]
+    pub(crate) fn set_tile(&mut self, tile: usize) {
+        if self.isa.tiles().contains(&tile) {
+            self.tile = tile;
+        }
+    }
+
+    /// `y = conv(x)`: `x` is `[cin, h, w]`, `y` is `[cout, ho, wo]`, both CHW-flattened; lengths
+    /// are checked by the caller at load time.
+    pub(crate) fn forward(&mut self, x: &[f32], y: &mut [f32]) {
+        debug_assert_eq!(x.len(), self.g.cin * self.g.h * self.g.w);
+        debug_assert_eq!(y.len(), self.output_len());
+        self.pad_input(x);
+        let args = ConvArgs {
+            g: &self.g,
+            hp: self.hp,
+            wp: self.wp,
+            pairs: &self.pairs,
+            pair_bias: &self.pair_bias,
+            single: &self.single,
+            single_bias: &self.single_bias,
+            tap_off: &self.tap_off,
+            xpad: &self.xpad,
+        };
+        match self.isa {
+            Isa::Portable => conv_dispatch(&args, self.tile, y),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::Avx2` is only ever set from `Isa::detect()` (`pack` is given its result,
+            // `set_isa` checks it), which checked at run time that this CPU supports AVX2.
+            Isa::Avx2 => unsafe { conv_avx2(&args, self.tile, y) },
+        }
+    }
+
+    /// Copies `x` into the interior of the zero-padded buffer (border and slack never written).
+    fn pad_input(&mut self, x: &[f32]) {
+        let (h, w, p, wp) = (self.g.h, self.g.w, self.g.pad, self.wp);
+        let plane_p = self.hp * wp;
+        for (src_plane, dst_plane) in x.chunks_exact(h * w).zip(self.xpad.chunks_exact_mut(plane_p)) {
+            for (src_row, dst_row) in src_plane.chunks_exact(w).zip(dst_plane[p * wp..].chunks_exact_mut(wp)) {
+                dst_row[p..p + w].copy_from_slice(src_row);
+            }
+        }
+    }
+}
+
+/// What the kernels read.
+struct ConvArgs<'a> {
+    g: &'a ConvGeom,
+    hp: usize,
+    wp: usize,
+    pairs: &'a [[Lanes; 2]],
+    pair_bias: &'a [[Lanes; 2]],
+    single: &'a [[Lanes; 1]],
+    single_bias: &'a [[Lanes; 1]],
+    tap_off: &'a [usize],
+    xpad: &'a [f32],
+}
+
+/// The AVX2 copy of [`conv_dispatch`]: the same code, compiled with 256-bit vectors. No FMA
+/// (`avx2` does not enable `fma`, and Rust never contracts `a * b + c` anyway), so results are
+/// bit-identical to the portable kernels.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn conv_avx2(a: &ConvArgs<'_>, tile: usize, y: &mut [f32]) {
+    conv_dispatch(a, tile, y);
+}
+
+/// Monomorphizes the row loop for the tile width `P`; for 3x3 kernels also for stride 1 and 2,
+/// with `L = 3 + (P - 1) * stride` inputs per kernel row.
+#[inline(always)]
+fn conv_dispatch(a: &ConvArgs<'_>, tile: usize, y: &mut [f32]) {
+    let k3 = a.g.kh == 3 && a.g.kw == 3;
+    macro_rules! variants {
+        ($p:literal) => {
+            match (k3, a.g.stride) {
+                (true, 1) => conv_rows::<$p, 1, 3, { 3 + ($p - 1) }>(a, y),
+                (true, 2) => conv_rows::<$p, 2, 3, { 3 + ($p - 1) * 2 }>(a, y),
+                _ => conv_rows::<$p, 0, 0, 0>(a, y),
+            }
+        };
+    }
+    match tile {
+        2 => variants!(2),
+        3 => variants!(3),
+        4 => variants!(4),
+        5 => variants!(5),
+        _ => variants!(6),
+    }
+}
+
+/// The convolution, one output row at a time in tiles of `P` pixels (see [`PackedConv`]).
+/// `K > 0`: a `K x K` kernel with stride `S` (`L = K + (P - 1) S`); `K = 0`: any geometry.
+#[inline(always)]
+fn conv_rows<const P: usize, const S: usize, const K: usize, const L: usize>(a: &ConvArgs<'_>, y: &mut [f32]) {
+    let g = a.g;
+    let s = g.stride;
+    let taps = a.tap_off.len();
+    let (ho, wo) = (g.ho(), g.wo());
+    let hw = ho * wo;
+    for oy in 0..ho {
+        let mut ox = 0;
+        while ox < wo {
+            let base = oy * s * a.wp + ox * s;
+            let (pix, n) = (oy * wo + ox, P.min(wo - ox));
+            for (pair, (w, b)) in a.pairs.chunks_exact(taps).zip(a.pair_bias).enumerate() {
+                let acc = tile::<2, P, S, K, L>(a, w, b, base);
+                store(&acc, 2 * pair, g.cout, hw, pix, n, y);
+            }
+            if let Some(b) = a.single_bias.first() {
+                let acc = tile::<1, P, S, K, L>(a, a.single, b, base);
+                store(&acc, 2 * a.pair_bias.len(), g.cout, hw, pix, n, y);
+            }
+            ox += P;
+        }
+    }
+}
+
+/// `$body` for `$i` = 0, 1, .., `$n - 1` (`$n` <= [`TILE_MAX`], a constant), written out
+/// straight: every `$i` is a literal, so accumulator arrays indexed by it stay in registers no
+/// matter how LLVM's loop unroller sizes the body up.
+macro_rules! unroll_tile {
+    ($n:expr, $i:ident => $body:expr) => {{
+        const _: () = assert!(TILE_MAX == 6);
+        {
+            let $i = 0usize;
+            if $i < $n {
+                $body
+            }
+        }
+        {
+            let $i = 1usize;
+            if $i < $n {
+                $body
+            }
+        }
+        {
+            let $i = 2usize;
+            if $i < $n {
+                $body
+            }
+        }
+        {
+            let $i = 3usize;
+            if $i < $n {
+                $body
+            }
+        }
+        {
+            let $i = 4usize;
+            if $i < $n {
+                $body
+            }
+        }
+        {
+            let $i = 5usize;
+            if $i < $n {
+                $body
+            }
+        }
+    }};
+}
+
+/// One tile: `acc[p][j] = bias_j + sum_t w[t][j] * x[base + off_t + p * stride]`, taps in order.
+#[inline(always)]
+fn tile<const NP: usize, const P: usize, const S: usize, const K: usize, const L: usize>(
+    a: &ConvArgs<'_>,
+    w: &[[Lanes; NP]],
+    bias: &[Lanes; NP],
+    base: usize,
+) -> [[Lanes; NP]; P] {
+    const { assert!(P >= 1 && P <= TILE_MAX) };
+    let mut acc = [*bias; P];
+    let x = a.xpad;
+    if K > 0 {
+        // K x K, stride S: per input channel, K rows of L inputs, each a fixed-size array.
+        let plane = a.hp * a.wp;
+        for (ci, wc) in w.chunks_exact(K * K).enumerate() {
+            for ky in 0..K {
+                let o = base + ci * plane + ky * a.wp;
+                // Always in bounds (see `PackedConv::xpad`); `get` keeps even a broken invariant
+                // from panicking.
+                let (Some(row), Some(wr)) = (
+                    x.get(o..).and_then(|r| r.first_chunk::<L>()),
+                    wc.get(ky * K..).and_then(|r| r.first_chunk::<K>()),
+                ) else {
+                    return acc;
+                };
+                for (kx, wt) in wr.iter().enumerate() {
+                    unroll_tile!(P, p => mac(&mut acc[p], wt, row[kx + p * S]));
+                }
+            }
+        }
+    } else {
+        let s = a.g.stride;
+        let span = (P - 1) * s + 1;
+        for (wt, &off) in w.iter().zip(a.tap_off) {
+            let Some(xs) = x.get(base + off..base + off + span) else {
+                return acc;
+            };
+            unroll_tile!(P, p => mac(&mut acc[p], wt, xs[p * s]));
+        }
+    }
+    acc
+}
+
+/// `acc[j][k] += w[j][k] * x` for every panel and lane: independent lanes, one multiply and one
+/// add each (never fused).
+#[inline(always)]
+fn mac<const NP: usize>(acc: &mut [Lanes; NP], w: &[Lanes; NP], x: f32) {
+    for (a, w) in acc.iter_mut().zip(w) {
+        for k in 0..CONV_LANES {
+            a.0[k] += w.0[k] * x;
+        }
+    }
+}
+
+/// Writes the first `n` pixels of a tile's accumulators (panels `q..q + NP`) to the CHW output
+/// at flat pixel `pix`, skipping padded lanes.
+#[inline(always)]
+fn store<const P: usize, const NP: usize>(
+    acc: &[[Lanes; NP]; P],
+    q: usize,
+    cout: usize,
+    hw: usize,
+    pix: usize,
+    n: usize,
+    y: &mut [f32],
+) {
+    for j in 0..NP {
+        for k in 0..CONV_LANES {
+            let co = (q + j) * CONV_LANES + k;
+            if co >= cout {
+                return;
+            }
+            if let Some(dst) = y.get_mut(co * hw + pix..co * hw + pix + n) {
+                for (d, a) in dst.iter_mut().zip(acc) {
+                    *d = a[j].0[k];
+                }
             }
         }
     }
@@ -173,21 +676,188 @@ mod tests {
     #[test]
     fn matvec_matches_naive_bitwise() {
         // Same summation order as the naive loop => bit-identical, for ragged shapes too.
-        let (rows, cols) = (37, 13);
+        // 37 rows: one pair of panels and an odd one; 100: three full panels and a ragged one.
+        for (rows, cols) in [(37, 13), (100, 29), (5, 1)] {
+            matvec_case(rows, cols);
+        }
+    }
+
+    fn matvec_case(rows: usize, cols: usize) {
         let w: Vec<f32> = (0..rows * cols)
             .map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-3)
             .collect();
         let b: Vec<f32> = (0..rows).map(|i| i as f32 * 0.01 - 0.2).collect();
         let x: Vec<f32> = (0..cols).map(|j| (j as f32 * 0.37).sin()).collect();
-        let m = PackedMatrix::pack(&w, &b, rows, cols);
-        let mut y = vec![0.0; rows];
-        m.matvec(&x, &mut y);
-        for r in 0..rows {
-            let mut acc = b[r];
-            for j in 0..cols {
-                acc += w[r * cols + j] * x[j];
+        let mut m = PackedMatrix::pack(&w, &b, rows, cols);
+        for isa in isas() {
+            m.set_isa(isa);
+            let mut y = vec![0.0; rows];
+            m.matvec(&x, &mut y);
+            for r in 0..rows {
+                let mut acc = b[r];
+                for j in 0..cols {
+                    acc += w[r * cols + j] * x[j];
+                }
+                assert_eq!(acc.to_bits(), y[r].to_bits(), "{isa:?} row {r}");
             }
-            assert_eq!(acc.to_bits(), y[r].to_bits(), "row {r}");
+        }
+    }
+
+    /// xorshift64* in [-1, 1).
+    struct Rng(u64);
+    impl Rng {
+        fn next(&mut self) -> f32 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            let u = (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32;
+            2.0 * u - 1.0
+        }
+        fn below(&mut self, n: usize) -> usize {
+            ((self.next() + 1.0) * 0.5 * n as f32) as usize % n
+        }
+        fn vec(&mut self, n: usize) -> Vec<f32> {
+            (0..n).map(|_| self.next()).collect()
+        }
+    }
+
+    /// PyTorch's definition, literally: every tap in (ci, ky, kx) order, zeros for padding.
+    fn naive_conv(g: &ConvGeom, w: &[f32], b: &[f32], x: &[f32]) -> Vec<f32> {
+        let (ho, wo) = (g.ho(), g.wo());
+        let mut y = vec![0.0f32; g.cout * ho * wo];
+        for co in 0..g.cout {
+            for oy in 0..ho {
+                for ox in 0..wo {
+                    let mut acc = b[co];
+                    for ci in 0..g.cin {
+                        for ky in 0..g.kh {
+                            for kx in 0..g.kw {
+                                let iy = (oy * g.stride + ky) as isize - g.pad as isize;
+                                let ix = (ox * g.stride + kx) as isize - g.pad as isize;
+                                let inside = iy >= 0 && ix >= 0 && (iy as usize) < g.h && (ix as usize) < g.w;
+                                let v = if inside {
+                                    x[(ci * g.h + iy as usize) * g.w + ix as usize]
+                                } else {
+                                    0.0
+                                };
+                                acc += w[((co * g.cin + ci) * g.kh + ky) * g.kw + kx] * v;
+                            }
+                        }
+                    }
+                    y[(co * ho + oy) * wo + ox] = acc;
+                }
+            }
+        }
+        y
+    }
+
+    fn isas() -> Vec<Isa> {
+        let mut v = vec![Isa::Portable];
+        if Isa::detect() != Isa::Portable {
+            v.push(Isa::detect());
+        } else {
+            eprintln!("note: no AVX2 on this CPU; only the portable conv kernel is tested");
+        }
+        v
+    }
+
+    fn check_conv(g: ConvGeom, rng: &mut Rng) {
+        let w = rng.vec(g.cout * g.taps());
+        let b = rng.vec(g.cout);
+        let mut conv = PackedConv::pack(g, &w, &b, Isa::Portable);
+        for _ in 0..2 {
+            let x = rng.vec(g.cin * g.h * g.w);
+            let want = naive_conv(&g, &w, &b, &x);
+            for isa in isas() {
+                conv.set_isa(isa);
+                for &tile in isa.tiles() {
+                    conv.set_tile(tile);
+                    let mut y = vec![f32::NAN; conv.output_len()];
+                    conv.forward(&x, &mut y);
+                    for (i, (a, e)) in y.iter().zip(&want).enumerate() {
+                        assert_eq!(
+                            a.to_bits(),
+                            e.to_bits(),
+                            "{g:?} {isa:?} tile {tile} element {i}: {a} vs {e}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn conv_matches_naive_bitwise() {
+        // The terrain CNN's layers, then ragged shapes: odd sizes, stride 1/2/3, padding 0/1/2,
+        // cin/cout not multiples of the panel width, rectangular kernels and inputs.
+        let mut rng = Rng(0x00C0_4F2D);
+        for (cin, h, w, cout, k, stride, pad) in [
+            (6, 60, 60, 24, 3, 2, 1),
+            (24, 30, 30, 48, 3, 2, 1),
+            (48, 15, 15, 128, 3, 2, 1),
+            (1, 1, 1, 1, 1, 1, 0),
+            (3, 7, 5, 5, 3, 1, 1),
+            (2, 9, 11, 17, 5, 2, 2),
+            (5, 4, 4, 9, 4, 1, 0),
+        ] {
+            let g = ConvGeom {
+                cin,
+                h,
+                w,
+                cout,
+                kh: k,
+                kw: k,
+                stride,
+                pad,
+            };
+            check_conv(g, &mut rng);
+        }
+        for _ in 0..60 {
+            let kh = 1 + rng.below(4);
+            let kw = 1 + rng.below(4);
+            let pad = rng.below(kh.max(kw).min(3));
+            let h = (kh + rng.below(12)).saturating_sub(2 * pad).max(1);
+            let w = (kw + rng.below(12)).saturating_sub(2 * pad).max(1);
+            let g = ConvGeom {
+                cin: 1 + rng.below(7),
+                h: h.max(kh.saturating_sub(2 * pad)),
+                w: w.max(kw.saturating_sub(2 * pad)),
+                cout: 1 + rng.below(35),
+                kh,
+                kw,
+                stride: 1 + rng.below(3),
+                pad,
+            };
+            check_conv(g, &mut rng);
+        }
+    }
+
+    #[test]
+    fn conv_non_finite_inputs_propagate_identically() {
+        let g = ConvGeom {
+            cin: 3,
+            h: 8,
+            w: 8,
+            cout: 20,
+            kh: 3,
+            kw: 3,
+            stride: 1,
+            pad: 1,
+        };
+        let mut rng = Rng(5);
+        let (w, b) = (rng.vec(g.cout * g.taps()), rng.vec(g.cout));
+        let mut x = rng.vec(g.cin * g.h * g.w);
+        x[10] = f32::NAN;
+        x[100] = f32::INFINITY;
+        let want = naive_conv(&g, &w, &b, &x);
+        let mut conv = PackedConv::pack(g, &w, &b, Isa::Portable);
+        for isa in isas() {
+            conv.set_isa(isa);
+            let mut y = vec![0.0; conv.output_len()];
+            conv.forward(&x, &mut y);
+            for (a, e) in y.iter().zip(&want) {
+                assert!(a.to_bits() == e.to_bits() || (a.is_nan() && e.is_nan()), "{a} vs {e}");
+            }
         }
     }
 }

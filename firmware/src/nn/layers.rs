@@ -1,18 +1,19 @@
-//! Loaded layers: weights packed for [`PackedMatrix::matvec`], state and scratch buffers
-//! allocated once at load so that `forward` never allocates.
+//! Loaded layers: weights packed for [`PackedMatrix::matvec`] and [`PackedConv::forward`], state
+//! and scratch buffers allocated once at load so that `forward` never allocates.
 
 use super::desc::LayerDesc;
 use super::error::NnError;
-use super::kernels::{elu, sigmoid, tanh, PackedMatrix};
+use super::kernels::{elu, sigmoid, tanh, ConvGeom, Isa, PackedConv, PackedMatrix};
 use safetensors::{Dtype, SafeTensors};
 
-/// A loaded layer. Element-wise layers carry no weights; their width is the previous width.
+/// A loaded layer. Element-wise layers carry no weights; their shape is the previous shape.
 pub(crate) enum Layer {
     Linear(PackedMatrix),
     Elu { alpha: f32 },
     Relu,
     Tanh,
     Lstm(Box<Lstm>),
+    Conv2d(Box<PackedConv>),
 }
 
 /// Stateful single-layer LSTM. `W_ih` and `W_hh` are packed side by side into one
@@ -58,12 +59,27 @@ impl Lstm {
 }
 
 impl Layer {
-    /// Output width given the input width.
-    pub(crate) fn output_dim(&self, input: usize) -> usize {
+    /// Output shape given the input shape (CHW for images, `[n]` for vectors).
+    fn output_shape(&self, input: &[usize]) -> Vec<usize> {
         match self {
-            Layer::Linear(m) => m.rows(),
-            Layer::Lstm(l) => l.hidden,
-            Layer::Elu { .. } | Layer::Relu | Layer::Tanh => input,
+            Layer::Linear(m) => vec![m.rows()],
+            Layer::Lstm(l) => vec![l.hidden],
+            Layer::Conv2d(c) => {
+                let g = c.geom();
+                vec![g.cout, g.ho(), g.wo()]
+            }
+            Layer::Elu { .. } | Layer::Relu | Layer::Tanh => input.to_vec(),
+        }
+    }
+
+    /// Makes convolutions and matrix products use the portable kernels even where AVX2 is
+    /// available (benchmarks and tests compare the two; results are bit-identical).
+    pub(crate) fn use_portable_kernels(&mut self) {
+        match self {
+            Layer::Conv2d(c) => c.set_isa(Isa::Portable),
+            Layer::Linear(m) => m.set_isa(Isa::Portable),
+            Layer::Lstm(l) => l.w.set_isa(Isa::Portable),
+            Layer::Elu { .. } | Layer::Relu | Layer::Tanh => {}
         }
     }
 
@@ -97,6 +113,7 @@ impl Layer {
                 }
             }
             Layer::Lstm(l) => l.forward(x, y),
+            Layer::Conv2d(c) => c.forward(x, y),
         }
     }
 }
@@ -200,10 +217,124 @@ impl TensorSource<'_, '_> {
         }
     }
 
-    /// Builds the layer for `desc`, given the width `input` produced by `source_desc`.
-    /// Also returns the number of learned parameters as stored in the file (weights and biases;
-    /// LSTM initial states are buffers, not parameters, matching PyTorch's `parameters()`).
-    pub(crate) fn build(&self, desc: &LayerDesc, input: usize, source_desc: &str) -> Result<(Layer, usize), NnError> {
+    fn conv_err(&self, message: String) -> NnError {
+        NnError::ConvShape {
+            layer: self.layer.clone(),
+            message,
+        }
+    }
+
+    /// Builds a `conv2d` for the activation `shape` produced by `source_desc`.
+    fn conv2d(
+        &self,
+        weight: &str,
+        bias: &str,
+        stride: usize,
+        padding: usize,
+        shape: &[usize],
+        source_desc: &str,
+    ) -> Result<(Layer, usize), NnError> {
+        let w = self.get("weight", weight)?;
+        let (cout, cin, kh, kw) = match w.shape[..] {
+            [o, i, h, k] if o > 0 && i > 0 && h > 0 && k > 0 => (o, i, h, k),
+            _ => {
+                return Err(self.shape_err(
+                    "weight",
+                    &w,
+                    "a 4-D [cout, cin, kh, kw] kernel (PyTorch nn.Conv2d layout)".into(),
+                ))
+            }
+        };
+        if stride == 0 {
+            return Err(NnError::Param {
+                layer: self.layer.clone(),
+                message: "stride must be >= 1, found 0".into(),
+            });
+        }
+        if padding >= kh.max(kw) {
+            return Err(NnError::Param {
+                layer: self.layer.clone(),
+                message: format!(
+                    "padding {padding} must be smaller than the {kh}x{kw} kernel (more padding only adds \
+                     outputs that see nothing but zeros)"
+                ),
+            });
+        }
+        let (c, h, wd) = match shape[..] {
+            [c, h, wd] => (c, h, wd),
+            [n] if source_desc == "the network input" => {
+                let fits = |s: &usize| {
+                    s.checked_mul(*s)
+                        .and_then(|v| v.checked_mul(cin))
+                        .is_some_and(|v| v <= n)
+                };
+                let side = (1..=n).take_while(fits).last().unwrap_or(0);
+                let hint = if side > 0 && side * side * cin == n {
+                    format!("set input_shape = [{cin}, {side}, {side}]")
+                } else {
+                    format!("set input_shape = [{cin}, H, W] with {cin} * H * W = {n}")
+                };
+                return Err(self.conv_err(format!(
+                    "conv2d needs a [C,H,W] input, but the network input is a flat vector of {n}: \
+                     {hint} in the network description"
+                )));
+            }
+            _ => {
+                return Err(self.conv_err(format!(
+                    "conv2d needs a [C,H,W] input, but {source_desc} produces shape {shape:?} (linear and \
+                     lstm produce flat vectors; only conv2d and element-wise layers keep an image shape)"
+                )))
+            }
+        };
+        if c != cin {
+            return Err(self.conv_err(format!(
+                "expects {cin} input channels (tensor `{weight}` has shape {:?}), but {source_desc} \
+                 produces shape [{c}, {h}, {wd}]",
+                w.shape
+            )));
+        }
+        let (hp, wp) = (h + 2 * padding, wd + 2 * padding);
+        if kh > hp || kw > wp {
+            return Err(self.conv_err(format!(
+                "the {kh}x{kw} kernel (tensor `{weight}`) is larger than the padded input {hp}x{wp} \
+                 ({source_desc} produces [{c}, {h}, {wd}], padding {padding})"
+            )));
+        }
+        let b = self.vector("bias", bias, cout)?;
+        let g = ConvGeom {
+            cin,
+            h,
+            w: wd,
+            cout,
+            kh,
+            kw,
+            stride,
+            pad: padding,
+        };
+        let n = w.data.len() + b.data.len();
+        Ok((
+            Layer::Conv2d(Box::new(PackedConv::pack(g, &w.data, &b.data, Isa::detect()))),
+            n,
+        ))
+    }
+
+    /// Builds the layer for `desc`, given the activation `shape` produced by `source_desc`
+    /// (`[n]` for vectors, `[C, H, W]` for images). Returns it with its output shape and the
+    /// number of learned parameters as stored in the file (weights and biases; LSTM initial
+    /// states are buffers, not parameters, matching PyTorch's `parameters()`).
+    pub(crate) fn build(
+        &self,
+        desc: &LayerDesc,
+        shape: &[usize],
+        source_desc: &str,
+    ) -> Result<(Layer, Vec<usize>, usize), NnError> {
+        let (layer, n) = self.build_layer(desc, shape, source_desc)?;
+        let out = layer.output_shape(shape);
+        Ok((layer, out, n))
+    }
+
+    fn build_layer(&self, desc: &LayerDesc, shape: &[usize], source_desc: &str) -> Result<(Layer, usize), NnError> {
+        let input: usize = shape.iter().product();
         Ok(match desc {
             LayerDesc::Linear { weight, bias } => {
                 let w = self.matrix("weight", weight, "[out, in]")?;
@@ -281,6 +412,12 @@ impl TensorSource<'_, '_> {
                 let n = wih.data.len() + whh.data.len() + bih.data.len() + bhh.data.len();
                 (Layer::Lstm(Box::new(lstm)), n)
             }
+            LayerDesc::Conv2d {
+                weight,
+                bias,
+                stride,
+                padding,
+            } => self.conv2d(weight, bias, *stride, *padding, shape, source_desc)?,
         })
     }
 }

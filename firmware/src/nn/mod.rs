@@ -1,7 +1,7 @@
 //! Fixed-buffer neural-network executor for the control loop.
 //!
-//! A [`NetworkDesc`] (usually embedded in the TOML deploy spec) names the layers and the tensors
-//! of a safetensors weight file; [`Network::load`] validates the two against each other and
+//! A [`NetworkDesc`] (usually embedded in the TOML deploy spec) names the layers (Linear,
+//! ELU/ReLU/Tanh, stateful LSTM, Conv2d) and the tensors of a safetensors weight file; [`Network::load`] validates the two against each other and
 //! allocates every buffer up front, so [`Network::step`] — called at the policy rate inside the
 //! real-time loop — never allocates, never panics, and is bit-reproducible across x86-64 and
 //! aarch64 (see the `kernels` module docs for how).
@@ -43,6 +43,23 @@
 //! }
 //! # let _ = run;
 //! ```
+//!
+//! A convolutional network (the terrain CNN) gives its input's image shape; activations are
+//! CHW-flattened like PyTorch's `x.flatten()`, so a `linear` after a `conv2d` acts like
+//! `nn.Flatten()` + `nn.Linear`:
+//!
+//! ```
+//! let desc: firmware::nn::NetworkDesc = toml::from_str(r#"
+//! input = 21600
+//! input_shape = [6, 60, 60]
+//! layers = [
+//!   { type = "conv2d", weight = "conv1.weight", bias = "conv1.bias", stride = 2, padding = 1 },
+//!   { type = "relu" },
+//!   { type = "linear", weight = "fc.weight", bias = "fc.bias" },
+//! ]
+//! "#).unwrap();
+//! assert_eq!(desc.input_shape, Some(vec![6, 60, 60]));
+//! ```
 
 mod desc;
 mod error;
@@ -63,6 +80,8 @@ pub struct Network {
     layers: Vec<Layer>,
     /// `dims[0]` is the input width, `dims[i + 1]` the output width of layer `i`.
     dims: Vec<usize>,
+    /// The same as shapes: `[n]` for vectors, `[C, H, W]` for images; product = `dims[i]`.
+    shapes: Vec<Vec<usize>>,
     /// Ping-pong activation buffers, each as wide as the widest intermediate activation.
     ping: Vec<f32>,
     pong: Vec<f32>,
@@ -88,9 +107,27 @@ impl Network {
         if desc.input == 0 {
             return Err(NnError::ZeroInput);
         }
+        let input_shape = match &desc.input_shape {
+            None => vec![desc.input],
+            Some(shape) => {
+                let product = shape
+                    .iter()
+                    .try_fold(1usize, |a, &d| a.checked_mul(d))
+                    .unwrap_or(usize::MAX);
+                if product != desc.input || shape.is_empty() {
+                    return Err(NnError::InputShape {
+                        shape: shape.clone(),
+                        product,
+                        input: desc.input,
+                    });
+                }
+                shape.clone()
+            }
+        };
         let st = SafeTensors::deserialize(bytes).map_err(|e| NnError::Format(e.to_string()))?;
         let mut layers = Vec::with_capacity(desc.layers.len());
         let mut dims = vec![desc.input];
+        let mut shapes = vec![input_shape];
         let mut params = 0;
         let mut source_desc = "the network input".to_string();
         for (i, layer_desc) in desc.layers.iter().enumerate() {
@@ -98,9 +135,9 @@ impl Network {
                 st: &st,
                 layer: format!("layers[{i}] ({})", layer_desc.kind()),
             };
-            let input = dims[i];
-            let (layer, n) = src.build(layer_desc, input, &source_desc)?;
-            dims.push(layer.output_dim(input));
+            let (layer, shape, n) = src.build(layer_desc, &shapes[i], &source_desc)?;
+            dims.push(shape.iter().product());
+            shapes.push(shape);
             params += n;
             layers.push(layer);
             source_desc = src.layer;
@@ -110,6 +147,7 @@ impl Network {
         Ok(Network {
             layers,
             dims,
+            shapes,
             ping: vec![0.0; widest],
             pong: vec![0.0; widest],
             params,
@@ -127,6 +165,16 @@ impl Network {
         self.dims[self.dims.len() - 1]
     }
 
+    /// Shape of the input: `input_shape` from the description, or `[input_dim]`.
+    pub fn input_shape(&self) -> &[usize] {
+        &self.shapes[0]
+    }
+
+    /// Shape of the activation after layer `i` (`[n]` or `[C, H, W]`), `None` past the end.
+    pub fn layer_output_shape(&self, i: usize) -> Option<&[usize]> {
+        self.shapes.get(i + 1).map(Vec::as_slice)
+    }
+
     /// Number of learned parameters (weights and biases) read from the file.
     pub fn param_count(&self) -> usize {
         self.params
@@ -135,6 +183,16 @@ impl Network {
     /// Lower-case hex SHA-256 of the weight file bytes, to log which policy is running.
     pub fn weights_sha256(&self) -> &str {
         &self.sha256
+    }
+
+    /// Runs every layer on the portable kernels even where the CPU offers a faster instruction
+    /// set (AVX2 on x86-64). Results are bit-identical either way; benchmarks use this to show
+    /// what a CPU without AVX2 (or an aarch64 board, which always runs the portable kernels) gets.
+    #[doc(hidden)]
+    pub fn use_portable_kernels(&mut self) {
+        for layer in &mut self.layers {
+            layer.use_portable_kernels();
+        }
     }
 
     /// Restores all recurrent state (LSTM `h`, `c`) to its initial value (zeros, or the
@@ -183,7 +241,7 @@ impl Network {
 impl fmt::Debug for Network {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Network")
-            .field("dims", &self.dims)
+            .field("shapes", &self.shapes)
             .field("params", &self.params)
             .field("weights_sha256", &self.sha256)
             .finish_non_exhaustive()
