@@ -284,12 +284,13 @@ impl Controller {
     }
 
     /// One control tick in one call (start-up, policy when due, command): what the runtime does,
-    /// minus supervision. `command` is the operator's (vx, vy, wz).
+    /// minus supervision and perception (a terrain-token observation reads flat).
+    /// `command` is the operator's (vx, vy, wz).
     pub fn tick(&mut self, state: &LowState, tick: TickTime, command: [f32; 3], out: &mut LowCommand) -> TickInfo {
         let mut info = TickInfo::default();
         self.advance(tick.index, state);
         if self.policy_due(tick.index) {
-            if let Err(reason) = self.policy_step(state, command) {
+            if let Err(reason) = self.policy_step(state, command, hal::TerrainToken::FLAT) {
                 self.enter_damping(reason);
             }
             info.policy_step = true;
@@ -300,7 +301,12 @@ impl Controller {
 
     /// Builds the observation, runs the network and sets PD targets. On NaN/Inf in the observation
     /// or action it returns the reason and leaves the targets unchanged (the caller latches damping).
-    pub fn policy_step(&mut self, state: &LowState, command: [f32; 3]) -> Result<(), DampingReason> {
+    pub fn policy_step(
+        &mut self,
+        state: &LowState,
+        command: [f32; 3],
+        terrain: hal::TerrainToken,
+    ) -> Result<(), DampingReason> {
         let p = &self.spec.policy;
         for (i, &slot) in p.joint_ids_map.iter().enumerate() {
             self.joint_pos_rel[i] = state.motors[slot].q - p.default_pose[i];
@@ -328,6 +334,7 @@ impl Controller {
             joint_vel: &self.joint_vel,
             last_action: &self.last_action,
             phase,
+            terrain,
         };
         self.obs.build(&inputs, &mut self.obs_buf);
         self.policy_steps += 1;

@@ -14,6 +14,8 @@ pub struct ObsInputs<'a> {
     pub last_action: &'a [f32],
     /// Gait phase in [0, 1).
     pub phase: f32,
+    /// The perception group's current terrain token.
+    pub terrain: hal::TerrainToken,
 }
 
 struct Term {
@@ -88,6 +90,10 @@ impl ObservationBuilder {
                 ObsKind::JointVel => frame.copy_from_slice(x.joint_vel),
                 ObsKind::LastAction => frame.copy_from_slice(x.last_action),
                 ObsKind::GaitPhase => frame.copy_from_slice(&[s, c]),
+                ObsKind::TerrainToken => {
+                    let z = &x.terrain;
+                    frame.copy_from_slice(&[z.class.index() as f32, z.step_height_m, z.step_depth_m, z.yaw_rad])
+                }
             }
             for (v, k) in frame.iter_mut().zip(&term.scale) {
                 *v *= k;

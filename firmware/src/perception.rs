@@ -6,16 +6,18 @@
 //! was fired in, into the gravity-aligned robot frame of the perception tick. Without that, a
 //! walking robot's sway (a few degrees over a frame) tilts the ground by centimetres at 1.5 m.
 //!
-//! Today the token comes from the geometric estimator (`estimator::terrain`); it is checked for
-//! plausibility and otherwise replaced by the last plausible one (or flat). Everything is
-//! allocated in [`Perception::new`]; a step does not allocate.
+//! The token comes from the terrain CNN ([`crate::terrain_net`], trained by `g1-train`; the
+//! default) or the geometric estimator (`estimator::terrain`), as `[perception] terrain_estimator`
+//! says; it is checked for plausibility and otherwise replaced by the last plausible one (or flat).
+//! Everything is allocated in [`Perception::new`]; a step does not allocate.
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
 use hal::{PointFrame, TerrainToken};
 use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter};
 use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::runtime::Estimate;
-use crate::spec::PerceptionSpec;
+use crate::spec::{PerceptionSpec, TerrainEstimatorKind};
+use crate::terrain_net::TerrainNet;
 
 /// The lidar frame buffer the HAL fills.
 pub type LidarFrame = PointFrame<LIDAR_FRAME_CAP>;
@@ -33,11 +35,17 @@ pub struct PerceptionSummary {
     pub roll: f32,
     pub pitch: f32,
     pub base_height: f32,
-    /// The geometric estimate of this frame.
+    /// Which estimator made `estimate`.
+    pub source: TerrainEstimatorKind,
+    /// This frame's estimate (before the plausibility check).
+    pub estimate: TerrainToken,
+    /// The CNN's softmax probability of its class, or the geometric estimator's confidence.
+    pub confidence: f32,
+    /// The geometric estimate of this frame (only when it is the source; default otherwise).
     pub geometric: TerrainEstimate,
     /// The token the robot acts on (plausible, or held from before).
     pub token: TerrainToken,
-    /// The geometric estimate was implausible and the token was held.
+    /// This frame's estimate was implausible (or not finite) and the token was held.
     pub held: bool,
     /// Frames seen so far.
     pub frames: u64,
@@ -68,14 +76,36 @@ pub struct Perception {
     grid: Box<BevGrid>,
     frame: Box<LidarFrame>,
     geometric: GeometricTerrainEstimator,
+    /// `Some` when the CNN makes the token.
+    cnn: Option<Box<TerrainNet>>,
     last: PerceptionSummary,
 }
 
 impl Perception {
-    /// Spec validation has already refused a bad self-filter; should one get here anyway, the
-    /// default G1 filter is used.
-    pub fn new(spec: &PerceptionSpec) -> Self {
+    /// Spec validation has already refused a bad self-filter or terrain network; should one get
+    /// here anyway, the default G1 filter and the built-in network are used (and said so).
+    /// `base_dir` resolves the spec's relative paths.
+    pub fn new(spec: &PerceptionSpec, base_dir: &std::path::Path) -> Self {
         let mount = spec.mount();
+        let cnn = match spec.terrain_estimator {
+            TerrainEstimatorKind::Geometric => None,
+            TerrainEstimatorKind::Cnn => {
+                let loaded = match (&spec.terrain_network, &spec.terrain_weights) {
+                    (Some(d), Some(w)) => TerrainNet::load(&base_dir.join(d), &base_dir.join(w)),
+                    _ => TerrainNet::embedded(),
+                };
+                match loaded.or_else(|e| {
+                    tracing::error!("terrain network: {e}; using the built-in one");
+                    TerrainNet::embedded()
+                }) {
+                    Ok(net) => Some(Box::new(net)),
+                    Err(e) => {
+                        tracing::error!("built-in terrain network: {e}; using the geometric estimator");
+                        None
+                    }
+                }
+            }
+        };
         Self {
             mount,
             history: Box::new([PoseSample::default(); HISTORY]),
@@ -88,6 +118,7 @@ impl Perception {
             grid: Box::new(BevGrid::zeroed()),
             frame: sensor_io::livox::boxed_point_frame(),
             geometric: GeometricTerrainEstimator::new(GeometricTerrainConfig::default()),
+            cnn,
             last: PerceptionSummary {
                 token: TerrainToken::FLAT,
                 ..Default::default()
@@ -150,8 +181,24 @@ impl Perception {
         }
         let (roll, pitch, height) = robot_frame_inputs(est, self.fallback_height);
         let bev = self.grid_frame(now_ns, &RobotFrame::new(&self.mount, roll, pitch, height));
-        let geometric = self.geometric.estimate(&self.grid);
-        let ok = plausible(&geometric.token);
+        let heading = if est.rpy[2].is_finite() { est.rpy[2] } else { 0.0 };
+        let (source, estimate, confidence, geometric) = match self.cnn.as_deref_mut() {
+            Some(net) => {
+                let e = net.estimate(&self.grid, heading);
+                let conf = estimator::terrain_cnn::class_confidence(net.outputs());
+                // A non-finite output is never plausible: mark it so with a NaN height.
+                let e = e.unwrap_or(TerrainToken {
+                    step_height_m: f32::NAN,
+                    ..TerrainToken::FLAT
+                });
+                (TerrainEstimatorKind::Cnn, e, conf, TerrainEstimate::default())
+            }
+            None => {
+                let g = self.geometric.estimate(&self.grid);
+                (TerrainEstimatorKind::Geometric, g.token, g.confidence, g)
+            }
+        };
+        let ok = plausible(&estimate);
         self.last = PerceptionSummary {
             fresh: true,
             frame_timestamp_ns: self.frame.timestamp_ns,
@@ -160,8 +207,11 @@ impl Perception {
             roll,
             pitch,
             base_height: height,
+            source,
+            estimate,
+            confidence,
             geometric,
-            token: if ok { geometric.token } else { self.last.token },
+            token: if ok { estimate } else { self.last.token },
             held: !ok,
             frames: self.last.frames + 1,
         };

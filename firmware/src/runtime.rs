@@ -118,7 +118,7 @@ impl Runtime {
             overruns: Overruns::default(),
             trip: None,
             estimator: StateEstimator::new(spec.kinematics.clone(), spec.estimator.config(), spec.control_dt()),
-            perception: Perception::new(&spec.perception),
+            perception: Perception::new(&spec.perception, &spec.base_dir),
             lidar_fresh: false,
             stats: TimingStats::new(),
             controller,
@@ -249,7 +249,8 @@ impl Runtime {
         let mut t3 = t2;
         if self.controller.policy_due(k) {
             s.policy_step = true;
-            if let Err(reason) = self.controller.policy_step(state, operator.velocity) {
+            let terrain = self.perception.last().token;
+            if let Err(reason) = self.controller.policy_step(state, operator.velocity, terrain) {
                 self.latch(k, reason, &mut s);
             }
             t3 = Instant::now();

@@ -174,7 +174,7 @@ impl TerrainEval {
         if !p.fresh {
             return;
         }
-        let e = p.geometric.token;
+        let e = p.estimate;
         self.frames += 1;
         self.points += p.points as u64;
         self.held += p.held as u64;

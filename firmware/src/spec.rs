@@ -74,6 +74,22 @@ pub struct PerceptionSpec {
     pub self_filter: Vec<[f32; 6]>,
     /// Base height used for the BEV when the estimator has no leg kinematics, m.
     pub fallback_base_height_m: f32,
+    /// What makes the terrain token: `cnn` (the trained terrain CNN, default) or `geometric`
+    /// (`estimator::terrain`, plane fits; no learned weights).
+    pub terrain_estimator: TerrainEstimatorKind,
+    /// The terrain CNN's description (TOML, as `g1-train` writes it) and weights (safetensors),
+    /// relative to the spec; give both or neither. Default: the network built into the firmware.
+    pub terrain_network: Option<PathBuf>,
+    pub terrain_weights: Option<PathBuf>,
+}
+
+/// `[perception] terrain_estimator`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TerrainEstimatorKind {
+    #[default]
+    Cnn,
+    Geometric,
 }
 
 impl Default for PerceptionSpec {
@@ -88,6 +104,9 @@ impl Default for PerceptionSpec {
                 .map(|b| [b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]])
                 .collect(),
             fallback_base_height_m: 0.76,
+            terrain_estimator: TerrainEstimatorKind::Cnn,
+            terrain_network: None,
+            terrain_weights: None,
         }
     }
 }
@@ -391,6 +410,9 @@ pub enum ObsKind {
     LastAction,
     /// sin(2π·phase), cos(2π·phase) (2).
     GaitPhase,
+    /// The paper's terrain token z = (class index 0 flat / 1 up / 2 down, step height m, step
+    /// depth m, yaw rad) from the perception group (4); flat until the first lidar frame.
+    TerrainToken,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -440,6 +462,7 @@ impl ObsKind {
             ObsKind::BaseAngVel | ObsKind::ProjectedGravity | ObsKind::VelocityCommand => 3,
             ObsKind::JointPosRel | ObsKind::JointVel | ObsKind::LastAction => n,
             ObsKind::GaitPhase => 2,
+            ObsKind::TerrainToken => 4,
         }
     }
 }
@@ -571,6 +594,24 @@ impl DeploySpec {
         let pc = &self.perception;
         if let Err(e) = pc.self_filter() {
             return Err(self.invalid("perception.self_filter", e.to_string()));
+        }
+        match (&pc.terrain_network, &pc.terrain_weights) {
+            (None, None) => {}
+            (Some(d), Some(w)) => {
+                let (d, w) = (self.base_dir.join(d), self.base_dir.join(w));
+                if let Err(e) = crate::terrain_net::TerrainNet::load(&d, &w) {
+                    return Err(self.invalid(
+                        "perception.terrain_network / terrain_weights",
+                        format!("{e} (or remove both to use the network built into the firmware)"),
+                    ));
+                }
+            }
+            _ => {
+                return Err(self.invalid(
+                    "perception.terrain_network / terrain_weights",
+                    "give both the description and the weights, or neither (the built-in network)",
+                ))
+            }
         }
         if !pc.mount_xyz.iter().chain(&pc.mount_rpy).all(|v| v.is_finite()) {
             return Err(self.invalid("perception.mount_xyz / mount_rpy", "must be finite numbers"));

@@ -40,8 +40,42 @@ fn push_frame(b: &mut ObservationBuilder, k: usize, out: &mut [f32]) {
         joint_vel: &jv,
         last_action: &la,
         phase: 0.0,
+        terrain: hal::TerrainToken::FLAT,
     };
     b.build(&x, out);
+}
+
+#[test]
+fn terrain_token_term_is_the_papers_z() {
+    let mut spec = rl_lab_spec();
+    spec.observation.terms.push(firmware::spec::ObsTerm {
+        kind: firmware::spec::ObsKind::TerrainToken,
+        scale: firmware::spec::Scale::Scalar(1.0),
+        clip: None,
+        history: 1,
+    });
+    let mut b = ObservationBuilder::new(&spec);
+    let mut out = vec![0.0; b.dim()];
+    let z = hal::TerrainToken {
+        class: hal::TerrainClass::StairsDown,
+        step_height_m: 0.17,
+        step_depth_m: 0.29,
+        yaw_rad: -0.4,
+    };
+    let zeros = vec![0.0f32; 29];
+    let x = ObsInputs {
+        gyro: [0.0; 3],
+        quat: [1.0, 0.0, 0.0, 0.0],
+        command: [0.0; 3],
+        joint_pos_rel: &zeros,
+        joint_vel: &zeros,
+        last_action: &zeros,
+        phase: 0.0,
+        terrain: z,
+    };
+    b.build(&x, &mut out);
+    assert_eq!(out.len(), 480 + 4);
+    assert_eq!(out[480..], [2.0, 0.17, 0.29, -0.4]);
 }
 
 #[test]

@@ -119,14 +119,16 @@ impl Exported {
         ))
     }
 
-    /// Writes `terrain_cnn.safetensors` and `terrain_cnn.toml` into `dir`.
-    pub fn write(&self, dir: &Path, metadata: &BTreeMap<String, String>) -> anyhow::Result<()> {
+    /// Writes `terrain_cnn.safetensors` and `terrain_cnn.toml` into `dir`; returns the weights'
+    /// SHA-256.
+    pub fn write(&self, dir: &Path, metadata: &BTreeMap<String, String>) -> anyhow::Result<String> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let w = dir.join(WEIGHTS_FILE);
-        std::fs::write(&w, self.safetensors_bytes(metadata)?).with_context(|| format!("writing {}", w.display()))?;
+        let bytes = self.safetensors_bytes(metadata)?;
+        std::fs::write(&w, &bytes).with_context(|| format!("writing {}", w.display()))?;
         let d = dir.join(DESC_FILE);
         std::fs::write(&d, self.desc_toml()?).with_context(|| format!("writing {}", d.display()))?;
-        Ok(())
+        Ok(sha256_hex(&bytes))
     }
 }
 
@@ -134,4 +136,61 @@ impl Exported {
 pub fn read_desc(path: &Path) -> anyhow::Result<NetworkDesc> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     toml::from_str(&text).with_context(|| format!("parsing network description {}", path.display()))
+}
+
+/// File name of the parity fixture written next to an export.
+pub const PARITY_FILE: &str = "terrain_cnn_parity.safetensors";
+
+/// Writes `grids` (`[n, 6, 60, 60]`) and the training-side outputs for them (`[n, 7]`, candle,
+/// BatchNorm in eval mode, before folding) with the folded weights' SHA-256 in the header: the
+/// firmware's parity test runs its executor on the grids and must match the outputs to 1e-4.
+pub fn write_parity_fixture(path: &Path, grids: &[f32], outputs: &[[f32; 7]], weights_sha256: &str) -> anyhow::Result<()> {
+    let n = outputs.len();
+    ensure!(grids.len() == n * GRID, "parity fixture: {n} outputs but {} grid values", grids.len());
+    let gb: Vec<u8> = grids.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let ob: Vec<u8> = outputs.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
+    let tensors = vec![
+        ("bev", TensorView::new(Dtype::F32, vec![n, BEV_CHANNELS, BEV_CELLS, BEV_CELLS], &gb)),
+        ("outputs", TensorView::new(Dtype::F32, vec![n, 7], &ob)),
+    ];
+    let tensors = tensors
+        .into_iter()
+        .map(|(k, v)| v.map(|v| (k, v)))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let meta = std::collections::HashMap::from([
+        ("weights_sha256".to_string(), weights_sha256.to_string()),
+        (
+            "about".to_string(),
+            "BEV grids and the terrain CNN outputs g1-train computed for them (candle, before BatchNorm folding)".to_string(),
+        ),
+    ]);
+    let bytes = safetensors::serialize(tensors, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
+}
+
+/// SHA-256 (lower-case hex) of `bytes`, as `firmware::nn::Network::weights_sha256` reports it.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Picks two grids of each class from `pool` (indices into `ds`), runs `model` (eval mode) on them
+/// and writes the parity fixture to `path`.
+pub fn parity_fixture_from(
+    model: &crate::model::TerrainCnn,
+    ds: &crate::data::Dataset,
+    pool: &[usize],
+    dev: &candle_core::Device,
+    path: &Path,
+    weights_sha256: &str,
+) -> anyhow::Result<()> {
+    let mut pick = Vec::new();
+    for class in 0..3u8 {
+        pick.extend(pool.iter().copied().filter(|&i| ds.class[i] == class).take(2));
+    }
+    ensure!(!pick.is_empty(), "parity fixture: no samples to pick from");
+    let outs = crate::fit::predict(model, ds, &pick, dev)?;
+    let grids: Vec<f32> = pick.iter().flat_map(|&i| ds.grid(i).iter().copied()).collect();
+    write_parity_fixture(path, &grids, &outs, weights_sha256)
 }

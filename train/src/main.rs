@@ -65,6 +65,10 @@ enum Cmd {
         /// Directory for terrain_cnn.safetensors and terrain_cnn.toml.
         #[arg(long)]
         out: PathBuf,
+        /// Also write the parity fixture (terrain_cnn_parity.safetensors) from grids of this
+        /// dataset (g1-dataset export directory).
+        #[arg(long)]
+        data: Option<PathBuf>,
     },
     /// Evaluate the CNN (run by the firmware's executor) and the geometric baseline side by side
     /// on held-out rendered worlds; prints MAE(h) cm, MAE(d) cm, MAE(yaw) deg and class accuracy.
@@ -180,7 +184,7 @@ fn main() -> anyhow::Result<()> {
             let steps = (epochs * tr.len().div_ceil(batch)).min(if max_steps > 0 { max_steps } else { usize::MAX });
             let pb = bar(steps, quiet, "steps");
             let t = Instant::now();
-            let (varmap, _model, history) = fit(
+            let (varmap, model, history) = fit(
                 &cfg,
                 &ds,
                 &tr,
@@ -226,7 +230,9 @@ fn main() -> anyhow::Result<()> {
                 "loss".into(),
                 format!("{LAMBDA_CLS}*CE + {LAMBDA_H}*SmoothL1(h cm) + {LAMBDA_D}*SmoothL1(d cm) + {LAMBDA_YAW}*SmoothL1(yaw vector deg)"),
             );
-            fold(&varmap)?.write(&out, &meta)?;
+            let sha = fold(&varmap)?.write(&out, &meta)?;
+            let pool = if val.is_empty() { &tr } else { &val };
+            train::export::parity_fixture_from(&model, &ds, pool, &dev, &out.join(train::export::PARITY_FILE), &sha)?;
             train::plot::training_png(&out.join("training.png"), &history)?;
             let hist = serde_json::json!({ "config": cfg, "train_seconds": secs, "epochs": history });
             std::fs::write(out.join("history.json"), serde_json::to_string_pretty(&hist)? + "\n")?;
@@ -238,9 +244,9 @@ fn main() -> anyhow::Result<()> {
                 out.display()
             );
         }
-        Cmd::Export { checkpoint, out } => {
+        Cmd::Export { checkpoint, out, data } => {
             let mut vm = candle_nn::VarMap::new();
-            let _model = train::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
+            let model = train::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
                 &vm,
                 candle_core::DType::F32,
                 &Device::Cpu,
@@ -249,8 +255,15 @@ fn main() -> anyhow::Result<()> {
                 .with_context(|| format!("loading {}", checkpoint.display()))?;
             let mut meta = BTreeMap::new();
             meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
-            fold(&vm)?.write(&out, &meta)?;
+            let sha = fold(&vm)?.write(&out, &meta)?;
             println!("wrote {}/{{{WEIGHTS_FILE}, {DESC_FILE}}}", out.display());
+            if let Some(d) = data {
+                let ds = Dataset::load_dir(&d)?;
+                let (_, val) = split_by_world(&ds, 0.1);
+                let path = out.join(train::export::PARITY_FILE);
+                train::export::parity_fixture_from(&model, &ds, &val, &Device::Cpu, &path, &sha)?;
+                println!("wrote {}", path.display());
+            }
         }
         Cmd::EvalTerrain {
             worlds,

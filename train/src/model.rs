@@ -381,7 +381,7 @@ mod tests {
         let theirs = candle_nn::batch_norm(3, candle_nn::BatchNormConfig::default(), vb.pp("b")).unwrap();
         let probe = Tensor::randn(0f32, 1.0, (4, 3, 5, 5), &dev).unwrap();
         let ya = ours.forward_t(x.as_tensor(), true).unwrap();
-        let yb = theirs.forward_t(x.as_tensor(), true).unwrap();
+        let yb = candle_core::ModuleT::forward_t(&theirs, x.as_tensor(), true).unwrap();
         let max = |t: Tensor| t.abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert!(max((&ya - &yb).unwrap()) < 1e-4);
         let ga = (ya * &probe).unwrap().sum_all().unwrap().backward().unwrap();

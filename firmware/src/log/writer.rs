@@ -757,8 +757,18 @@ impl McapSink {
                 step_height_m: s.token.step_height_m,
                 step_depth_m: s.token.step_depth_m,
                 yaw_deg: s.token.yaw_rad.to_degrees(),
-                source: "geometric",
+                source: match s.source {
+                    crate::spec::TerrainEstimatorKind::Cnn => "cnn",
+                    crate::spec::TerrainEstimatorKind::Geometric => "geometric",
+                },
                 held: s.held,
+                estimate: TokenMsg {
+                    class: s.estimate.class.name(),
+                    step_height_m: s.estimate.step_height_m,
+                    step_depth_m: s.estimate.step_depth_m,
+                    yaw_deg: s.estimate.yaw_rad.to_degrees(),
+                    confidence: s.confidence,
+                },
                 geometric: GeometricMsg {
                     class: s.geometric.token.class.name(),
                     step_height_m: s.geometric.token.step_height_m,
@@ -915,6 +925,9 @@ struct TerrainMsg {
     yaw_deg: f32,
     source: &'static str,
     held: bool,
+    /// This frame's estimate by `source` (the token above is it, unless held).
+    estimate: TokenMsg,
+    /// Details of the geometric estimator (zeros when the CNN is the source).
     geometric: GeometricMsg,
     points: u32,
     frame_timestamp_ns: u64,
@@ -922,6 +935,15 @@ struct TerrainMsg {
     base_height_m: f32,
     roll: f32,
     pitch: f32,
+}
+
+#[derive(Serialize)]
+struct TokenMsg {
+    class: &'static str,
+    step_height_m: f32,
+    step_depth_m: f32,
+    yaw_deg: f32,
+    confidence: f32,
 }
 
 #[derive(Serialize)]
