@@ -7,7 +7,9 @@ use sensor_io::bev::BevGrid;
 const PARITY: &[u8] = include_bytes!("../weights/terrain_cnn_parity.safetensors");
 
 fn f32s(b: &[u8]) -> Vec<f32> {
-    b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    b.chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
 }
 
 #[test]
@@ -60,7 +62,9 @@ fn wrong_networks_are_refused_with_a_reason() {
     std::fs::write(&d, "input = [").unwrap();
     let e = TerrainNet::load(&d, &w).err().expect("must fail");
     assert!(e.to_string().contains("short.toml"), "{e}");
-    let e = TerrainNet::load(&dir.join("missing.toml"), &w).err().expect("must fail");
+    let e = TerrainNet::load(&dir.join("missing.toml"), &w)
+        .err()
+        .expect("must fail");
     assert!(e.to_string().contains("missing.toml"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -41,7 +41,11 @@ fn tensor_bytes<'a>(st: &'a SafeTensors, name: &str, dtype: Dtype, shape_tail: &
     let t = st
         .tensor(name)
         .with_context(|| format!("tensor `{name}` missing (is this a g1-dataset export?)"))?;
-    ensure!(t.dtype() == dtype, "tensor `{name}` is {:?}, expected {dtype:?}", t.dtype());
+    ensure!(
+        t.dtype() == dtype,
+        "tensor `{name}` is {:?}, expected {dtype:?}",
+        t.dtype()
+    );
     ensure!(
         t.shape().len() == 1 + shape_tail.len() && t.shape()[1..] == *shape_tail,
         "tensor `{name}` has shape {:?}, expected [n, {shape_tail:?}]",
@@ -115,8 +119,10 @@ impl Dataset {
         self.step_height.extend(f32s(h));
         self.step_depth.extend(f32s(d));
         self.yaw.extend(f32s(yaw));
-        self.world_seed
-            .extend(seed.chunks_exact(8).map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes"))));
+        self.world_seed.extend(
+            seed.chunks_exact(8)
+                .map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes"))),
+        );
         self.heading.extend(f32s(pose).skip(3).step_by(4));
         self.mode.extend_from_slice(mode);
         Ok(())

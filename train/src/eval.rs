@@ -180,7 +180,9 @@ pub fn evaluate(
         worlds,
         poses_per_world,
         world_set: match set {
-            WorldSet::Random { first_seed, count } => format!("random worlds {first_seed}..{}", first_seed + *count as u64),
+            WorldSet::Random { first_seed, count } => {
+                format!("random worlds {first_seed}..{}", first_seed + *count as u64)
+            }
             WorldSet::Named { args, .. } => args.join(", "),
         },
         cnn_weights_sha256: net.weights_sha256().to_string(),
@@ -202,9 +204,21 @@ impl std::fmt::Display for Report {
             ("MAE h (cm)", self.cnn.mae_h_cm, self.baseline.mae_h_cm),
             ("MAE d (cm)", self.cnn.mae_d_cm, self.baseline.mae_d_cm),
             ("MAE yaw (deg)", self.cnn.mae_yaw_deg, self.baseline.mae_yaw_deg),
-            ("class accuracy (%)", 100.0 * self.cnn.class_acc, 100.0 * self.baseline.class_acc),
-            ("MAE h, stairs (cm)", self.cnn.mae_h_cm_stairs, self.baseline.mae_h_cm_stairs),
-            ("MAE d, stairs (cm)", self.cnn.mae_d_cm_stairs, self.baseline.mae_d_cm_stairs),
+            (
+                "class accuracy (%)",
+                100.0 * self.cnn.class_acc,
+                100.0 * self.baseline.class_acc,
+            ),
+            (
+                "MAE h, stairs (cm)",
+                self.cnn.mae_h_cm_stairs,
+                self.baseline.mae_h_cm_stairs,
+            ),
+            (
+                "MAE d, stairs (cm)",
+                self.cnn.mae_d_cm_stairs,
+                self.baseline.mae_d_cm_stairs,
+            ),
         ];
         for (name, a, b) in rows {
             writeln!(f, "{name:<22} {a:>12.3} {b:>12.3}")?;

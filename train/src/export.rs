@@ -28,7 +28,10 @@ pub struct Exported {
 }
 
 fn var(vm: &VarMap, name: &str) -> anyhow::Result<Tensor> {
-    let data = vm.data().lock().map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
+    let data = vm
+        .data()
+        .lock()
+        .map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
     data.get(name)
         .map(|v| v.as_tensor().clone())
         .with_context(|| format!("checkpoint has no variable `{name}`"))
@@ -99,7 +102,13 @@ impl Exported {
         let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self
             .tensors
             .iter()
-            .map(|(n, (shape, data))| (n.clone(), shape.clone(), data.iter().flat_map(|v| v.to_le_bytes()).collect()))
+            .map(|(n, (shape, data))| {
+                (
+                    n.clone(),
+                    shape.clone(),
+                    data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                )
+            })
             .collect();
         let views = bytes
             .iter()
@@ -144,13 +153,25 @@ pub const PARITY_FILE: &str = "terrain_cnn_parity.safetensors";
 /// Writes `grids` (`[n, 6, 60, 60]`) and the training-side outputs for them (`[n, 7]`, candle,
 /// BatchNorm in eval mode, before folding) with the folded weights' SHA-256 in the header: the
 /// firmware's parity test runs its executor on the grids and must match the outputs to 1e-4.
-pub fn write_parity_fixture(path: &Path, grids: &[f32], outputs: &[[f32; 7]], weights_sha256: &str) -> anyhow::Result<()> {
+pub fn write_parity_fixture(
+    path: &Path,
+    grids: &[f32],
+    outputs: &[[f32; 7]],
+    weights_sha256: &str,
+) -> anyhow::Result<()> {
     let n = outputs.len();
-    ensure!(grids.len() == n * GRID, "parity fixture: {n} outputs but {} grid values", grids.len());
+    ensure!(
+        grids.len() == n * GRID,
+        "parity fixture: {n} outputs but {} grid values",
+        grids.len()
+    );
     let gb: Vec<u8> = grids.iter().flat_map(|v| v.to_le_bytes()).collect();
     let ob: Vec<u8> = outputs.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
     let tensors = vec![
-        ("bev", TensorView::new(Dtype::F32, vec![n, BEV_CHANNELS, BEV_CELLS, BEV_CELLS], &gb)),
+        (
+            "bev",
+            TensorView::new(Dtype::F32, vec![n, BEV_CHANNELS, BEV_CELLS, BEV_CELLS], &gb),
+        ),
         ("outputs", TensorView::new(Dtype::F32, vec![n, 7], &ob)),
     ];
     let tensors = tensors
@@ -162,7 +183,8 @@ pub fn write_parity_fixture(path: &Path, grids: &[f32], outputs: &[[f32; 7]], we
         ("weights_sha256".to_string(), weights_sha256.to_string()),
         (
             "about".to_string(),
-            "BEV grids and the terrain CNN outputs g1-train computed for them (candle, before BatchNorm folding)".to_string(),
+            "BEV grids and the terrain CNN outputs g1-train computed for them (candle, before BatchNorm folding)"
+                .to_string(),
         ),
     ]);
     let bytes = safetensors::serialize(tensors, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))?;

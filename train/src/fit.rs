@@ -123,7 +123,10 @@ pub fn score(ds: &Dataset, idx: &[usize], outs: &[[f32; 7]]) -> EvalStats {
 /// PyTorch's defaults), because candle's CPU generator cannot be seeded: the same seed and data give
 /// the same starting point.
 pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<()> {
-    let data = varmap.data().lock().map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
     let mut names: Vec<&String> = data.keys().filter(|n| !n.starts_with("bn")).collect();
     names.sort();
     let mut rng = Rng(seed ^ 0x1417_0000);

@@ -112,7 +112,12 @@ fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terra
     Ok(match weights {
         None => firmware::terrain_net::TerrainNet::embedded()?,
         Some(dir) => firmware::terrain_net::TerrainNet::load(&dir.join(DESC_FILE), &dir.join(WEIGHTS_FILE))
-            .with_context(|| format!("loading the terrain CNN from {} (written by `g1-train fit`)", dir.display()))?,
+            .with_context(|| {
+                format!(
+                    "loading the terrain CNN from {} (written by `g1-train fit`)",
+                    dir.display()
+                )
+            })?,
     })
 }
 
@@ -283,7 +288,11 @@ fn main() -> anyhow::Result<()> {
                     count,
                 },
                 Err(_) => WorldSet::Named {
-                    args: worlds.split(',').map(|w| w.trim().to_string()).filter(|w| !w.is_empty()).collect(),
+                    args: worlds
+                        .split(',')
+                        .map(|w| w.trim().to_string())
+                        .filter(|w| !w.is_empty())
+                        .collect(),
                     seed: EVAL_SEED_BASE + seed,
                 },
             };
@@ -297,7 +306,10 @@ fn main() -> anyhow::Result<()> {
             let r = train::eval::evaluate(&set, poses_per_world, cfg, jobs, &mut net, &|| pb.inc(1))?;
             pb.finish_and_clear();
             print!("{r}");
-            let title = format!("terrain token errors vs step height: {} ({} samples)", r.world_set, r.cnn.samples);
+            let title = format!(
+                "terrain token errors vs step height: {} ({} samples)",
+                r.world_set, r.cnn.samples
+            );
             train::plot::error_vs_height_png(&plot, &r.by_step_height, &title)?;
             println!("plot: {}", plot.display());
             if let Some(path) = report {

@@ -6,8 +6,8 @@
 //! This file is the single definition of the architecture: training builds it with candle, and
 //! [`crate::export`] writes the same layers (BatchNorm folded) as a `firmware::nn::NetworkDesc`
 //! for the firmware's executor.
-use candle_core::{CpuStorage, CustomOp1, CustomOp3, Layout, Module, Result, Shape, Tensor};
 use candle_core::Var;
+use candle_core::{CpuStorage, CustomOp1, CustomOp3, Layout, Module, Result, Shape, Tensor};
 use candle_nn::{Conv2d, Conv2dConfig, Init, Linear, VarBuilder};
 use estimator::terrain_cnn::OUTPUTS;
 use sensor_io::bev::{BEV_CELLS, BEV_CHANNELS};
@@ -109,19 +109,33 @@ impl BatchNorm2d {
             let x3 = x.reshape((b, c, h * w))?;
             let mean = self.running_mean.as_tensor().reshape((1, c, 1))?;
             let var = self.running_var.as_tensor().reshape((1, c, 1))?;
-            let scale = self.weight.reshape((1, c, 1))?.broadcast_div(&(var + BN_EPS)?.sqrt()?)?;
-            let shift = self.bias.reshape((1, c, 1))?.broadcast_sub(&mean.broadcast_mul(&scale)?)?;
+            let scale = self
+                .weight
+                .reshape((1, c, 1))?
+                .broadcast_div(&(var + BN_EPS)?.sqrt()?)?;
+            let shift = self
+                .bias
+                .reshape((1, c, 1))?
+                .broadcast_sub(&mean.broadcast_mul(&scale)?)?;
             return x3.broadcast_mul(&scale)?.broadcast_add(&shift)?.reshape((b, c, h, w));
         }
         let stats = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
         let y = x
             .contiguous()?
             .apply_op3(&self.weight, &self.bias, BnTrain { stats: stats.clone() })?;
-        let st = stats.lock().map_err(|_| candle_core::Error::Msg("bn stats lock".into()))?;
+        let st = stats
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("bn stats lock".into()))?;
         let n = (b * h * w) as f64;
-        let mean = Tensor::from_vec(st.iter().map(|s: &(f64, f64)| s.0 as f32).collect::<Vec<_>>(), c, x.device())?;
+        let mean = Tensor::from_vec(
+            st.iter().map(|s: &(f64, f64)| s.0 as f32).collect::<Vec<_>>(),
+            c,
+            x.device(),
+        )?;
         let var = Tensor::from_vec(
-            st.iter().map(|s| (s.1 * n / (n - 1.0).max(1.0)) as f32).collect::<Vec<_>>(),
+            st.iter()
+                .map(|s| (s.1 * n / (n - 1.0).max(1.0)) as f32)
+                .collect::<Vec<_>>(),
             c,
             x.device(),
         )?;
@@ -191,7 +205,10 @@ impl CustomOp3 for BnTrain {
                 }
             }
         }
-        *self.stats.lock().map_err(|_| candle_core::Error::Msg("bn stats lock".into()))? = st;
+        *self
+            .stats
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("bn stats lock".into()))? = st;
         Ok((CpuStorage::F32(y), l1.shape().clone()))
     }
 
@@ -299,7 +316,10 @@ impl Geometry {
                             if ix < 0 || ix >= self.w as isize {
                                 continue;
                             }
-                            f(row * n + oy * self.wo + ox, (ci * self.h + iy as usize) * self.w + ix as usize);
+                            f(
+                                row * n + oy * self.wo + ox,
+                                (ci * self.h + iy as usize) * self.w + ix as usize,
+                            );
                         }
                     }
                 }
@@ -405,7 +425,14 @@ mod tests {
             let a = conv_im2col(&x, &w).unwrap();
             let b = x.conv2d(&w, PADDING, STRIDE, 1, 1).unwrap();
             assert_eq!(a.dims(), b.dims());
-            let diff = (a - b).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
+            let diff = (a - b)
+                .unwrap()
+                .abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap();
             assert!(diff < 1e-4, "max diff {diff}");
         }
     }

@@ -34,7 +34,10 @@ fn panel<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let ys = series.iter().flat_map(|s| s.2.iter().map(|p| p.1)).filter(|v| v.is_finite());
+    let ys = series
+        .iter()
+        .flat_map(|s| s.2.iter().map(|p| p.1))
+        .filter(|v| v.is_finite());
     let (mut lo, mut hi) = ys.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     if let Some((l, _)) = limit {
         lo = lo.min(l);
@@ -82,7 +85,10 @@ where
         }};
     }
     let mut b = ChartBuilder::on(area);
-    b.caption(title, ("sans-serif", 20)).margin(10).x_label_area_size(35).y_label_area_size(55);
+    b.caption(title, ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(55);
     if log_y {
         let lo = lo.max(1e-3) * 0.8;
         draw!(b.build_cartesian_2d(x0..x1, (lo..hi * 1.25).log_scale()).map_err(err)?);
@@ -113,15 +119,34 @@ pub fn error_vs_height_png(path: &Path, bins: &[HeightBin], title: &str) -> anyh
             used.iter().map(|b| (mid(b), f(&b.baseline))).collect(),
         ]
     };
-    let panels: [(&str, fn(&crate::eval::BinErr) -> f64, Option<(f64, &str)>, bool); 4] = [
-        ("MAE step height (cm)", |e| e.mae_h_cm, Some((0.6, "paper 0.6 cm")), true),
+    type Panel<'a> = (&'a str, fn(&crate::eval::BinErr) -> f64, Option<(f64, &'a str)>, bool);
+    let panels: [Panel; 4] = [
+        (
+            "MAE step height (cm)",
+            |e| e.mae_h_cm,
+            Some((0.6, "paper 0.6 cm")),
+            true,
+        ),
         ("MAE step depth (cm)", |e| e.mae_d_cm, Some((0.7, "paper 0.7 cm")), true),
         ("MAE yaw (deg)", |e| e.mae_yaw_deg, Some((1.8, "paper 1.8°")), true),
-        ("class accuracy (%)", |e| 100.0 * e.class_acc, Some((99.1, "paper 99.1 %")), false),
+        (
+            "class accuracy (%)",
+            |e| 100.0 * e.class_acc,
+            Some((99.1, "paper 99.1 %")),
+            false,
+        ),
     ];
     for (area, (name, f, limit, log_y)) in areas.iter().zip(panels) {
         let [c, b] = pick(f);
-        panel(area, name, xl, x, &[("CNN", CNN, c), ("geometric", BASE, b)], limit, log_y)?;
+        panel(
+            area,
+            name,
+            xl,
+            x,
+            &[("CNN", CNN, c), ("geometric", BASE, b)],
+            limit,
+            log_y,
+        )?;
     }
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())
@@ -139,14 +164,46 @@ pub fn training_png(path: &Path, log: &[EpochLog]) -> anyhow::Result<()> {
     };
     let loss = ep(&|e| Some(e.train.total));
     let ce = ep(&|e| Some(e.train.ce));
-    panel(&areas[0], "training loss", "epoch", x, &[("total", CNN, loss), ("CE", BASE, ce)], None, true)?;
+    panel(
+        &areas[0],
+        "training loss",
+        "epoch",
+        x,
+        &[("total", CNN, loss), ("CE", BASE, ce)],
+        None,
+        true,
+    )?;
     let vh = ep(&|e| e.val.as_ref().map(|v| v.mae_h_cm));
     let vd = ep(&|e| e.val.as_ref().map(|v| v.mae_d_cm));
-    panel(&areas[1], "validation MAE (cm)", "epoch", x, &[("h", CNN, vh), ("d", BASE, vd)], Some((0.6, "0.6 cm")), true)?;
+    panel(
+        &areas[1],
+        "validation MAE (cm)",
+        "epoch",
+        x,
+        &[("h", CNN, vh), ("d", BASE, vd)],
+        Some((0.6, "0.6 cm")),
+        true,
+    )?;
     let vy = ep(&|e| e.val.as_ref().map(|v| v.mae_yaw_deg));
-    panel(&areas[2], "validation MAE yaw (deg)", "epoch", x, &[("yaw", CNN, vy)], Some((1.8, "1.8°")), true)?;
+    panel(
+        &areas[2],
+        "validation MAE yaw (deg)",
+        "epoch",
+        x,
+        &[("yaw", CNN, vy)],
+        Some((1.8, "1.8°")),
+        true,
+    )?;
     let vc = ep(&|e| e.val.as_ref().map(|v| 100.0 * v.class_accuracy));
-    panel(&areas[3], "validation class accuracy (%)", "epoch", x, &[("class", CNN, vc)], Some((99.1, "99.1 %")), false)?;
+    panel(
+        &areas[3],
+        "validation class accuracy (%)",
+        "epoch",
+        x,
+        &[("class", CNN, vc)],
+        Some((99.1, "99.1 %")),
+        false,
+    )?;
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

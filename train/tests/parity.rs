@@ -59,5 +59,8 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
     }
     // Outputs are O(1..100) (cm, degree-scaled yaw vector): 1e-4 absolute is tight.
     assert!(worst <= 1e-4, "max |firmware - candle| = {worst}");
-    assert!(want.iter().flatten().any(|v| v.abs() > 0.1), "outputs must not be trivially zero");
+    assert!(
+        want.iter().flatten().any(|v| v.abs() > 0.1),
+        "outputs must not be trivially zero"
+    );
 }

@@ -43,7 +43,16 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
         ..FitConfig::default()
     };
     let mut losses = Vec::new();
-    let (vm, _model, log) = fit(&cfg, &ds, &tr, &val, &Device::Cpu, &mut |_, _, l| losses.push(l), &mut |_| {}).unwrap();
+    let (vm, _model, log) = fit(
+        &cfg,
+        &ds,
+        &tr,
+        &val,
+        &Device::Cpu,
+        &mut |_, _, l| losses.push(l),
+        &mut |_| {},
+    )
+    .unwrap();
     assert!(losses.len() >= 12, "{} steps", losses.len());
     let k = 3;
     let first: f64 = losses[..k].iter().sum::<f64>() / k as f64;
@@ -53,7 +62,10 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
 
     // Fold and write; the firmware's loader accepts it and computes a token.
     let out = temp("smoke-out");
-    let sha = train::export::fold(&vm).unwrap().write(&out, &Default::default()).unwrap();
+    let sha = train::export::fold(&vm)
+        .unwrap()
+        .write(&out, &Default::default())
+        .unwrap();
     let mut net = firmware::terrain_net::TerrainNet::load(
         &out.join(train::export::DESC_FILE),
         &out.join(train::export::WEIGHTS_FILE),
@@ -68,7 +80,15 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     let report = out.join("eval.json");
     let plot = out.join("eval.png");
     let o = Command::new(env!("CARGO_BIN_EXE_g1-train"))
-        .args(["eval-terrain", "--worlds", "2", "--poses-per-world", "2", "--quiet", "--weights"])
+        .args([
+            "eval-terrain",
+            "--worlds",
+            "2",
+            "--poses-per-world",
+            "2",
+            "--quiet",
+            "--weights",
+        ])
         .arg(&out)
         .arg("--report")
         .arg(&report)
@@ -86,7 +106,10 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     assert_eq!(v["cnn"]["samples"], 4);
     assert_eq!(&std::fs::read(&plot).unwrap()[1..4], b"PNG");
     let stdout = String::from_utf8_lossy(&o.stdout);
-    assert!(stdout.contains("class accuracy") && stdout.contains("geometric"), "{stdout}");
+    assert!(
+        stdout.contains("class accuracy") && stdout.contains("geometric"),
+        "{stdout}"
+    );
     std::fs::remove_dir_all(&data).ok();
     std::fs::remove_dir_all(&out).ok();
 }
@@ -112,6 +135,10 @@ fn eval_terrain_accepts_scenario_files_and_names_bad_ones() {
         .output()
         .unwrap();
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no_such_world"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("no_such_world"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     std::fs::remove_dir_all(&out).ok();
 }
