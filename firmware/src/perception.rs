@@ -131,6 +131,12 @@ impl Perception {
         &mut self.frame
     }
 
+    /// The lidar frame in the buffer: after a step with a fresh frame (until the HAL is next asked
+    /// for one, before the next perception step), exactly the frame that step consumed; for logs.
+    pub fn frame(&self) -> &LidarFrame {
+        &self.frame
+    }
+
     pub fn grid(&self) -> &BevGrid {
         &self.grid
     }

@@ -5,6 +5,13 @@
 //! recorded operator input is replayed per tick, and the spec and weights are the ones the log pins
 //! by content hash. Compared per tick: the LowCmd bytes (named down to the motor field), the policy
 //! step schedule, observation and action values, and safety trips.
+//!
+//! Perception: the raw lidar frames the recorded run consumed (`/lidar/frame`) are handed back to
+//! the runtime on the same ticks ([`FrameSource::read_lidar`]), so the perception group, and the
+//! terrain token a policy may observe, are re-computed bit for bit; each re-computed step is
+//! compared with the recorded `/perception/terrain`. Logs from before `/lidar/frame` existed still
+//! replay (without frames, as then) unless the policy observes the terrain token, which such a log
+//! cannot reproduce ([`check_lidar_coverage`]).
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -18,8 +25,9 @@ use crate::controller::Controller;
 use crate::log::channels as ch;
 use crate::log::reader::LogFile;
 use crate::operator::{OperatorInput, OperatorSource};
+use crate::perception::{LidarFrame, PerceptionSummary};
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
-use crate::spec::DeploySpec;
+use crate::spec::{DeploySpec, ObsKind};
 use crate::supervisor::FrameStatus;
 
 /// Metadata keys of the run record (see [`crate::log::writer::RunMeta`]).
@@ -76,6 +84,10 @@ pub struct ReplayReport {
     pub load_seconds: f64,
     pub compared_commands: u64,
     pub compared_policy_steps: u64,
+    /// Recorded lidar frames (`/lidar/frame`) handed to the perception group.
+    pub perception_frames_fed: u64,
+    /// Perception steps whose re-computed terrain estimate matched the recorded one bit for bit.
+    pub compared_perception_steps: u64,
     pub truncated: Option<String>,
     pub divergence: Option<Divergence>,
     pub notes: Vec<String>,
@@ -108,8 +120,78 @@ struct Recording {
     frames: Vec<u8>,
     cmds: Vec<u8>,
     values: Vec<f32>,
+    /// `/lidar/frame` messages by tick (sorted; ranges into `lidar_bytes`, validated at load).
+    lidar: Vec<(u64, std::ops::Range<usize>)>,
+    lidar_bytes: Vec<u8>,
+    /// `/perception/terrain` by tick (sorted).
+    terrain: Vec<(u64, RecTerrain)>,
     truncated: Option<String>,
     period_ns: u64,
+}
+
+/// A recorded token or estimate (`null`: not finite).
+#[derive(Clone, Debug, serde::Deserialize)]
+struct RecToken {
+    class: String,
+    step_height_m: Option<f32>,
+    step_depth_m: Option<f32>,
+    yaw_deg: Option<f32>,
+}
+
+/// The parts of a `/perception/terrain` message replay compares.
+#[derive(Clone, Debug, serde::Deserialize)]
+struct RecTerrain {
+    tick: u64,
+    #[serde(flatten)]
+    token: RecToken,
+    held: bool,
+    estimate: RecEstimate,
+    points: u32,
+    frame_timestamp_ns: u64,
+    base_height_m: Option<f32>,
+    roll: Option<f32>,
+    pitch: Option<f32>,
+}
+
+#[derive(Clone, Debug, serde::Deserialize)]
+struct RecEstimate {
+    #[serde(flatten)]
+    token: RecToken,
+    confidence: Option<f32>,
+}
+
+/// What replay can do with a log's perception inputs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LidarCoverage {
+    /// The recorded run consumed no lidar frame: nothing to feed.
+    NoPerception,
+    /// `/lidar/frame` is there: frames are fed and perception steps compared.
+    Frames,
+    /// The run consumed frames but the log lacks `/lidar/frame` (written before it existed); the
+    /// policy does not observe the terrain token, so commands still replay (perception does not).
+    MissingButUnobserved,
+}
+
+/// Decides whether a log whose run consumed `perception_steps` lidar frames (its
+/// `/perception/terrain` messages) and holds `lidar_frames` `/lidar/frame` messages can be replayed
+/// by a policy that does (`observes_terrain`) or does not observe the terrain token. An error names
+/// the missing channel: without the frames the token, and so the commands, cannot be reproduced.
+pub fn check_lidar_coverage(
+    observes_terrain: bool,
+    perception_steps: usize,
+    lidar_frames: usize,
+) -> std::result::Result<LidarCoverage, String> {
+    match (perception_steps, lidar_frames) {
+        (_, 1..) => Ok(LidarCoverage::Frames),
+        (0, 0) => Ok(LidarCoverage::NoPerception),
+        (n, 0) if observes_terrain => Err(format!(
+            "cannot reproduce perception: the policy observes terrain_token and the recorded run consumed \
+             {n} lidar frames, but the log has no '{}' channel (it was recorded before g1fw logged raw \
+             lidar frames, or the channel was removed); its commands cannot be replayed bit-exact",
+            ch::LIDAR_FRAME
+        )),
+        (_, 0) => Ok(LidarCoverage::MissingButUnobserved),
+    }
 }
 
 fn parse_values(data: &[u8], out: &mut Vec<f32>) -> Option<std::ops::Range<usize>> {
@@ -130,6 +212,10 @@ fn load(log: &LogFile) -> Result<Recording> {
     let mut frames = Vec::with_capacity(guess * sensor_io::unitree_hg::LOW_STATE_LEN);
     let mut cmds = Vec::with_capacity(guess * LOW_CMD_LEN);
     let mut values = Vec::new();
+    let mut lidar = Vec::new();
+    let mut lidar_bytes = Vec::new();
+    let mut terrain = Vec::new();
+    let mut scratch: Box<LidarFrame> = sensor_io::livox::boxed_point_frame();
     let mut operator = OperatorInput::default();
     let mut bad: Option<String> = None;
     // Messages of one tick share its log time; the LowState message opens a tick.
@@ -155,6 +241,20 @@ fn load(log: &LogFile) -> Result<Recording> {
                     });
                 }
                 None => bad = Some("a /hal/low_state message does not decode".into()),
+            },
+            // Perception messages are keyed by their tick: the writer may put them ahead of that
+            // tick's LowState.
+            ch::LIDAR_FRAME => match ch::decode_lidar_frame(data, &mut scratch) {
+                Ok(h) => {
+                    let start = lidar_bytes.len();
+                    lidar_bytes.extend_from_slice(data);
+                    lidar.push((h.tick, start..lidar_bytes.len()));
+                }
+                Err(e) => bad = Some(format!("a {} message does not decode: {e}", ch::LIDAR_FRAME)),
+            },
+            ch::PERCEPTION_TERRAIN => match serde_json::from_slice::<RecTerrain>(data) {
+                Ok(t) => terrain.push((t.tick, t)),
+                Err(e) => bad = Some(format!("a {} message does not parse: {e}", ch::PERCEPTION_TERRAIN)),
             },
             _ if ticks.is_empty() => {}
             ch::LOW_CMD => match ch::decode_low_cmd_frame(data) {
@@ -233,6 +333,8 @@ fn load(log: &LogFile) -> Result<Recording> {
     if ticks.is_empty() {
         bail!("{} holds no complete control tick", log.path.display());
     }
+    lidar.sort_by_key(|(k, _)| *k);
+    terrain.sort_by_key(|(k, _)| *k);
     let period_ns = if ticks.len() > 1 {
         (ticks[1].tick.time_ns - ticks[0].tick.time_ns) / (ticks[1].tick.index - ticks[0].tick.index).max(1)
     } else {
@@ -243,6 +345,9 @@ fn load(log: &LogFile) -> Result<Recording> {
         frames,
         cmds,
         values,
+        lidar,
+        lidar_bytes,
+        terrain,
         truncated: end.truncated,
         period_ns,
     })
@@ -277,6 +382,8 @@ struct ReplayHal<'a> {
     state: LowState,
     scratch: LowState,
     unread: bool,
+    /// Recorded lidar frames handed out.
+    lidar_fed: u64,
 }
 
 impl TimeBase for ReplayHal<'_> {
@@ -327,6 +434,17 @@ impl FrameSource for ReplayHal<'_> {
     fn received_frame(&self) -> Option<&[u8]> {
         let t = &self.rec.ticks[self.cur];
         t.received.then(|| &self.rec.frames[t.frame.clone()])
+    }
+    /// The frame the recorded run consumed on this tick, if it consumed one.
+    fn read_lidar(&mut self, out: &mut LidarFrame) -> bool {
+        let k = self.rec.ticks[self.cur].tick.index;
+        let Ok(i) = self.rec.lidar.binary_search_by_key(&k, |(t, _)| *t) else {
+            return false;
+        };
+        // Validated at load; cannot fail.
+        let fed = ch::decode_lidar_frame(&self.rec.lidar_bytes[self.rec.lidar[i].1.clone()], out).is_ok();
+        self.lidar_fed += fed as u64;
+        fed
     }
 }
 
@@ -440,6 +558,23 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     }
 
     let rec = load(&log)?;
+    let observes_terrain = controller
+        .spec()
+        .observation
+        .terms
+        .iter()
+        .any(|t| t.kind == ObsKind::TerrainToken);
+    let coverage = check_lidar_coverage(observes_terrain, rec.terrain.len(), rec.lidar.len())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", log_path.display()))?;
+    if coverage == LidarCoverage::MissingButUnobserved {
+        notes.push(format!(
+            "the log has no {} (recorded before g1fw logged raw lidar frames): the perception group ran \
+             without frames and its {} recorded steps were not compared; the policy does not observe the \
+             terrain token, so commands still compare",
+            ch::LIDAR_FRAME,
+            rec.terrain.len()
+        ));
+    }
     let load_seconds = wall.elapsed().as_secs_f64();
     let mut rt = Runtime::new(controller);
     let mut hal = ReplayHal {
@@ -449,6 +584,7 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         state: LowState::default(),
         scratch: LowState::default(),
         unread: false,
+        lidar_fed: 0,
     };
     let mut op = RecordedOperator { rec: &rec, i: 0 };
     let last = rec.ticks.last().expect("non-empty");
@@ -462,6 +598,9 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         divergence: None,
         commands: 0,
         policy_steps: 0,
+        compare_perception: coverage == LidarCoverage::Frames,
+        terrain_i: 0,
+        perception_steps: 0,
     };
     let end = run_loop(&mut hal, &mut rt, &mut op, last_tick, |v| cmp.check(v));
     match &end {
@@ -497,6 +636,8 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         load_seconds,
         compared_commands: cmp.commands,
         compared_policy_steps: cmp.policy_steps,
+        perception_frames_fed: hal.lidar_fed,
+        compared_perception_steps: cmp.perception_steps,
         truncated: rec.truncated.clone(),
         divergence: cmp.divergence,
         notes,
@@ -513,6 +654,65 @@ struct Comparator<'a> {
     divergence: Option<Divergence>,
     commands: u64,
     policy_steps: u64,
+    /// The log has `/lidar/frame`: every perception step is compared with `/perception/terrain`.
+    compare_perception: bool,
+    terrain_i: usize,
+    perception_steps: u64,
+}
+
+/// `recorded` (JSON; `None` for a non-finite value) is `replayed`, bit for bit.
+fn same_f32(recorded: Option<f32>, replayed: f32) -> bool {
+    match recorded {
+        Some(r) => r.to_bits() == replayed.to_bits(),
+        None => !replayed.is_finite(),
+    }
+}
+
+fn show_f32(v: Option<f32>) -> String {
+    v.map_or("null".into(), |v| format!("{v:e}"))
+}
+
+/// The first field where a replayed perception step differs from the recorded one.
+fn first_perception_difference(r: &RecTerrain, p: &PerceptionSummary) -> Option<(String, String, String)> {
+    let tokens = [("", &r.token, &p.token), ("estimate.", &r.estimate.token, &p.estimate)];
+    for (prefix, rt, t) in tokens {
+        if rt.class != t.class.name() {
+            return Some((format!("{prefix}class"), rt.class.clone(), t.class.name().into()));
+        }
+        for (name, rv, v) in [
+            ("step_height_m", rt.step_height_m, t.step_height_m),
+            ("step_depth_m", rt.step_depth_m, t.step_depth_m),
+            ("yaw_deg", rt.yaw_deg, t.yaw_rad.to_degrees()),
+        ] {
+            if !same_f32(rv, v) {
+                return Some((format!("{prefix}{name}"), show_f32(rv), format!("{v:e}")));
+            }
+        }
+    }
+    if r.held != p.held {
+        return Some(("held".into(), r.held.to_string(), p.held.to_string()));
+    }
+    if r.points != p.points {
+        return Some(("points".into(), r.points.to_string(), p.points.to_string()));
+    }
+    if r.frame_timestamp_ns != p.frame_timestamp_ns {
+        return Some((
+            "frame_timestamp_ns".into(),
+            r.frame_timestamp_ns.to_string(),
+            p.frame_timestamp_ns.to_string(),
+        ));
+    }
+    for (name, rv, v) in [
+        ("estimate.confidence", r.estimate.confidence, p.confidence),
+        ("base_height_m", r.base_height_m, p.base_height),
+        ("roll", r.roll, p.roll),
+        ("pitch", r.pitch, p.pitch),
+    ] {
+        if !same_f32(rv, v) {
+            return Some((name.into(), show_f32(rv), format!("{v:e}")));
+        }
+    }
+    None
 }
 
 impl Comparator<'_> {
@@ -544,6 +744,31 @@ impl Comparator<'_> {
         if v.summary.frame.code() != t.status {
             let rec = FrameStatus::from_code(t.status).map_or(t.status.to_string(), |s| format!("{s:?}"));
             return self.diverge(t, ch::LOW_STATE, "status".into(), rec, format!("{:?}", v.summary.frame));
+        }
+        if let Some(p) = v.summary.perception.filter(|_| self.compare_perception) {
+            let terrain = &self.rec.terrain;
+            while self.terrain_i < terrain.len() && terrain[self.terrain_i].0 < k {
+                self.terrain_i += 1;
+            }
+            let recorded = terrain.get(self.terrain_i).filter(|(tk, _)| *tk == k).map(|(_, r)| r);
+            match recorded {
+                Some(r) if p.fresh => {
+                    if let Some((field, a, b)) = first_perception_difference(r, &p) {
+                        return self.diverge(t, ch::PERCEPTION_TERRAIN, field, a, b);
+                    }
+                    self.perception_steps += 1;
+                }
+                None if !p.fresh => {}
+                _ => {
+                    return self.diverge(
+                        t,
+                        ch::PERCEPTION_TERRAIN,
+                        "fresh frame".into(),
+                        recorded.is_some().to_string(),
+                        p.fresh.to_string(),
+                    )
+                }
+            }
         }
         if v.summary.policy_step != t.action.is_some() {
             return self.diverge(
@@ -663,4 +888,76 @@ fn first_cmd_difference(recorded: &[u8; LOW_CMD_LEN], replayed: &[u8; LOW_CMD_LE
     }
     let i = recorded.iter().zip(replayed).position(|(x, y)| x != y).unwrap_or(0);
     (format!("byte {i}"), recorded[i].to_string(), replayed[i].to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lidar_coverage_refuses_a_terrain_policy_without_frames() {
+        assert_eq!(check_lidar_coverage(true, 0, 0), Ok(LidarCoverage::NoPerception));
+        assert_eq!(check_lidar_coverage(false, 0, 0), Ok(LidarCoverage::NoPerception));
+        assert_eq!(check_lidar_coverage(true, 20, 20), Ok(LidarCoverage::Frames));
+        assert_eq!(check_lidar_coverage(false, 20, 20), Ok(LidarCoverage::Frames));
+        assert_eq!(
+            check_lidar_coverage(false, 20, 0),
+            Ok(LidarCoverage::MissingButUnobserved)
+        );
+        let e = check_lidar_coverage(true, 20, 0).unwrap_err();
+        assert!(
+            e.contains("'/lidar/frame'") && e.contains("terrain_token") && e.contains("20 lidar frames"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn perception_steps_compare_bit_for_bit() {
+        let r: RecTerrain = serde_json::from_str(
+            r#"{"tick":50,"class":"stairs-up","step_height_m":0.15,"step_depth_m":0.3,"yaw_deg":-0.0,"source":"cnn",
+                "held":false,"estimate":{"class":"stairs-up","step_height_m":0.15,"step_depth_m":0.3,"yaw_deg":-0.0,
+                "confidence":null},"geometric":{},"points":123,"frame_timestamp_ns":99,"bev":{},
+                "base_height_m":0.75,"roll":0.01,"pitch":-0.02}"#,
+        )
+        .unwrap();
+        let token = hal::TerrainToken {
+            class: hal::TerrainClass::StairsUp,
+            step_height_m: 0.15,
+            step_depth_m: 0.3,
+            yaw_rad: -0.0,
+        };
+        let mut p = PerceptionSummary {
+            fresh: true,
+            frame_timestamp_ns: 99,
+            points: 123,
+            base_height: 0.75,
+            roll: 0.01,
+            pitch: -0.02,
+            estimate: token,
+            confidence: f32::NAN,
+            token,
+            ..Default::default()
+        };
+        assert_eq!(first_perception_difference(&r, &p), None);
+        p.token.yaw_rad = 0.0;
+        assert_eq!(
+            first_perception_difference(&r, &p).map(|d| d.0),
+            Some("yaw_deg".into()),
+            "-0 and +0 differ"
+        );
+        p.token.yaw_rad = -0.0;
+        p.estimate.step_depth_m = f32::from_bits(0.3f32.to_bits() + 1);
+        assert_eq!(
+            first_perception_difference(&r, &p).map(|d| d.0),
+            Some("estimate.step_depth_m".into()),
+            "one ulp"
+        );
+        p.estimate.step_depth_m = 0.3;
+        p.confidence = 0.5;
+        assert_eq!(
+            first_perception_difference(&r, &p).map(|d| d.0),
+            Some("estimate.confidence".into()),
+            "null is not finite"
+        );
+    }
 }

@@ -382,6 +382,8 @@ pub trait FrameSource {
         None
     }
     /// Puts the newest complete lidar frame into `out`; false when there is none new (or no lidar).
+    /// Asked only on perception ticks ([`Runtime::load_lidar`]); a frame it delivers is what that
+    /// tick's perception step consumes, and what the log records as `/lidar/frame` for replay.
     fn read_lidar(&mut self, _out: &mut LidarFrame) -> bool {
         false
     }

@@ -18,9 +18,9 @@ use hal::LowCommand;
 use serde::Serialize;
 use sim_hal::bridge::Truth;
 
-use super::channels::{self as ch, encode_low_cmd_frame, encode_low_state_frame};
+use super::channels::{self as ch, encode_lidar_frame, encode_low_cmd_frame, encode_low_state_frame};
 use crate::controller::Mode;
-use crate::perception::PerceptionSummary;
+use crate::perception::{LidarFrame, PerceptionSummary};
 use crate::runtime::{HalFailure, TickSummary, TickView};
 use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CELL_M, BEV_CHANNELS, BEV_HALF_EXTENT_M, CHANNEL_NAMES};
 
@@ -109,8 +109,8 @@ impl Record {
     }
 }
 
-/// One perception step with a fresh lidar frame: the cloud in the robot frame, the BEV grid and the
-/// token. Large (~600 KB), so a small separate pool.
+/// One perception step with a fresh lidar frame: the raw frame it consumed (for replay), the cloud in
+/// the robot frame, the BEV grid and the token. Large (~1.4 MB), so a small separate pool.
 pub struct PerceptionRecord {
     pub tick: u64,
     pub time_ns: u64,
@@ -121,6 +121,8 @@ pub struct PerceptionRecord {
     /// simulated sensor reports none worth drawing).
     pub points: Box<[[f32; 4]]>,
     pub grid: Box<BevGrid>,
+    /// The sensor-frame lidar frame the step consumed, as the HAL delivered it (`/lidar/frame`).
+    pub frame: Box<LidarFrame>,
 }
 
 impl PerceptionRecord {
@@ -133,6 +135,7 @@ impl PerceptionRecord {
             n: 0,
             points: vec![[0.0; 4]; sim_hal::bridge::LIDAR_FRAME_CAP].into_boxed_slice(),
             grid: Box::new(BevGrid::zeroed()),
+            frame: sensor_io::livox::boxed_point_frame(),
         })
     }
 
@@ -148,6 +151,12 @@ impl PerceptionRecord {
             *dst = [q[0], q[1], q[2], 0.0];
         }
         self.grid.data.copy_from_slice(&per.grid().data);
+        // The used points only (a copy of the whole buffer would be ~800 KB per frame).
+        let src = per.frame();
+        self.frame.points[..src.len].copy_from_slice(src.as_slice());
+        self.frame.len = src.len;
+        self.frame.timestamp_ns = src.timestamp_ns;
+        self.frame.overflow = src.overflow;
     }
 }
 
@@ -396,6 +405,7 @@ struct McapSink {
     path: PathBuf,
     low_state: u16,
     low_cmd: u16,
+    lidar_frame: u16,
     json: BTreeMap<&'static str, u16>,
     seq: u32,
     buf: Vec<u8>,
@@ -434,6 +444,10 @@ impl McapSink {
             .add_schema("g1fw/msg/LowCmdFrame", "ros2msg", ch::LOW_CMD_MSG.as_bytes())
             .map_err(mk)?;
         let low_cmd = w.add_channel(s, ch::LOW_CMD, "cdr", &none).map_err(mk)?;
+        let s = w
+            .add_schema(ch::LIDAR_FRAME_SCHEMA, "ros2msg", ch::LIDAR_FRAME_MSG.as_bytes())
+            .map_err(mk)?;
+        let lidar_frame = w.add_channel(s, ch::LIDAR_FRAME, "cdr", &none).map_err(mk)?;
         let mut json = BTreeMap::new();
         for &(topic, name, schema) in ch::JSON_CHANNELS {
             let s = w.add_schema(name, "jsonschema", schema.as_bytes()).map_err(mk)?;
@@ -452,6 +466,7 @@ impl McapSink {
             path: path.into(),
             low_state,
             low_cmd,
+            lidar_frame,
             json,
             seq: 0,
             buf: Vec::with_capacity(8192),
@@ -673,10 +688,12 @@ impl McapSink {
         Ok(())
     }
 
-    /// `/lidar/points`, `/perception/bev`, `/perception/terrain`.
+    /// `/lidar/frame`, `/lidar/points`, `/perception/bev`, `/perception/terrain`.
     fn perception(&mut self, p: &PerceptionRecord) -> Result<(), LogError> {
         use base64::Engine as _;
         let (k, t) = (p.tick, p.time_ns);
+        encode_lidar_frame(&mut self.buf, k, &p.frame);
+        self.put(self.lidar_frame, t)?;
         let stamp = Stamp {
             sec: (t / 1_000_000_000) as u32,
             nsec: (t % 1_000_000_000) as u32,
