@@ -11,7 +11,8 @@
 //!   has AVX2 (aarch64 boards run the portable kernels).
 //! - (b) one perception frame: ~20,000 points of a staircase ahead (ground, 0.15 m risers every
 //!   0.3 m from 0.8 m, mm noise) encoded as MID-360 packets -> `FrameAssembler` -> `BevBuilder`
-//!   -> CNN -> argmax / decoded token, per frame, with the stages timed separately as well.
+//!   -> CNN -> token (`estimator::terrain_cnn::decode`: argmax of the class logits, h, d, yaw),
+//!   per frame, with the stages timed separately as well.
 //! - (c) `scripts/bench/ort_terrain_cnn.py` (repo `.venv`): the same network as an ONNX graph
 //!   from the same safetensors, checked against our output on the same BEV (<= 1e-4), timed with
 //!   1 thread and ORT's default threading. Prints the ratios ours/ORT (target <= 1.0).
@@ -19,8 +20,9 @@
 //! Every timing is the median (and p99, min) of individually timed iterations after warm-up;
 //! on a loaded machine the min is the better estimate of the uncontended cost.
 
+use estimator::terrain_cnn::decode;
 use firmware::nn::{LayerDesc, Network, NetworkDesc};
-use hal::LidarPoint;
+use hal::{LidarPoint, TerrainToken};
 use safetensors::tensor::{Dtype, TensorView};
 use sensor_io::bev::{BevBuilder, BevGrid, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_LEN, CH_DENSITY};
 use sensor_io::livox::{FrameAssembler, PacketWriter};
@@ -242,33 +244,6 @@ fn staircase_cloud(rf: &RobotFrame) -> Vec<LidarPoint> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Decoding the 7 outputs (three class logits; h, d in cm; yaw as a scaled (cos, sin)).
-
-#[derive(Debug, Clone, Copy, Default)]
-struct Token {
-    class: usize,
-    h_m: f32,
-    d_m: f32,
-    yaw_rad: f32,
-}
-
-fn decode(out: &[f32]) -> Token {
-    let mut class = 0;
-    for k in 1..3.min(out.len()) {
-        if out[k] > out[class] {
-            class = k;
-        }
-    }
-    let at = |k: usize| out.get(k).copied().unwrap_or(0.0);
-    Token {
-        class,
-        h_m: (at(3) * 0.01).max(0.0),
-        d_m: (at(4) * 0.01).max(0.0),
-        yaw_rad: at(6).atan2(at(5)),
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
 // Timing.
 
 struct Figures {
@@ -470,7 +445,7 @@ fn main() {
     let bev: Vec<f32> = grid.data.to_vec();
     let mut out = vec![0.0f32; n_out];
     net.step(&bev, &mut out).expect("step");
-    let token = decode(&out);
+    let token = decode(&out, 0.0);
 
     println!("network: {} ({} params)", model.origin, net.param_count());
     println!(
@@ -491,13 +466,16 @@ fn main() {
         stats.self_hits,
         stats.outside
     );
-    println!(
-        "output: {out:?} -> class {} h {:.3} m d {:.3} m yaw {:.1} deg",
-        ["flat", "stairs-up", "stairs-down"][token.class],
-        token.h_m,
-        token.d_m,
-        token.yaw_rad.to_degrees()
-    );
+    match token {
+        Some(t) => println!(
+            "output: {out:?} -> {:?}, h {:.3} m, d {:.3} m, yaw {:.1} deg (scene: stairs up, h 0.15 m, d 0.30 m, yaw 0)",
+            t.class,
+            t.step_height_m,
+            t.step_depth_m,
+            t.yaw_rad.to_degrees()
+        ),
+        None => println!("output: {out:?} -> no token (non-finite output)"),
+    }
 
     // (a) The CNN alone.
     let cnn = time(CNN_WARMUP, CNN_ITERS, |_| {
@@ -523,14 +501,14 @@ fn main() {
     };
 
     // (b) The whole frame, and its stages.
-    let mut frame_once = |k: usize, out: &mut [f32]| -> Token {
+    let mut frame_once = |k: usize, out: &mut [f32]| -> Option<TerrainToken> {
         for p in &frames[k % frames.len()] {
             let _ = asm.push(black_box(p));
         }
         let points = asm.flush().map(|f| f.as_slice()).unwrap_or(&[]);
         builder.build(points, &rf, &filter, &mut grid);
         net.step(&grid.data, out).expect("step");
-        decode(out)
+        decode(out, 0.0)
     };
     let full = time(FRAME_WARMUP, FRAME_ITERS, |k| {
         black_box(frame_once(k, &mut out));

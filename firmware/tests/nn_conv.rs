@@ -295,6 +295,36 @@ fn conv_as_last_layer_and_after_elementwise() {
     assert_bits(&y, &want, "relu -> conv");
 }
 
+#[test]
+fn conv_relu_as_last_layers() {
+    // The relu after a conv is applied by the conv's store; as the last layer it still writes the
+    // output (NaN stays NaN, negative zero stays negative zero, like the separate layer).
+    let mut rng = Rng(12);
+    let mut f = File::default();
+    f.add("c.weight", &[9, 2, 3, 3], rng.vec(162, 0.5));
+    f.add("c.bias", &[9], rng.vec(9, 0.5));
+    let desc = NetworkDesc {
+        input: 2 * 5 * 7,
+        input_shape: Some(vec![2, 5, 7]),
+        layers: vec![conv("c", 2, 1), LayerDesc::Relu],
+    };
+    let mut net = Network::from_safetensors_bytes(&desc, &f.bytes()).unwrap();
+    assert_eq!(net.layer_output_shape(1).unwrap(), &[9, 3, 4]);
+    let mut x = rng.vec(70, 1.0);
+    x[3] = f32::NAN;
+    let (mut want, _) = ref_conv(&x, (2, 5, 7), f.get("c.weight"), f.get("c.bias"), (9, 3, 3), 2, 1);
+    ref_relu(&mut want);
+    let mut y = vec![0.0; 9 * 12];
+    net.step(&x, &mut y).unwrap();
+    assert!(y.iter().any(|v| v.is_nan()) && y.contains(&0.0));
+    for (i, (a, e)) in y.iter().zip(&want).enumerate() {
+        assert!(
+            a.to_bits() == e.to_bits() || (a.is_nan() && e.is_nan()),
+            "element {i}: {a} vs {e}"
+        );
+    }
+}
+
 fn load_err(desc: &NetworkDesc, bytes: &[u8]) -> (NnError, String) {
     let e = Network::from_safetensors_bytes(desc, bytes).unwrap_err();
     let s = e.to_string();

@@ -141,19 +141,28 @@ pub(crate) const CONV_LANES: usize = 8;
 #[repr(C, align(32))]
 pub(crate) struct Lanes(pub(crate) [f32; CONV_LANES]);
 
-/// Tile widths (output pixels along a row) a kernel is compiled for; a layer uses the one that
-/// wastes the fewest pixel slots on its output width. A tile keeps `2 panels x P` accumulators in
-/// registers: x86-64 SSE2 (16 xmm) 4 x 3 = 12 at most; NEON (32 registers) and AVX2 (16 ymm,
-/// 2 x 6 = 12) up to 6.
+/// Output-channel panels a conv tile covers at once (16 channels); an odd last panel runs as
+/// its own group. (Groups of three, 24 channels, need fewer instructions per multiply-add on
+/// paper, but LLVM then hoists weight loads until AVX2's 16 registers spill: measured 1.8x
+/// slower on the terrain CNN's conv3.)
+const GROUP: usize = 2;
+
+/// Tile widths (output pixels along a row) a kernel is compiled for, preferred first (see
+/// [`pick_tile`]). A tile keeps `GROUP x P` accumulators in registers, and LLVM hoists the next
+/// taps' weight loads (`GROUP x 3` registers for 3x3 kernels) above them; past the register file
+/// it spills, which costs more than narrower tiles do. Measured on the terrain CNN (x86-64):
+/// SSE2 (16 xmm, two per panel) 2 wide beats 3 wide (conv3 184 vs 304 us); AVX2 (16 ymm, one
+/// per panel) 4 wide beats 5 wide (conv2 59 vs 67 us). NEON (32 registers, two per panel) gets
+/// 4 wide (16 accumulators + 12 weights), not measured.
 const TILES_PORTABLE: &[usize] = if cfg!(target_arch = "aarch64") {
-    &[4, 5, 6]
+    &[4, 3, 2]
 } else {
     &[2, 3]
 };
 #[cfg(target_arch = "x86_64")]
-const TILES_AVX2: &[usize] = &[3, 4, 5];
+const TILES_AVX2: &[usize] = &[4, 3, 2];
 /// Widest tile of any kernel (sizes the slack after the padded input).
-const TILE_MAX: usize = 6;
+const TILE_MAX: usize = 4;
 
 /// Geometry of a 2-D convolution (validated by the caller before [`PackedConv::pack`]):
 /// `kh <= h + 2 pad`, `kw <= w + 2 pad`, `stride >= 1`, every size >= 1.
@@ -213,29 +222,64 @@ impl Isa {
     }
 }
 
-/// The tile width for output width `wo`: fewest pixel slots `ceil(wo / P) * P`, then the widest.
+/// The tile width for output width `wo`: the first (most preferred) of `tiles` that wastes at
+/// most a quarter of its pixel slots on the row (`ceil(wo / P) P - wo`), else the one that wastes
+/// the fewest.
 fn pick_tile(wo: usize, tiles: &[usize]) -> usize {
-    let mut best = tiles[0];
-    for &p in tiles {
-        if wo.div_ceil(p) * p <= wo.div_ceil(best) * best {
-            best = p;
+    let waste = |p: usize| wo.div_ceil(p) * p - wo;
+    tiles
+        .iter()
+        .copied()
+        .find(|&p| 4 * waste(p) <= wo.div_ceil(p) * p)
+        .or_else(|| tiles.iter().copied().min_by_key(|&p| waste(p)))
+        .unwrap_or(2)
+}
+
+/// Weights of groups of `NP` panels: group `i`, tap `t` holds `NP` panels of [`CONV_LANES`]
+/// output channels, starting at panel `first + i NP`.
+struct PanelGroups<const NP: usize> {
+    first: usize,
+    /// `[n_groups * taps]`, group-major.
+    w: Vec<[Lanes; NP]>,
+    bias: Vec<[Lanes; NP]>,
+}
+
+impl<const NP: usize> PanelGroups<NP> {
+    fn pack(g: &ConvGeom, weight: &[f32], bias: &[f32], first: usize, n_groups: usize) -> Self {
+        let taps = g.taps();
+        let mut w = vec![[Lanes::default(); NP]; n_groups * taps];
+        let mut b = vec![[Lanes::default(); NP]; n_groups];
+        for gi in 0..n_groups {
+            for j in 0..NP {
+                for lane in 0..CONV_LANES {
+                    let co = (first + gi * NP + j) * CONV_LANES + lane;
+                    if co >= g.cout {
+                        continue;
+                    }
+                    b[gi][j].0[lane] = bias[co];
+                    for (t, &v) in weight[co * taps..(co + 1) * taps].iter().enumerate() {
+                        w[gi * taps + t][j].0[lane] = v;
+                    }
+                }
+            }
         }
+        Self { first, w, bias: b }
     }
-    best
 }
 
 /// A 2-D convolution (PyTorch `nn.Conv2d`, zero padding, CHW-flattened input and output) with
-/// weights packed into panels of [`CONV_LANES`] output channels, grouped in pairs.
+/// weights packed into panels of [`CONV_LANES`] output channels, in groups of [`GROUP`] panels.
 ///
-/// Pair `g`, tap `t = (ci * kh + ky) * kw + kx` holds `[W[16g .. 16g+8][ci][ky][kx],
-/// W[16g+8 .. 16g+16][ci][ky][kx]]` contiguously (an odd last panel has its own array). A step
-/// copies the input into a zero-padded buffer (border and tail zeroed once, at pack time), then
-/// walks each output row in tiles of `P` pixels; for each pair of panels a `P x 2 x LANES` block
-/// of accumulators runs over the taps: per tap, one weight load per panel and one broadcast of
-/// the input per pixel, read straight from the padded input. For 3x3 kernels with stride 1 or 2
-/// (compile-time constants) the `3 + (P - 1) * stride` inputs of a kernel row are one fixed-size
-/// array, so the nine taps of an input channel run without a single bounds check; other shapes
-/// take a generic loop (one check per tap). No im2col copy, no padding branches.
+/// Group `i`, tap `t = (ci * kh + ky) * kw + kx` holds the weights of output channels
+/// `8 GROUP i .. 8 GROUP (i + 1)` for that tap contiguously (leftover panels form a last, smaller
+/// group). A step copies the input into a zero-padded buffer (border and tail zeroed once, at
+/// pack time), then walks each output row group by group, in tiles of `P` pixels: a
+/// `P x GROUP x LANES` block of accumulators runs over the taps, per tap one weight load per
+/// panel and one broadcast of the input per pixel, read straight from the padded input. For 3x3
+/// kernels with stride 1 or 2 (compile-time constants) the `3 + (P - 1) * stride` inputs of a
+/// kernel row are one fixed-size array, so the nine taps of an input channel run without a
+/// single bounds check; other shapes take a generic loop (one check per tap). No im2col copy, no
+/// padding branches. A following ReLU can be applied by the store ([`PackedConv::fuse_relu`]).
 ///
 /// Determinism: every output element is `bias + w[t0] x[t0] + w[t1] x[t1] + ...` over all taps in
 /// `(ci, ky, kx)` order, padding taps included (they add `w * 0`), exactly like a naive loop, for
@@ -246,12 +290,11 @@ pub(crate) struct PackedConv {
     /// Padded input height and width.
     hp: usize,
     wp: usize,
-    /// `[n_pairs * taps]`, pair-major.
-    pairs: Vec<[Lanes; 2]>,
-    pair_bias: Vec<[Lanes; 2]>,
-    /// The odd last panel: `[taps]` and its bias, or empty.
-    single: Vec<[Lanes; 1]>,
-    single_bias: Vec<[Lanes; 1]>,
+    /// Full groups, then the remainder (at most one of `rest2`, `rest1` is non-empty; `rest2`
+    /// only if [`GROUP`] is 3).
+    groups: PanelGroups<GROUP>,
+    rest2: PanelGroups<2>,
+    rest1: PanelGroups<1>,
     /// Offset of tap `t` in the padded input, relative to the output pixel's top-left input.
     tap_off: Vec<usize>,
     /// Zero-padded input `[cin][hp][wp]`, then `TILE_MAX * stride` zeros of slack read by the
@@ -260,6 +303,8 @@ pub(crate) struct PackedConv {
     isa: Isa,
     /// Tile width for `isa`.
     tile: usize,
+    /// Apply ReLU (`x < 0 ? 0 : x`, as [`crate::nn::LayerDesc::Relu`]) while storing.
+    relu: bool,
 }
 
 impl PackedConv {
@@ -268,28 +313,8 @@ impl PackedConv {
     pub(crate) fn pack(g: ConvGeom, weight: &[f32], bias: &[f32], isa: Isa) -> Self {
         let taps = g.taps();
         let n_panels = g.cout.div_ceil(CONV_LANES);
-        let n_pairs = n_panels / 2;
-        let mut pairs = vec![[Lanes::default(); 2]; n_pairs * taps];
-        let mut pair_bias = vec![[Lanes::default(); 2]; n_pairs];
-        let odd = n_panels % 2;
-        let mut single = vec![[Lanes::default(); 1]; odd * taps];
-        let mut single_bias = vec![[Lanes::default(); 1]; odd];
-        for co in 0..g.cout {
-            let (q, lane) = (co / CONV_LANES, co % CONV_LANES);
-            let (pair, j) = (q / 2, q % 2);
-            let w = &weight[co * taps..(co + 1) * taps];
-            if pair < n_pairs {
-                pair_bias[pair][j].0[lane] = bias[co];
-                for (t, &v) in w.iter().enumerate() {
-                    pairs[pair * taps + t][j].0[lane] = v;
-                }
-            } else {
-                single_bias[0][0].0[lane] = bias[co];
-                for (t, &v) in w.iter().enumerate() {
-                    single[t][0].0[lane] = v;
-                }
-            }
-        }
+        let (full, rest) = (n_panels / GROUP, n_panels % GROUP);
+        let first_rest = full * GROUP;
         let (hp, wp) = (g.h + 2 * g.pad, g.w + 2 * g.pad);
         let mut tap_off = Vec::with_capacity(taps);
         for ci in 0..g.cin {
@@ -303,15 +328,21 @@ impl PackedConv {
             g,
             hp,
             wp,
-            pairs,
-            pair_bias,
-            single,
-            single_bias,
+            groups: PanelGroups::pack(&g, weight, bias, 0, full),
+            rest2: PanelGroups::pack(&g, weight, bias, first_rest, usize::from(rest == 2)),
+            rest1: PanelGroups::pack(&g, weight, bias, first_rest, usize::from(rest == 1)),
             tap_off,
             xpad: vec![0.0; g.cin * hp * wp + TILE_MAX * g.stride],
             isa,
             tile: pick_tile(g.wo(), isa.tiles()),
+            relu: false,
         }
+    }
+
+    /// Makes `forward` apply ReLU to its output (a following `relu` layer is then skipped).
+    /// The same comparison as the separate layer, so the results are bit-identical.
+    pub(crate) fn fuse_relu(&mut self) {
+        self.relu = true;
     }
 
     pub(crate) fn geom(&self) -> &ConvGeom {
@@ -351,12 +382,12 @@ impl PackedConv {
             g: &self.g,
             hp: self.hp,
             wp: self.wp,
-            pairs: &self.pairs,
-            pair_bias: &self.pair_bias,
-            single: &self.single,
-            single_bias: &self.single_bias,
+            groups: &self.groups,
+            rest2: &self.rest2,
+            rest1: &self.rest1,
             tap_off: &self.tap_off,
             xpad: &self.xpad,
+            relu: self.relu,
         };
         match self.isa {
             Isa::Portable => conv_dispatch(&args, self.tile, y),
@@ -384,12 +415,12 @@ struct ConvArgs<'a> {
     g: &'a ConvGeom,
     hp: usize,
     wp: usize,
-    pairs: &'a [[Lanes; 2]],
-    pair_bias: &'a [[Lanes; 2]],
-    single: &'a [[Lanes; 1]],
-    single_bias: &'a [[Lanes; 1]],
+    groups: &'a PanelGroups<GROUP>,
+    rest2: &'a PanelGroups<2>,
+    rest1: &'a PanelGroups<1>,
     tap_off: &'a [usize],
     xpad: &'a [f32],
+    relu: bool,
 }
 
 /// The AVX2 copy of [`conv_dispatch`]: the same code, compiled with 256-bit vectors. No FMA
@@ -421,9 +452,7 @@ fn conv_dispatch(a: &ConvArgs<'_>, tile: usize, y: &mut [f32]) {
     match tile {
         2 => variants!(2),
         3 => variants!(3),
-        4 => variants!(4),
-        5 => variants!(5),
-        _ => variants!(6),
+        _ => variants!(4),
     }
 }
 
@@ -433,22 +462,15 @@ fn conv_dispatch(a: &ConvArgs<'_>, tile: usize, y: &mut [f32]) {
 fn conv_rows<const P: usize, const S: usize, const K: usize, const L: usize>(a: &ConvArgs<'_>, y: &mut [f32]) {
     let g = a.g;
     let s = g.stride;
-    let taps = a.tap_off.len();
     let (ho, wo) = (g.ho(), g.wo());
-    let hw = ho * wo;
     for oy in 0..ho {
         let mut ox = 0;
         while ox < wo {
             let base = oy * s * a.wp + ox * s;
             let (pix, n) = (oy * wo + ox, P.min(wo - ox));
-            for (pair, (w, b)) in a.pairs.chunks_exact(taps).zip(a.pair_bias).enumerate() {
-                let acc = tile::<2, P, S, K, L>(a, w, b, base);
-                store(&acc, 2 * pair, g.cout, hw, pix, n, y);
-            }
-            if let Some(b) = a.single_bias.first() {
-                let acc = tile::<1, P, S, K, L>(a, a.single, b, base);
-                store(&acc, 2 * a.pair_bias.len(), g.cout, hw, pix, n, y);
-            }
+            row_tile::<GROUP, P, S, K, L>(a, a.groups, base, pix, n, y);
+            row_tile::<2, P, S, K, L>(a, a.rest2, base, pix, n, y);
+            row_tile::<1, P, S, K, L>(a, a.rest1, base, pix, n, y);
             ox += P;
         }
     }
@@ -459,7 +481,7 @@ fn conv_rows<const P: usize, const S: usize, const K: usize, const L: usize>(a: 
 /// matter how LLVM's loop unroller sizes the body up.
 macro_rules! unroll_tile {
     ($n:expr, $i:ident => $body:expr) => {{
-        const _: () = assert!(TILE_MAX == 6);
+        const _: () = assert!(TILE_MAX <= 6);
         {
             let $i = 0usize;
             if $i < $n {
@@ -497,6 +519,24 @@ macro_rules! unroll_tile {
             }
         }
     }};
+}
+
+/// One tile of `P` pixels for every group of `grp`, stored.
+#[inline(always)]
+fn row_tile<const NP: usize, const P: usize, const S: usize, const K: usize, const L: usize>(
+    a: &ConvArgs<'_>,
+    grp: &PanelGroups<NP>,
+    base: usize,
+    pix: usize,
+    n: usize,
+    y: &mut [f32],
+) {
+    let (taps, g) = (a.tap_off.len(), a.g);
+    let hw = g.ho() * g.wo();
+    for (i, (w, b)) in grp.w.chunks_exact(taps).zip(&grp.bias).enumerate() {
+        let acc = tile::<NP, P, S, K, L>(a, w, b, base);
+        store(&acc, grp.first + i * NP, g.cout, hw, pix, n, a.relu, y);
+    }
 }
 
 /// One tile: `acc[p][j] = bias_j + sum_t w[t][j] * x[base + off_t + p * stride]`, taps in order.
@@ -554,7 +594,8 @@ fn mac<const NP: usize>(acc: &mut [Lanes; NP], w: &[Lanes; NP], x: f32) {
 }
 
 /// Writes the first `n` pixels of a tile's accumulators (panels `q..q + NP`) to the CHW output
-/// at flat pixel `pix`, skipping padded lanes.
+/// at flat pixel `pix`, skipping padded lanes; with `relu`, as `x < 0 ? 0 : x` (NaN stays NaN).
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn store<const P: usize, const NP: usize>(
     acc: &[[Lanes; NP]; P],
@@ -563,6 +604,7 @@ fn store<const P: usize, const NP: usize>(
     hw: usize,
     pix: usize,
     n: usize,
+    relu: bool,
     y: &mut [f32],
 ) {
     for j in 0..NP {
@@ -573,7 +615,8 @@ fn store<const P: usize, const NP: usize>(
             }
             if let Some(dst) = y.get_mut(co * hw + pix..co * hw + pix + n) {
                 for (d, a) in dst.iter_mut().zip(acc) {
-                    *d = a[j].0[k];
+                    let v = a[j].0[k];
+                    *d = if relu && v < 0.0 { 0.0 } else { v };
                 }
             }
         }
@@ -799,6 +842,12 @@ mod tests {
             (3, 7, 5, 5, 3, 1, 1),
             (2, 9, 11, 17, 5, 2, 2),
             (5, 4, 4, 9, 4, 1, 0),
+            // 3x3 at stride 1 and 2 (the fixed-size row path) on odd sizes and channel counts,
+            // and at stride 3 (the generic path).
+            (4, 10, 9, 20, 3, 1, 0),
+            (5, 11, 7, 9, 3, 2, 2),
+            (2, 3, 17, 41, 3, 2, 1),
+            (3, 13, 13, 16, 3, 3, 1),
         ] {
             let g = ConvGeom {
                 cin,

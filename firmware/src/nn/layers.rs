@@ -9,11 +9,16 @@ use safetensors::{Dtype, SafeTensors};
 /// A loaded layer. Element-wise layers carry no weights; their shape is the previous shape.
 pub(crate) enum Layer {
     Linear(PackedMatrix),
-    Elu { alpha: f32 },
+    Elu {
+        alpha: f32,
+    },
     Relu,
     Tanh,
     Lstm(Box<Lstm>),
     Conv2d(Box<PackedConv>),
+    /// A `relu` whose work the preceding `conv2d` does while storing ([`Layer::fuse`]): passes
+    /// its input through (the executor skips it unless it is the last layer, then it copies).
+    FusedRelu,
 }
 
 /// Stateful single-layer LSTM. `W_ih` and `W_hh` are packed side by side into one
@@ -68,8 +73,26 @@ impl Layer {
                 let g = c.geom();
                 vec![g.cout, g.ho(), g.wo()]
             }
-            Layer::Elu { .. } | Layer::Relu | Layer::Tanh => input.to_vec(),
+            Layer::Elu { .. } | Layer::Relu | Layer::Tanh | Layer::FusedRelu => input.to_vec(),
         }
+    }
+
+    /// Fuses `next` into `self` where that is exact: a `relu` after a `conv2d` is applied by
+    /// the convolution's store, and `next` becomes [`Layer::FusedRelu`]. Returns whether it did.
+    pub(crate) fn fuse(&mut self, next: &mut Layer) -> bool {
+        match (self, &*next) {
+            (Layer::Conv2d(c), Layer::Relu) => {
+                c.fuse_relu();
+                *next = Layer::FusedRelu;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// True for layers the executor skips (their output is their input).
+    pub(crate) fn is_pass_through(&self) -> bool {
+        matches!(self, Layer::FusedRelu)
     }
 
     /// Makes convolutions and matrix products use the portable kernels even where AVX2 is
@@ -79,7 +102,7 @@ impl Layer {
             Layer::Conv2d(c) => c.set_isa(Isa::Portable),
             Layer::Linear(m) => m.set_isa(Isa::Portable),
             Layer::Lstm(l) => l.w.set_isa(Isa::Portable),
-            Layer::Elu { .. } | Layer::Relu | Layer::Tanh => {}
+            Layer::Elu { .. } | Layer::Relu | Layer::Tanh | Layer::FusedRelu => {}
         }
     }
 
@@ -114,6 +137,7 @@ impl Layer {
             }
             Layer::Lstm(l) => l.forward(x, y),
             Layer::Conv2d(c) => c.forward(x, y),
+            Layer::FusedRelu => y.copy_from_slice(x),
         }
     }
 }

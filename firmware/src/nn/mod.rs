@@ -75,9 +75,21 @@ use sha2::{Digest, Sha256};
 use std::fmt;
 use std::path::Path;
 
+/// Where a layer reads or writes its activation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Buf {
+    Input,
+    Ping,
+    Pong,
+    Output,
+}
+
 /// A loaded network: packed weights, recurrent state and activation buffers.
 pub struct Network {
     layers: Vec<Layer>,
+    /// Per layer: the buffers it reads and writes, or `None` for a pass-through layer that is
+    /// skipped (fixed at load; the last layer always writes `Output`).
+    route: Vec<Option<(Buf, Buf)>>,
     /// `dims[0]` is the input width, `dims[i + 1]` the output width of layer `i`.
     dims: Vec<usize>,
     /// The same as shapes: `[n]` for vectors, `[C, H, W]` for images; product = `dims[i]`.
@@ -142,10 +154,33 @@ impl Network {
             layers.push(layer);
             source_desc = src.layer;
         }
+        for i in 1..layers.len() {
+            let (head, tail) = layers.split_at_mut(i);
+            head[i - 1].fuse(&mut tail[0]);
+        }
+        // Layer i reads where the activation is and writes the other ping-pong buffer (the last
+        // one writes the output); a pass-through layer leaves the activation where it is.
+        let last = layers.len() - 1;
+        let mut cur = Buf::Input;
+        let route = layers
+            .iter()
+            .enumerate()
+            .map(|(i, layer)| {
+                if i == last {
+                    Some((cur, Buf::Output))
+                } else if layer.is_pass_through() {
+                    None
+                } else {
+                    let to = if cur == Buf::Ping { Buf::Pong } else { Buf::Ping };
+                    Some((std::mem::replace(&mut cur, to), to))
+                }
+            })
+            .collect();
         let widest = dims[1..dims.len() - 1].iter().copied().max().unwrap_or(0);
         let sha256 = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
         Ok(Network {
             layers,
+            route,
             dims,
             shapes,
             ping: vec![0.0; widest],
@@ -220,17 +255,18 @@ impl Network {
                 found: output.len(),
             });
         }
-        let last = self.layers.len() - 1;
-        for (i, layer) in self.layers.iter_mut().enumerate() {
+        for (i, (layer, route)) in self.layers.iter_mut().zip(&self.route).enumerate() {
+            let Some((from, to)) = *route else {
+                continue;
+            };
             let (n_in, n_out) = (self.dims[i], self.dims[i + 1]);
-            // Layer i writes ping if i is even, pong if odd; the last layer writes `output`.
-            let (src, dst): (&[f32], &mut [f32]) = match (i == 0, i == last, i % 2 == 0) {
-                (true, true, _) => (input, &mut *output),
-                (true, false, _) => (input, &mut self.ping[..n_out]),
-                (false, true, true) => (&self.pong[..n_in], &mut *output),
-                (false, true, false) => (&self.ping[..n_in], &mut *output),
-                (false, false, true) => (&self.pong[..n_in], &mut self.ping[..n_out]),
-                (false, false, false) => (&self.ping[..n_in], &mut self.pong[..n_out]),
+            let (src, dst): (&[f32], &mut [f32]) = match (from, to) {
+                (Buf::Input, Buf::Output) => (input, &mut *output),
+                (Buf::Input, _) => (input, &mut self.ping[..n_out]),
+                (Buf::Ping, Buf::Output) => (&self.ping[..n_in], &mut *output),
+                (Buf::Ping, _) => (&self.ping[..n_in], &mut self.pong[..n_out]),
+                (Buf::Pong, Buf::Output) => (&self.pong[..n_in], &mut *output),
+                (Buf::Pong, _) | (Buf::Output, _) => (&self.pong[..n_in], &mut self.ping[..n_out]),
             };
             layer.forward(src, dst);
         }
