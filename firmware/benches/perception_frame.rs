@@ -574,13 +574,20 @@ fn main() {
     );
     println!(
         "RESULT {{\"ours_cnn_us\": {:.2}, \"ours_full_frame_us\": {:.2}, \"ort_cnn_1t_us\": {:.2}, \
-         \"ort_cnn_default_us\": {:.2}, \"ratio_cnn\": {:.4}, \"ratio_full_frame\": {:.4}}}",
+         \"ort_cnn_default_us\": {:.2}, \"ratio_cnn\": {:.4}, \"ratio_full_frame\": {:.4}, \
+         \"ours_cnn_min_us\": {:.2}, \"ours_full_frame_min_us\": {:.2}, \"ort_cnn_1t_min_us\": {:.2}, \
+         \"ratio_cnn_min\": {:.4}, \"ratio_full_frame_min\": {:.4}}} (ratios against ORT 1 thread)",
         cnn.median_us,
         full.median_us,
         ort1,
         ortd,
         cnn.median_us / ort1,
-        full.median_us / ort1
+        full.median_us / ort1,
+        cnn.min_us,
+        full.min_us,
+        get("single", "min_us"),
+        cnn.min_us / get("single", "min_us"),
+        full.min_us / get("single", "min_us"),
     );
 }
 
