@@ -20,6 +20,9 @@
 //! Every timing is the median (and p99, min) of individually timed iterations after warm-up;
 //! on a loaded machine the min is the better estimate of the uncontended cost.
 
+mod common;
+
+use common::{loud, percentile};
 use estimator::terrain_cnn::decode;
 use firmware::nn::{LayerDesc, Network, NetworkDesc};
 use hal::{LidarPoint, TerrainToken};
@@ -27,9 +30,9 @@ use safetensors::tensor::{Dtype, TensorView};
 use sensor_io::bev::{BevBuilder, BevGrid, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_LEN, CH_DENSITY};
 use sensor_io::livox::{FrameAssembler, PacketWriter};
 use sim_hal::bridge::LIDAR_FRAME_CAP;
+use std::ffi::OsStr;
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 const CNN_WARMUP: usize = 300;
@@ -37,16 +40,6 @@ const CNN_ITERS: usize = 3_000;
 const FRAME_WARMUP: usize = 200;
 const FRAME_ITERS: usize = 2_000;
 const N_POINTS: usize = 20_000;
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn loud(msg: &str) {
-    eprintln!("\n************************************************************");
-    eprintln!("{msg}");
-    eprintln!("************************************************************\n");
-}
 
 // ---------------------------------------------------------------------------------------------
 // The network: a description plus safetensors bytes, from files or random.
@@ -253,10 +246,6 @@ struct Figures {
     mean_us: f64,
 }
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
-}
-
 fn figures(mut times: Vec<f64>, mean_us: f64) -> Figures {
     times.sort_by(f64::total_cmp);
     Figures {
@@ -301,16 +290,7 @@ fn show(name: &str, f: &Figures) {
 /// Writes the description (JSON), the weights if needed and the reference pair into a temp
 /// folder and runs the ORT script; `None` (after saying why, loudly) if it cannot.
 fn time_ort(model: &CnnModel, input: &[f32], output: &[f32]) -> Option<serde_json::Value> {
-    let root = workspace_root();
-    let python = root.join(".venv/bin/python");
-    let script = root.join("scripts/bench/ort_terrain_cnn.py");
-    if !python.is_file() {
-        loud(&format!(
-            "NO ORT BASELINE: {} not found (scripts/install.sh creates it with onnx and onnxruntime)",
-            python.display()
-        ));
-        return None;
-    }
+    let python = common::venv_python()?;
     let dir = std::env::temp_dir().join(format!("perception_frame_bench_{}", std::process::id()));
     let prepared = (|| -> Result<(PathBuf, PathBuf, PathBuf), String> {
         std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
@@ -352,41 +332,17 @@ fn time_ort(model: &CnnModel, input: &[f32], output: &[f32]) -> Option<serde_jso
             return None;
         }
     };
-    let out = Command::new(&python)
-        .arg(&script)
-        .arg("--weights")
-        .arg(&weights)
-        .arg("--desc")
-        .arg(&desc)
-        .arg("--ref")
-        .arg(&reference)
-        .current_dir(&root)
-        .output();
+    let args = [
+        OsStr::new("--weights"),
+        weights.as_os_str(),
+        OsStr::new("--desc"),
+        desc.as_os_str(),
+        OsStr::new("--ref"),
+        reference.as_os_str(),
+    ];
+    let result = common::run_ort_script(&python, "ort_terrain_cnn.py", args);
     let _ = std::fs::remove_dir_all(&dir);
-    let out = match out {
-        Ok(o) => o,
-        Err(e) => {
-            loud(&format!("NO ORT BASELINE: cannot run {}: {e}", python.display()));
-            return None;
-        }
-    };
-    if !out.status.success() {
-        loud(&format!(
-            "NO ORT BASELINE: {} failed ({}) — is onnxruntime installed in .venv?\n{}",
-            script.display(),
-            out.status,
-            String::from_utf8_lossy(&out.stderr)
-        ));
-        return None;
-    }
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    match stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()) {
-        Some(v) => Some(v),
-        None => {
-            loud(&format!("NO ORT BASELINE: unparsable output:\n{stdout}"));
-            None
-        }
-    }
+    result
 }
 
 fn main() {

@@ -5,24 +5,17 @@
 //! `scripts/bench/ort_lstm.py` (which first checks its ONNX graph against the golden actions)
 //! and prints ORT's figures and the ratio ours/ORT. Target: ratio <= 0.5.
 
+mod common;
+
+use common::{loud, percentile, workspace_root};
 use firmware::nn::{Network, NetworkDesc};
+use std::ffi::OsStr;
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Instant;
 
 const WARMUP: usize = 20_000;
 const ITERS: usize = 200_000;
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-fn loud(msg: &str) {
-    eprintln!("\n************************************************************");
-    eprintln!("{msg}");
-    eprintln!("************************************************************\n");
-}
 
 /// Observation rows to cycle through: golden_random `obs` if available, else a fixed pattern.
 fn observations(policy_dir: &Path) -> Vec<[f32; 47]> {
@@ -43,11 +36,6 @@ fn observations(policy_dir: &Path) -> Vec<[f32; 47]> {
             .map(|t| std::array::from_fn(|k| ((t * 47 + k) as f32 * 0.37).sin()))
             .collect()
     })
-}
-
-fn percentile(sorted: &[f64], p: f64) -> f64 {
-    let idx = ((sorted.len() - 1) as f64 * p).round() as usize;
-    sorted[idx]
 }
 
 struct Figures {
@@ -101,46 +89,8 @@ fn timer_overhead_us() -> f64 {
 
 /// Runs the ORT baseline script; `None` (after saying why, loudly) if it cannot.
 fn time_ort(policy_dir: &Path) -> Option<serde_json::Value> {
-    let root = workspace_root();
-    let python = root.join(".venv/bin/python");
-    let script = root.join("scripts/bench/ort_lstm.py");
-    if !python.is_file() {
-        loud(&format!(
-            "NO ORT BASELINE: {} not found (create the venv from scripts/requirements.txt)",
-            python.display()
-        ));
-        return None;
-    }
-    let out = Command::new(&python)
-        .arg(&script)
-        .arg("--dir")
-        .arg(policy_dir)
-        .current_dir(&root)
-        .output();
-    let out = match out {
-        Ok(o) => o,
-        Err(e) => {
-            loud(&format!("NO ORT BASELINE: cannot run {}: {e}", python.display()));
-            return None;
-        }
-    };
-    if !out.status.success() {
-        loud(&format!(
-            "NO ORT BASELINE: {} failed ({}):\n{}",
-            script.display(),
-            out.status,
-            String::from_utf8_lossy(&out.stderr)
-        ));
-        return None;
-    }
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    match stdout.lines().last().and_then(|l| serde_json::from_str(l).ok()) {
-        Some(v) => Some(v),
-        None => {
-            loud(&format!("NO ORT BASELINE: unparsable output:\n{stdout}"));
-            None
-        }
-    }
+    let python = common::venv_python()?;
+    common::run_ort_script(&python, "ort_lstm.py", [OsStr::new("--dir"), policy_dir.as_os_str()])
 }
 
 fn main() {

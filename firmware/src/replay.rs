@@ -16,10 +16,10 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use crate::nn::sha256_hex;
 use anyhow::{bail, Context, Result};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, LOW_CMD_LEN};
-use sha2::{Digest, Sha256};
 
 use crate::controller::Controller;
 use crate::log::channels as ch;
@@ -461,10 +461,6 @@ impl OperatorSource for RecordedOperator<'_> {
         }
         self.rec.ticks[self.i].operator
     }
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    format!("{:x}", Sha256::digest(bytes))
 }
 
 /// Finds the spec the log names: as recorded (absolute, or relative to the current directory), or

@@ -578,10 +578,7 @@ fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
     let mut m = RunMeta::default();
     m.set("firmware_version", env!("CARGO_PKG_VERSION"))
         .set(key::SPEC_PATH, spec.path.display())
-        .set(
-            key::SPEC_SHA256,
-            format!("{:x}", Sha256::digest(spec.source_text.as_bytes())),
-        )
+        .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
         .set(key::SPEC_TOML, &spec.source_text)
         .set(key::HOLD_ONLY, opts.hold_only)
         .set(key::RAMP_S, spec.startup.ramp_s)

@@ -88,10 +88,6 @@ impl TerrainNet {
     pub fn weights_sha256(&self) -> &str {
         self.net.weights_sha256()
     }
-
-    pub fn network(&self) -> &Network {
-        &self.net
-    }
 }
 
 fn parse_desc(text: &str, origin: &str) -> Result<NetworkDesc, TerrainNetError> {

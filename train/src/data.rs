@@ -67,8 +67,22 @@ impl Dataset {
         self.class.is_empty()
     }
 
+    /// Loads every shard of every directory, in order (see [`Dataset::load_dir`]).
+    pub fn load_dirs(dirs: &[impl AsRef<Path>]) -> anyhow::Result<Self> {
+        let mut ds = Dataset::default();
+        for d in dirs {
+            ds.append_dir(d.as_ref())?;
+        }
+        Ok(ds)
+    }
+
     /// Loads every shard that `dir/manifest.json` lists.
     pub fn load_dir(dir: &Path) -> anyhow::Result<Self> {
+        Self::load_dirs(&[dir])
+    }
+
+    /// Appends every shard that `dir/manifest.json` lists.
+    fn append_dir(&mut self, dir: &Path) -> anyhow::Result<()> {
         let mpath = dir.join("manifest.json");
         let text = std::fs::read_to_string(&mpath).with_context(|| {
             format!(
@@ -78,12 +92,12 @@ impl Dataset {
             )
         })?;
         let m: Manifest = serde_json::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
-        let mut ds = Dataset::default();
+        let before = self.len();
         for s in &m.shards {
-            ds.append_shard(&dir.join(&s.file))?;
+            self.append_shard(&dir.join(&s.file))?;
         }
-        ensure!(!ds.is_empty(), "{} holds no samples", dir.display());
-        Ok(ds)
+        ensure!(self.len() > before, "{} holds no samples", dir.display());
+        Ok(())
     }
 
     /// Appends one shard file.

@@ -4,7 +4,7 @@ use std::path::Path;
 
 use estimator::terrain::{GeometricTerrainConfig, GeometricTerrainEstimator};
 use firmware::terrain_net::TerrainNet;
-use g1_sim::dataset::{render_worlds, DatasetConfig, EvalStats, WorldSet};
+use g1_sim::dataset::{render_worlds, token_array, DatasetConfig, EvalStats, WorldSet};
 use hal::{TerrainClass, TerrainToken};
 use serde::Serialize;
 
@@ -68,10 +68,6 @@ pub struct Record {
     pub truth: [f32; 4],
     pub cnn: [f32; 4],
     pub baseline: [f32; 4],
-}
-
-fn arr(t: &TerrainToken) -> [f32; 4] {
-    [t.class.index() as f32, t.step_height_m, t.step_depth_m, t.yaw_rad]
 }
 
 /// The report `--report` writes.
@@ -167,9 +163,9 @@ pub fn evaluate(
         base.add(&s.truth, &g);
         records.push(Record {
             world_seed: seed,
-            truth: arr(&s.truth),
-            cnn: arr(&c),
-            baseline: arr(&g),
+            truth: token_array(&s.truth),
+            cnn: token_array(&c),
+            baseline: token_array(&g),
         });
         progress();
         Ok(())

@@ -10,7 +10,7 @@ use std::path::Path;
 use anyhow::{ensure, Context};
 use candle_core::Tensor;
 use candle_nn::VarMap;
-use firmware::nn::{LayerDesc, NetworkDesc};
+use firmware::nn::{sha256_hex, LayerDesc, NetworkDesc};
 use safetensors::tensor::{Dtype, TensorView};
 
 use crate::data::GRID;
@@ -189,12 +189,6 @@ pub fn write_parity_fixture(
     ]);
     let bytes = safetensors::serialize(tensors, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))?;
     std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
-}
-
-/// SHA-256 (lower-case hex) of `bytes`, as `firmware::nn::Network::weights_sha256` reports it.
-pub fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// Picks two grids of each class from `pool` (indices into `ds`), runs `model` (eval mode) on them

@@ -8,7 +8,7 @@
 //! h, d and yaw are supervised on stairs samples only (flat has no geometry; its θ is the robot's
 //! heading, which a robot-centred grid cannot show). The yaw term's weight is 0.5: the vector
 //! has two components, so 0.5 puts yaw on the same footing as one of h or d.
-use candle_core::{DType, Device, Tensor, D};
+use candle_core::{DType, Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
 use g1_sim::dataset::EvalStats;
 use g1_sim::rng::Rng;
@@ -243,11 +243,4 @@ pub fn fit(
         }
     }
     Ok((varmap, model, log))
-}
-
-/// Mean of a `[b]` tensor's argmax agreement (for tests).
-pub fn class_accuracy(out: &Tensor, class: &Tensor) -> candle_core::Result<f64> {
-    let pred = out.narrow(1, 0, 3)?.argmax(D::Minus1)?;
-    let ok = pred.eq(class)?.to_dtype(DType::F32)?.mean_all()?.to_scalar::<f32>()?;
-    Ok(ok as f64)
 }

@@ -153,18 +153,7 @@ fn main() -> anyhow::Result<()> {
             quiet,
         } => {
             let t_load = Instant::now();
-            let mut ds = Dataset::default();
-            for d in &data {
-                let part = Dataset::load_dir(d)?;
-                ds.bev.extend(part.bev);
-                ds.class.extend(part.class);
-                ds.step_height.extend(part.step_height);
-                ds.step_depth.extend(part.step_depth);
-                ds.yaw.extend(part.yaw);
-                ds.world_seed.extend(part.world_seed);
-                ds.heading.extend(part.heading);
-                ds.mode.extend(part.mode);
-            }
+            let ds = Dataset::load_dirs(&data)?;
             let (mut tr, val) = split_by_world(&ds, val_fraction);
             if let Some(hmax) = max_train_h {
                 tr.retain(|&i| ds.step_height[i] <= hmax);

@@ -151,7 +151,8 @@ impl BatchNorm2d {
 /// Training-mode BatchNorm as one fused op: `y = γ (x − μ) / σ + β` with batch statistics (μ,
 /// biased σ², per channel), and the textbook backward
 /// `dx = γ/σ · (dy − mean(dy) − x̂ · mean(dy · x̂))`, `dγ = Σ dy x̂`, `dβ = Σ dy`.
-/// The statistics of the last forward pass are left in `stats` for the running averages.
+/// The statistics of the forward pass are left in `stats`, for the running averages and for the
+/// backward pass.
 struct BnTrain {
     stats: std::sync::Arc<std::sync::Mutex<Vec<(f64, f64)>>>,
 }
@@ -226,7 +227,15 @@ impl CustomOp3 for BnTrain {
         let xv = x.flatten_all()?.to_vec1::<f32>()?;
         let dy = grad.flatten_all()?.to_vec1::<f32>()?;
         let g = gamma.to_vec1::<f32>()?;
-        let st = bn_stats(&xv, b, c, hw);
+        // The batch statistics of this op's own forward pass.
+        let st = self
+            .stats
+            .lock()
+            .map_err(|_| candle_core::Error::Msg("bn stats lock".into()))?
+            .clone();
+        if st.len() != c {
+            candle_core::bail!("batch_norm_train backward without its forward statistics");
+        }
         let n = (b * hw) as f64;
         let mut dx = vec![0.0f32; xv.len()];
         let (mut dgamma, mut dbeta) = (vec![0.0f32; c], vec![0.0f32; c]);

@@ -84,6 +84,12 @@ enum Buf {
     Output,
 }
 
+/// Lower-case hex SHA-256 of `bytes`: how weight files and specs are identified in logs and
+/// replays ([`Network::weights_sha256`], the run metadata, `g1-train`'s parity fixtures).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    format!("{:x}", Sha256::digest(bytes))
+}
+
 /// A loaded network: packed weights, recurrent state and activation buffers.
 pub struct Network {
     layers: Vec<Layer>,
@@ -177,7 +183,7 @@ impl Network {
             })
             .collect();
         let widest = dims[1..dims.len() - 1].iter().copied().max().unwrap_or(0);
-        let sha256 = Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect();
+        let sha256 = sha256_hex(bytes);
         Ok(Network {
             layers,
             route,

@@ -851,7 +851,8 @@ pub struct EvalRecord {
     pub bev_points: usize,
 }
 
-fn token_array(t: &TerrainToken) -> [f32; 4] {
+/// A token as `[class index, h, d, yaw]` (how reports store tokens).
+pub fn token_array(t: &TerrainToken) -> [f32; 4] {
     [t.class.index() as f32, t.step_height_m, t.step_depth_m, t.yaw_rad]
 }
 
