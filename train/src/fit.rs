@@ -34,6 +34,9 @@ pub struct FitConfig {
     pub mirror: bool,
     /// Stop after this many optimiser steps (0: no limit) — for smoke tests.
     pub max_steps: usize,
+    /// Start from this checkpoint (`checkpoint.safetensors` of an earlier `fit`) instead of the
+    /// seeded initialisation: continues a run with a fresh schedule.
+    pub init: Option<std::path::PathBuf>,
 }
 
 impl Default for FitConfig {
@@ -46,6 +49,7 @@ impl Default for FitConfig {
             seed: 0,
             mirror: true,
             max_steps: 0,
+            init: None,
         }
     }
 }
@@ -160,6 +164,11 @@ pub fn fit(
     let vb = VarBuilder::from_varmap(&varmap, DType::F32, dev);
     let model = TerrainCnn::new(vb)?;
     seeded_init(&varmap, cfg.seed, dev)?;
+    if let Some(path) = &cfg.init {
+        let mut vm = varmap.clone();
+        vm.load(path)
+            .map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
+    }
     let mut opt = AdamW::new(
         varmap.all_vars(),
         ParamsAdamW {

@@ -52,6 +52,9 @@ enum Cmd {
         max_steps: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Continue from this checkpoint (checkpoint.safetensors of an earlier fit), with a fresh schedule
+        #[arg(long)]
+        init: Option<PathBuf>,
         /// No left–right mirror augmentation.
         #[arg(long)]
         no_mirror: bool,
@@ -149,6 +152,7 @@ fn main() -> anyhow::Result<()> {
             max_train_h,
             max_steps,
             seed,
+            init,
             no_mirror,
             quiet,
         } => {
@@ -172,6 +176,7 @@ fn main() -> anyhow::Result<()> {
                 seed,
                 mirror: !no_mirror,
                 max_steps,
+                init,
                 ..FitConfig::default()
             };
             let dev = Device::Cpu;
