@@ -12,7 +12,9 @@ mkdir -p "$deps"
 say() { printf '[install] %s\n' "$*" >&2; }
 
 # --- apt -----------------------------------------------------------------------------------------
-apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates fonts-dejavu-core)
+# user-mode-linux, kmod, iproute2, can-utils: the CAN HIL VM (`cargo xtask hil`; the host kernel has no CAN)
+apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates fonts-dejavu-core
+  user-mode-linux kmod iproute2 can-utils)
 missing=()
 for p in "${apt_pkgs[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then
@@ -34,7 +36,7 @@ if [ ! -x "$py" ]; then
   say "python: creating .venv"
   /usr/bin/env python3 -m venv "$root/.venv"
 fi
-if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime' 2>/dev/null; then
+if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime, mcap, can' 2>/dev/null; then
   say "python: installing test tools into .venv"
   "$py" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
 fi
