@@ -1,4 +1,6 @@
 //! Shared helpers for the integration tests: where `../shared`, the specs and the built binaries are.
+// Integration tests never run on the robot: std's math is fine here (see clippy.toml).
+#![allow(clippy::disallowed_methods)]
 use std::path::{Path, PathBuf};
 
 /// Repository root.

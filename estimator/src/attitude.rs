@@ -21,16 +21,30 @@ pub fn projected_gravity(q: [f32; 4]) -> [f32; 3] {
 /// Angle between the body z axis and the world z axis, radians.
 pub fn tilt_rad(q: [f32; 4]) -> f32 {
     let g = projected_gravity(q);
-    (-g[2]).clamp(-1.0, 1.0).acos()
+    libm::acosf((-g[2]).clamp(-1.0, 1.0))
 }
 
 /// Roll, pitch, yaw (ZYX) from a quaternion (w, x, y, z).
 pub fn rpy(q: [f32; 4]) -> [f32; 3] {
     let [w, x, y, z] = q;
-    let roll = (2.0 * (w * x + y * z)).atan2(1.0 - 2.0 * (x * x + y * y));
-    let pitch = (2.0 * (w * y - z * x)).clamp(-1.0, 1.0).asin();
-    let yaw = (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z));
+    let roll = libm::atan2f(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y));
+    let pitch = libm::asinf((2.0 * (w * y - z * x)).clamp(-1.0, 1.0));
+    let yaw = libm::atan2f(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z));
     [roll, pitch, yaw]
+}
+
+/// The rotation by the angle `|v|` about the axis `v / |v|` (the exponential map), identity for a
+/// tiny `v`. Same arithmetic as nalgebra's `UnitQuaternion::from_scaled_axis`, but its sine and cosine
+/// come from `libm`, so the result has the same bits on every machine (nalgebra calls std's).
+pub fn quat_from_scaled_axis(v: Vector3<f64>) -> UnitQuaternion<f64> {
+    let half = v / 2.0;
+    let nn = half.norm_squared();
+    if nn <= f64::EPSILON * f64::EPSILON {
+        return UnitQuaternion::identity();
+    }
+    let n = nn.sqrt();
+    let (s, c) = libm::sincos(n);
+    UnitQuaternion::new_unchecked(Quaternion::from_parts(c, half * (s / n)))
 }
 
 /// The IMU quaternion as a rotation, if it is finite and close to unit length.
@@ -74,14 +88,35 @@ impl AttitudeFilter {
             w += self.gain * up_measured.cross(&up_estimated);
         }
         if w.iter().all(|v| v.is_finite()) {
-            self.q *= UnitQuaternion::from_scaled_axis(w * dt);
+            self.q *= quat_from_scaled_axis(w * dt);
         }
     }
 }
 
 #[cfg(test)]
+// Tests build their inputs with std's math on the host; they never run on the robot.
+#[allow(clippy::disallowed_methods)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn scaled_axis_matches_nalgebra() {
+        for v in [
+            Vector3::new(0.3, -0.2, 0.1),
+            Vector3::new(0.0, 0.0, 3.0),
+            Vector3::new(1e-3, 2e-3, -5e-4),
+            Vector3::new(-2.5, 0.7, 1.9),
+        ] {
+            let ours = quat_from_scaled_axis(v);
+            let theirs = UnitQuaternion::from_scaled_axis(v);
+            assert!((ours.coords - theirs.coords).norm() < 1e-15, "{v}: {ours} vs {theirs}");
+        }
+        assert_eq!(quat_from_scaled_axis(Vector3::zeros()), UnitQuaternion::identity());
+        assert_eq!(
+            quat_from_scaled_axis(Vector3::new(1e-17, 0.0, 0.0)),
+            UnitQuaternion::identity()
+        );
+    }
 
     #[test]
     fn upright_sees_gravity_down() {

@@ -166,7 +166,7 @@ impl Leg {
                 anchors[i] = a;
                 axes[i] = w;
                 // Rotation about an axis through the anchor: the anchor stays put.
-                let r = UnitQuaternion::from_scaled_axis(axis * q[i]);
+                let r = crate::attitude::quat_from_scaled_axis(axis * q[i]);
                 pos = a + (rot * r) * (-anchor);
                 rot *= r;
             }

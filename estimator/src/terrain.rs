@@ -356,7 +356,7 @@ impl GeometricTerrainEstimator {
         let agree = pos.max(neg) as f32 / nris as f32;
 
         // Is a riser (of the staircase's sign) within the look-ahead box?
-        let (c, s) = (phi_rad.cos(), phi_rad.sin());
+        let (c, s) = (libm::cosf(phi_rad), libm::sinf(phi_rad));
         let mut box_lo = f32::INFINITY;
         let mut box_hi = f32::NEG_INFINITY;
         for (bx, by) in [
@@ -582,12 +582,12 @@ impl GeometricTerrainEstimator {
         if ac * ac + as_ * as_ <= 0.0 {
             return None;
         }
-        Some((0.5 * as_.atan2(ac)).to_degrees() as f32)
+        Some((0.5 * libm::atan2(as_, ac)).to_degrees() as f32)
     }
 
     /// Mean within-bin height variance of the profile along φ (smaller = sharper).
     fn direction_score(&mut self, n: usize, phi: f32) -> f64 {
-        let (c, s) = (phi.cos(), phi.sin());
+        let (c, s) = (libm::cosf(phi), libm::sinf(phi));
         let r2 = self.cfg.direction_radius_m * self.cfg.direction_radius_m;
         let inv = 1.0 / self.bin_m;
         let nb = self.nbins;
@@ -632,7 +632,7 @@ impl GeometricTerrainEstimator {
     /// Sorts the cells in the lateral band by their coordinate along φ and stores each bin's
     /// median height in `bin_med` (`bin_n` = cells). Returns the cells used.
     fn profile(&mut self, n: usize, phi: f32) -> usize {
-        let (c, s) = (phi.cos(), phi.sin());
+        let (c, s) = (libm::cosf(phi), libm::sinf(phi));
         let lat = self.cfg.lateral_half_width_m;
         let nb = self.nbins;
         let inv = 1.0 / self.bin_m;

@@ -32,8 +32,8 @@ pub fn targets(t: &TerrainToken) -> (usize, [f32; 4]) {
         [
             100.0 * t.step_height_m,
             100.0 * t.step_depth_m,
-            YAW_VECTOR_SCALE * yaw.cos(),
-            YAW_VECTOR_SCALE * yaw.sin(),
+            YAW_VECTOR_SCALE * libm::cosf(yaw),
+            YAW_VECTOR_SCALE * libm::sinf(yaw),
         ],
     )
 }
@@ -65,7 +65,7 @@ pub fn decode(out: &[f32], heading_rad: f32) -> Option<TerrainToken> {
         class,
         step_height_m: (out[OUT_HEIGHT_CM] / 100.0).max(0.0),
         step_depth_m: (out[OUT_DEPTH_CM] / 100.0).max(0.0),
-        yaw_rad: out[OUT_YAW_SIN].atan2(out[OUT_YAW_COS]),
+        yaw_rad: libm::atan2f(out[OUT_YAW_SIN], out[OUT_YAW_COS]),
     })
 }
 
@@ -76,7 +76,7 @@ pub fn class_confidence(out: &[f32]) -> f32 {
     }
     let l = &out[OUT_LOGITS..OUT_LOGITS + 3];
     let m = l.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let e = [(l[0] - m).exp(), (l[1] - m).exp(), (l[2] - m).exp()];
+    let e = [libm::expf(l[0] - m), libm::expf(l[1] - m), libm::expf(l[2] - m)];
     1.0 / (e[0] + e[1] + e[2])
 }
 

@@ -78,7 +78,7 @@ impl ObservationBuilder {
     pub fn build(&mut self, x: &ObsInputs, out: &mut [f32]) {
         debug_assert_eq!(out.len(), self.dim);
         let gravity = estimator::projected_gravity(x.quat);
-        let (s, c) = (2.0 * std::f32::consts::PI * x.phase).sin_cos();
+        let (s, c) = libm::sincosf(2.0 * std::f32::consts::PI * x.phase);
         for term in &mut self.terms {
             let slot = if self.primed { (term.head + 1) % term.history } else { 0 };
             let frame = &mut term.ring[slot * term.dim..(slot + 1) * term.dim];

@@ -244,8 +244,8 @@ impl Perception {
                 .build(self.frame.as_slice(), current, &self.filter, &mut self.grid);
         };
         // Heading frame → robot frame at `now`: undo yaw only (roll and pitch stay gravity-aligned).
-        let yaw_now = now.rot[1][0].atan2(now.rot[0][0]);
-        let (s, c) = yaw_now.sin_cos();
+        let yaw_now = libm::atan2f(now.rot[1][0], now.rot[0][0]);
+        let (s, c) = libm::sincosf(yaw_now);
         let unyaw = [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]];
         let mount = RobotFrame::new(&self.mount, 0.0, 0.0, 0.0);
         let (mut n, mut self_hits, mut non_finite) = (0usize, 0usize, 0usize);

@@ -366,12 +366,12 @@ fn unique() -> u64 {
 fn tilt_deg(q: [f64; 4]) -> f64 {
     let [_, x, y, _] = q;
     // Body z axis in world: its z component is 1 - 2(x² + y²).
-    (1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0).acos().to_degrees()
+    libm::acos((1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0)).to_degrees()
 }
 
 fn yaw(q: [f64; 4]) -> f64 {
     let [w, x, y, z] = q;
-    (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
+    libm::atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 }
 
 /// Runs the firmware against the simulator. `observe` sees every tick (evaluation only).

@@ -184,7 +184,7 @@ impl Supervisor {
             frozen_watch[slot] = true;
         }
         Self {
-            cos_tilt_limit: s.tilt_limit_rad.cos(),
+            cos_tilt_limit: libm::cosf(s.tilt_limit_rad),
             joint_speed_limit: s.joint_speed_limit_rad_s,
             ang_speed_limit_sq: s.base_ang_speed_limit_rad_s * s.base_ang_speed_limit_rad_s,
             winding_limit: s.motor_winding_limit_c,

@@ -1,5 +1,7 @@
 //! Tests of `firmware::nn`: golden output of the peer policy (needs `../shared`), small cases
 //! against an f64 reference on random weights, load errors, reset and a determinism fingerprint.
+// Test inputs come from std's math on the host; this never runs on the robot.
+#![allow(clippy::disallowed_methods)]
 
 use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError};
 use safetensors::tensor::{Dtype, TensorView};

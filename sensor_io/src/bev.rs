@@ -131,15 +131,15 @@ impl MountPose {
 type M3 = [[f64; 3]; 3];
 
 fn rot_x(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
+    let (s, c) = libm::sincos(a);
     [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]
 }
 fn rot_y(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
+    let (s, c) = libm::sincos(a);
     [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
 }
 fn rot_z(a: f64) -> M3 {
-    let (s, c) = a.sin_cos();
+    let (s, c) = libm::sincos(a);
     [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
 }
 /// Rotation matrix (rows) of roll, pitch, yaw: `Rz(yaw) · Ry(pitch) · Rx(roll)` (URDF / ZYX Euler).

@@ -1,6 +1,8 @@
 //! The per-frame paths allocate nothing once constructed: `BevBuilder::build*` and
 //! `FrameAssembler::push`/`flush`. A counting global allocator counts this thread's allocations
 //! only, so tests running in parallel do not disturb each other.
+// Test inputs come from std's math on the host; this never runs on the robot.
+#![allow(clippy::disallowed_methods)]
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 

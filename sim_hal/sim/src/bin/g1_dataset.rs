@@ -1,5 +1,7 @@
 //! `g1-dataset`: labelled BEV datasets for the terrain estimator, and the geometric estimator's
 //! errors on held-out worlds. See `g1_sim::dataset` for the pose distribution and the rendering.
+// The simulator never runs on the robot: std's math is fine here (see clippy.toml).
+#![allow(clippy::disallowed_methods)]
 use std::path::PathBuf;
 use std::time::Instant;
 
