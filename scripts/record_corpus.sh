@@ -15,6 +15,10 @@ $G sim --quiet --model g1-12dof --spec specs/peer/unitree_g1_lstm.toml --duratio
   --fault corrupt@1.5+0.1 --log "$out/peer_crc_fault_12dof.mcap" > /dev/null
 $G sim --quiet --model g1-29dof --spec specs/test/rl_lab_style.toml --duration 2 --keep-going \
   --cmd-schedule "$tmp/estop.txt" --log "$out/rl_lab_estop_29dof.mcap" > /dev/null
+# Perception into the policy: lidar over the bridge, BEV, the built-in terrain CNN, the token decode
+# (atan2 of a 25-degree yaw) and a spec that observes terrain_token. 0.8 s keeps it under 5 MB.
+$G sim --quiet --model g1-29dof --spec specs/test/rl_lab_terrain.toml --duration 0.8 --ramp 0.3 --keep-going \
+  --world specs/worlds/yawed_outdoor.toml --seed 0 --log "$out/rl_lab_terrain_cnn_29dof.mcap" > /dev/null
 for f in "$out"/*.mcap; do
   $G replay "$f" > /dev/null
 done
