@@ -7,7 +7,7 @@
 # Everything else (the suite to run, CI, PATH, …) comes from "$hil_dir/env.sh", written by the host.
 #
 # Protocol on the console (the UML process's stdout), read by the host:
-#   HIL:VCAN_UP <guest uptime s>      vcan0 and vcan1 are up
+#   HIL:VCAN_UP <guest uptime s>      vcan0..vcan3 are up
 #   HIL:SUITE_START                   the suite's output follows (also in $hil_dir/suite.log)
 #   HIL:SUITE_EXIT <status> <wall s>  the suite ended (also in $hil_dir/status)
 #   HIL:ERROR <message>               the guest could not set itself up (also in $hil_dir/error)
@@ -41,15 +41,17 @@ mount -t tmpfs -o mode=755 tmpfs /run || fail "cannot mount /run"
 mount -t hostfs -o "$hil_dir" hostfs "$hil_dir" || fail "cannot mount the host directory $hil_dir (hostfs)"
 [ -f "$hil_dir/env.sh" ] || fail "$hil_dir/env.sh not found (written by cargo xtask hil)"
 
-# CAN: the modules ship with the UML kernel, in dependency order (can-raw needs can, vcan can-dev).
+# CAN: the modules ship with the UML kernel, in dependency order (can-raw and can-gw need can, vcan
+# needs can-dev). can-gw lets a test put a gateway between the firmware's buses (vcan0/vcan1) and the
+# emulator's (vcan2/vcan3), so it can talk to one side only.
 kver=$(uname -r)
 moddir=/usr/lib/uml/modules/$kver/kernel
-for m in net/can/can.ko net/can/can-raw.ko drivers/net/can/dev/can-dev.ko drivers/net/can/vcan.ko; do
+for m in net/can/can.ko net/can/can-raw.ko net/can/can-gw.ko drivers/net/can/dev/can-dev.ko drivers/net/can/vcan.ko; do
   [ -f "$moddir/$m" ] || fail "kernel module $moddir/$m not found (package user-mode-linux for kernel $kver)"
   insmod "$moddir/$m" || fail "insmod $moddir/$m failed"
 done
 ip link set lo up
-for dev in vcan0 vcan1; do
+for dev in vcan0 vcan1 vcan2 vcan3; do
   ip link add dev "$dev" type vcan || fail "ip link add $dev type vcan failed"
   ip link set "$dev" up || fail "ip link set $dev up failed"
 done

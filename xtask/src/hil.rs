@@ -160,6 +160,7 @@ fn preflight(repo: &Path) -> Result<()> {
         ("candump", "can-utils"),
         ("cansend", "can-utils"),
         ("cangen", "can-utils"),
+        ("cangw", "can-utils"),
         ("bash", "bash"),
     ] {
         let found = ["/usr/sbin", "/usr/bin", "/sbin", "/bin"]
