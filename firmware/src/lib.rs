@@ -13,6 +13,7 @@
 //! - [`robot`]: the G1's joint ranges.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 pub mod bev_render;
+pub mod can_run;
 pub mod controller;
 pub mod log;
 pub mod log_tools;

@@ -39,6 +39,8 @@ pub mod key {
     pub const HOLD_ONLY: &str = "hold_only";
     pub const RAMP_S: &str = "ramp_s";
     pub const HOLD_S: &str = "hold_s";
+    /// "false" when the run judged no joint as frozen (quantized HALs: CAN).
+    pub const FROZEN_CHECK: &str = "frozen_check";
 }
 
 #[derive(Clone, Debug, Default)]
@@ -573,6 +575,9 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     }
     let load_seconds = wall.elapsed().as_secs_f64();
     let mut rt = Runtime::new(controller);
+    if meta.get(key::FROZEN_CHECK).is_some_and(|v| v == "false") {
+        rt.disable_frozen_check();
+    }
     let mut hal = ReplayHal {
         rec: &rec,
         next: 0,

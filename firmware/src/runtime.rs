@@ -141,6 +141,10 @@ impl Runtime {
     pub fn timing_stats(&self) -> &TimingStats {
         &self.stats
     }
+    /// See [`Supervisor::disable_frozen_check`]; recorded in the log's metadata so replay does the same.
+    pub fn disable_frozen_check(&mut self) {
+        self.supervisor.disable_frozen_check();
+    }
     pub fn counters(&self) -> SafetyCounters {
         self.supervisor.counters()
     }

@@ -37,6 +37,10 @@ pub enum DampingReason {
     },
     /// The HAL's link failed (disconnect, I/O error).
     HalFault,
+    /// A motor stopped answering (the HAL flags it with `hal::MOTOR_STATE_NO_REPLY`).
+    MotorSilent {
+        slot: u8,
+    },
     /// Operator emergency stop.
     EStop,
     /// Requested by code (tests, shutdown).
@@ -59,6 +63,7 @@ impl DampingReason {
             DampingReason::NonFiniteAction => "non_finite_action",
             DampingReason::FrozenJoint { .. } => "frozen_joint",
             DampingReason::HalFault => "hal_fault",
+            DampingReason::MotorSilent { .. } => "motor_silent",
             DampingReason::EStop => "estop",
             DampingReason::Requested => "requested",
         }
@@ -69,7 +74,8 @@ impl DampingReason {
         match *self {
             DampingReason::JointSpeed { slot }
             | DampingReason::MotorTemperature { slot }
-            | DampingReason::FrozenJoint { slot } => Some(slot),
+            | DampingReason::FrozenJoint { slot }
+            | DampingReason::MotorSilent { slot } => Some(slot),
             _ => None,
         }
     }
@@ -91,6 +97,7 @@ impl DampingReason {
             DampingReason::HalFault => 12,
             DampingReason::EStop => 13,
             DampingReason::Requested => 14,
+            DampingReason::MotorSilent { .. } => 15,
         }
     }
 }
@@ -206,6 +213,13 @@ impl Supervisor {
         self.counters
     }
 
+    /// Stops judging joints as frozen. For HALs whose readings are quantized (CAN's 16- and 12-bit
+    /// fields repeat exactly while a joint rests), where a dead motor shows as a missing reply
+    /// (`MotorSilent`) instead.
+    pub fn disable_frozen_check(&mut self) {
+        self.frozen_watch = [false; NUM_MOTORS];
+    }
+
     /// Clears streaks and histories after an operator reset (the latch itself lives in the controller).
     pub fn reset(&mut self, tick: u64) {
         self.frozen_count = [0; NUM_MOTORS];
@@ -276,6 +290,10 @@ impl Supervisor {
                 continue;
             }
             let slot = s as u8;
+            // Its other fields are stale: judge the silence, not them.
+            if m.motor_state & hal::MOTOR_STATE_NO_REPLY != 0 {
+                return Some(DampingReason::MotorSilent { slot });
+            }
             if !(m.q.is_finite() && m.dq.is_finite()) {
                 return Some(DampingReason::NonFiniteInput);
             }

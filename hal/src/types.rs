@@ -6,6 +6,10 @@ use crate::NUM_MOTORS;
 pub const MOTOR_MODE_DISABLED: u8 = 0;
 pub const MOTOR_MODE_ENABLED: u8 = 1;
 
+/// `MotorState::motor_state` bit a HAL sets while a motor has not answered for longer than its
+/// timeout (the motor's other fields are then its last answer). The safety supervisor damps on it.
+pub const MOTOR_STATE_NO_REPLY: u32 = 1 << 31;
+
 /// One motor slot of `LowCmd_`. The motor driver applies
 /// `tau_out = tau + kp (q − q_meas) + kd (dq − dq_meas)`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

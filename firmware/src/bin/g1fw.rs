@@ -25,6 +25,11 @@ enum Cmd {
     /// Start the MuJoCo simulator (g1-sim) and run the firmware against it, lock-stepped over the
     /// bridge, then print (and optionally write) a JSON report evaluated from ground truth.
     Sim(Box<SimArgs>),
+    /// Run the firmware on the robot's CAN buses (docs/can.md): the motors (MIT protocol) and the
+    /// IMU per the bus layout, until --duration or SIGINT/SIGTERM (which damp the motors). On a
+    /// bench, `g1-can-emu` plays the robot on vcan. Prints a JSON report; exit 0 when no safety trip
+    /// latched, 3 when one did, 2 on errors.
+    Run(Box<RunArgs>),
     /// Load and validate a deploy spec and its weights, print a summary, exit non-zero on any error.
     CheckSpec {
         /// Deploy spec (TOML).
@@ -163,6 +168,52 @@ struct SimArgs {
     quiet: bool,
 }
 
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Deploy spec (TOML).
+    #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
+    spec: PathBuf,
+    /// Bus layout: motor slots, node ids and ranges, the IMU's bus, timeouts (specs/can/*.toml).
+    #[arg(long, value_name = "FILE")]
+    can_config: PathBuf,
+    /// Interface names, comma-separated, in the layout's bus order (default: the layout's own).
+    #[arg(long, value_name = "IF[,IF…]", value_delimiter = ',')]
+    can: Vec<String>,
+    /// Seconds of control ticks to run (default: until SIGINT/SIGTERM).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Velocity command vx,vy,wz (m/s, m/s, rad/s), held for the whole run.
+    #[arg(long, default_value = "0,0,0", value_parser = parse_cmd, allow_hyphen_values = true, conflicts_with = "cmd_schedule")]
+    cmd: [f32; 3],
+    /// Piecewise-constant operator commands over time (as `g1fw sim --cmd-schedule`).
+    #[arg(long)]
+    cmd_schedule: Option<PathBuf>,
+    /// Record an MCAP log (replay with `g1fw replay`).
+    #[arg(long)]
+    log: Option<PathBuf>,
+    /// Write the JSON report here too.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Start-up ramp duration in seconds (overrides the spec's `startup.ramp_s`).
+    #[arg(long)]
+    ramp: Option<f64>,
+    /// Do not load or run the policy: ramp to the default pose and hold it.
+    #[arg(long)]
+    hold: bool,
+    /// Seconds to wait at start-up for every motor to answer and the first IMU sample.
+    #[arg(long, default_value_t = 10.0)]
+    startup_timeout: f64,
+    /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
+    #[arg(long)]
+    rt_priority: Option<i32>,
+    /// Pin the control thread to this CPU.
+    #[arg(long)]
+    cpu: Option<usize>,
+    /// Lock all memory (mlockall) so the control loop never page-faults.
+    #[arg(long)]
+    mlockall: bool,
+}
+
 fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
     let v: Vec<f32> = s
         .split(',')
@@ -206,6 +257,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Sim(a) => sim(*a),
+        Cmd::Run(a) => run_can(*a),
         Cmd::Replay(a) => {
             let report = replay(
                 &a.log,
@@ -326,4 +378,72 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         "run finished"
     );
     Ok(ExitCode::SUCCESS)
+}
+
+fn run_can(a: RunArgs) -> Result<ExitCode> {
+    if a.duration.is_some_and(|d| !(d > 0.0 && d.is_finite())) {
+        bail!("--duration must be a positive number of seconds");
+    }
+    if !(a.startup_timeout > 0.0 && a.startup_timeout.is_finite()) {
+        bail!("--startup-timeout must be a positive number of seconds");
+    }
+    let spec = DeploySpec::load(&a.spec)?;
+    let mut layout = sensor_io::can::BusLayout::load(&a.can_config)?;
+    if !a.can.is_empty() {
+        if a.can.len() != layout.interfaces.len() {
+            bail!(
+                "--can names {} interfaces but {} has {} buses ({})",
+                a.can.len(),
+                a.can_config.display(),
+                layout.interfaces.len(),
+                layout.interfaces.join(",")
+            );
+        }
+        layout.interfaces = a.can.clone();
+    }
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
+    }
+    let opts = firmware::can_run::CanRunOptions {
+        schedule: match &a.cmd_schedule {
+            Some(p) => CommandSchedule::load(p)?,
+            None => CommandSchedule::constant(a.cmd),
+        },
+        duration_s: a.duration,
+        ramp_override: a.ramp.map(|r| (r, spec.startup.hold_s)),
+        hold_only: a.hold,
+        startup_timeout: std::time::Duration::from_secs_f64(a.startup_timeout),
+        log: a.log.clone(),
+        log_options: Default::default(),
+        rt: firmware::rt::RtOptions {
+            fifo_priority: a.rt_priority,
+            cpu: a.cpu,
+            mlockall: a.mlockall,
+        },
+        stop,
+    };
+    tracing::info!(
+        interfaces = layout.interfaces.join(","),
+        motors = layout.motors.len(),
+        "starting on CAN"
+    );
+    let report = firmware::can_run::run_can(spec, layout, &opts)?;
+    let json = serde_json::to_string_pretty(&report)?;
+    println!("{json}");
+    if let Some(path) = a.report {
+        std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+    }
+    tracing::info!(
+        ticks = report.ticks,
+        mode = report.final_mode,
+        trip = report.trip.as_ref().map_or("none".to_string(), |t| t.reason.clone()),
+        end = report.end,
+        "run finished"
+    );
+    Ok(if report.trip.is_some() {
+        ExitCode::from(3)
+    } else {
+        ExitCode::SUCCESS
+    })
 }

@@ -1,0 +1,202 @@
+//! `g1fw run`: the firmware on the robot's CAN buses (docs/can.md), or on vcan against
+//! `g1-can-emu`. The same `run_loop`, controller and logger as `g1fw sim`; only the HAL differs.
+//! There is no ground truth here: the report says what the firmware saw and did.
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use serde::Serialize;
+use sim_hal::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
+
+use crate::controller::Controller;
+use crate::log::{LogOptions, LogStats, Logger, RunMeta};
+use crate::operator::CommandSchedule;
+use crate::replay::key;
+use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
+use crate::sim_run::{SafetyReport, TripReport};
+use crate::spec::DeploySpec;
+
+impl<B: CanBuses> FrameSource for CanHal<B> {
+    /// The assembled state as unitree_hg bytes: the log records them and replay decodes them with
+    /// the same codec as a bridge run's.
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.fresh().then(|| &self.state_bytes()[..])
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct CanRunOptions {
+    pub schedule: CommandSchedule,
+    /// Stop after this many seconds of control ticks; `None`: until SIGINT/SIGTERM.
+    pub duration_s: Option<f64>,
+    pub ramp_override: Option<(f64, f64)>,
+    pub hold_only: bool,
+    /// How long start-up waits for every motor to answer and the IMU's first sample.
+    pub startup_timeout: Duration,
+    pub log: Option<PathBuf>,
+    pub log_options: LogOptions,
+    pub rt: crate::rt::RtOptions,
+    /// Stop when this becomes true (signal handlers set it); the motors are then damped.
+    pub stop: Arc<AtomicBool>,
+}
+
+impl Default for CanRunOptions {
+    fn default() -> Self {
+        Self {
+            schedule: CommandSchedule::constant([0.0; 3]),
+            duration_s: None,
+            ramp_override: None,
+            hold_only: false,
+            startup_timeout: Duration::from_secs(10),
+            log: None,
+            log_options: LogOptions::default(),
+            rt: crate::rt::RtOptions::default(),
+            stop: Arc::new(AtomicBool::new(false)),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CanReport {
+    pub interfaces: Vec<String>,
+    pub ticks: u64,
+    pub time_s: f64,
+    pub policy_steps: u64,
+    pub final_mode: String,
+    pub trip: Option<TripReport>,
+    /// `completed`, `stopped` (signal) or the HAL failure.
+    pub end: String,
+    pub safety: SafetyReport,
+    pub can: CanCounters,
+    pub spec: String,
+    pub weights_sha256: String,
+    pub log: Option<LogStats>,
+    pub wall_s: f64,
+}
+
+/// Opens the layout's interfaces and runs.
+pub fn run_can(spec: DeploySpec, layout: sensor_io::can::BusLayout, opts: &CanRunOptions) -> Result<CanReport> {
+    let buses = SocketCanBuses::open(&layout.interfaces)?;
+    run_on(spec, layout, buses, opts)
+}
+
+/// Runs over any buses (SocketCAN, or the in-process bus in tests).
+pub fn run_on<B: CanBuses>(
+    mut spec: DeploySpec,
+    layout: sensor_io::can::BusLayout,
+    buses: B,
+    opts: &CanRunOptions,
+) -> Result<CanReport> {
+    if let Some((ramp, hold)) = opts.ramp_override {
+        spec.startup.ramp_s = ramp;
+        spec.startup.hold_s = hold;
+    }
+    let spec_name = spec.path.display().to_string();
+    let control_dt = spec.control_dt();
+    let on_bus = layout.slot_mask();
+    let missing: Vec<&str> = spec
+        .policy
+        .joint_ids_map
+        .iter()
+        .filter(|&&s| on_bus & (1 << s) == 0)
+        .map(|&s| hal::G1_MOTOR_NAMES[s])
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "the bus layout has no motors for joints the policy drives: {}",
+            missing.join(", ")
+        );
+    }
+    let mut meta = RunMeta::default();
+    meta.set("firmware_version", env!("CARGO_PKG_VERSION"))
+        .set(key::SPEC_PATH, spec.path.display())
+        .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
+        .set(key::SPEC_TOML, &spec.source_text)
+        .set(key::HOLD_ONLY, opts.hold_only)
+        .set(key::RAMP_S, spec.startup.ramp_s)
+        .set(key::HOLD_S, spec.startup.hold_s)
+        .set("control_hz", spec.rates.control_hz)
+        .set("hal", "can")
+        // Quantized readings repeat exactly while a joint rests; a dead motor is a missing reply.
+        .set(key::FROZEN_CHECK, false)
+        .set("can_interfaces", layout.interfaces.join(","));
+    let controller = if opts.hold_only {
+        Controller::hold_only(spec)
+    } else {
+        Controller::new(spec)?
+    };
+    let weights_sha256 = controller.weights_sha256();
+    meta.set(key::WEIGHTS_SHA256, &weights_sha256);
+    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
+    let interfaces = layout.interfaces.clone();
+    let period_ns = (control_dt * 1e9).round() as u64;
+    let mut hal = CanHal::open(buses, layout, period_ns, opts.startup_timeout)?;
+    let mut logger = match &opts.log {
+        Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
+        None => None,
+    };
+    crate::rt::apply(&opts.rt)?;
+    let last_tick = opts.duration_s.map_or(u64::MAX, |d| (d / control_dt).round() as u64);
+    let mut runtime = Runtime::new(controller);
+    runtime.disable_frozen_check();
+    let mut operator = opts.schedule.source(period_ns);
+    let wall = Instant::now();
+    let mut ticks = 0u64;
+    let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
+        if let Some(l) = logger.as_mut() {
+            l.push(v);
+        }
+        ticks = v.summary.tick.index;
+        !opts.stop.load(Ordering::Relaxed)
+    });
+    let end_text = match &end {
+        LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { .. } => {
+            // A signal: leave the robot damped, not holding its last targets.
+            let mut cmd = hal::LowCommand::default();
+            let state = hal::LowState::default();
+            runtime.fail_safe(ticks + 1, crate::supervisor::DampingReason::Requested, &state, &mut cmd);
+            let sent = hal::LowLevel::write_command(&mut hal, &cmd).is_ok();
+            format!(
+                "stopped by signal; damping {}",
+                if sent { "sent" } else { "could not be sent" }
+            )
+        }
+        LoopEnd::HalError { tick, kind, message } => {
+            format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
+        }
+    };
+    let log = match logger {
+        Some(l) => Some(l.finish().context("closing the log")?),
+        None => None,
+    };
+    let counters = runtime.counters();
+    Ok(CanReport {
+        interfaces,
+        ticks,
+        time_s: ticks as f64 * control_dt,
+        policy_steps: runtime.controller().policy_steps(),
+        final_mode: format!("{:?}", runtime.mode()),
+        trip: runtime.trip().map(|(tick, reason)| TripReport {
+            tick,
+            time_s: tick as f64 * control_dt,
+            reason: reason.to_string(),
+        }),
+        end: end_text,
+        safety: SafetyReport {
+            crc_failures: counters.crc_failures,
+            missing_frames: counters.missing_frames,
+            stale_frames: counters.stale_frames,
+            malformed_frames: counters.malformed_frames,
+            clamped_targets: runtime.controller().clamped_targets(),
+            overruns: runtime.overruns(),
+        },
+        can: hal.counters(),
+        spec: spec_name,
+        weights_sha256,
+        log,
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
+}

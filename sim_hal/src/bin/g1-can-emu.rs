@@ -1,0 +1,229 @@
+//! `g1-can-emu`: the G1's motors and IMU on CAN, backed by the MuJoCo simulator.
+//!
+//! firmware ⇄ CAN (vcan0, vcan1, …) ⇄ g1-can-emu ⇄ bridge ⇄ g1-sim (MuJoCo). It speaks docs/can.md
+//! as the motors would, lock-stepped: once every motor has a command, the simulator advances one
+//! control period and the motors answer. It never links MuJoCo: it starts `g1-sim` (or connects to
+//! a running one) and talks to it over the bridge, exactly like `g1fw sim` does.
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use sensor_io::can::BusLayout;
+use sim_hal::bridge::{BridgeHal, Wants};
+use sim_hal::can::{serve, MotorEmulator, ServeOptions, SocketCanBuses};
+
+#[derive(Parser)]
+#[command(version, about, long_about = None)]
+struct Args {
+    /// Bus layout (motor slots, node ids, ranges, IMU bus): e.g. specs/can/g1_12dof.toml.
+    #[arg(long, value_name = "FILE")]
+    can_config: PathBuf,
+    /// Interface names, comma-separated, in the layout's bus order (default: the layout's names).
+    #[arg(long, value_name = "IF[,IF…]", value_delimiter = ',')]
+    can: Vec<String>,
+    /// Robot model for g1-sim: g1-12dof, g1-29dof or an MJCF path.
+    #[arg(long, default_value = "g1-12dof")]
+    model: String,
+    /// Control rate the motors are stepped at (must match the firmware's spec).
+    #[arg(long, default_value_t = 500)]
+    control_hz: u32,
+    #[arg(long, default_value_t = 0.002)]
+    physics_dt: f64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Passed to g1-sim (its `--fault` grammar), repeatable.
+    #[arg(long = "fault", value_name = "SPEC")]
+    faults: Vec<String>,
+    /// Passed to g1-sim (`--imu-noise`).
+    #[arg(long)]
+    imu_noise: Option<String>,
+    /// Connect to a running g1-sim at this Unix socket instead of starting one.
+    #[arg(long, value_name = "SOCKET")]
+    connect: Option<PathBuf>,
+    /// The g1-sim binary (default: beside this one, or $G1_SIM_BIN).
+    #[arg(long)]
+    sim_bin: Option<PathBuf>,
+    /// Fault: this joint's motor loses power at this time (it goes limp and stops answering),
+    /// e.g. `right_knee@3.0`. Repeatable.
+    #[arg(long, value_name = "JOINT@SECONDS")]
+    power_off: Vec<String>,
+    /// Stop after this many control ticks.
+    #[arg(long)]
+    max_ticks: Option<u64>,
+    /// Seconds to wait for the firmware to enter motor mode on every motor.
+    #[arg(long, default_value_t = 120.0)]
+    startup_timeout_s: f64,
+    /// Seconds of bus silence after start-up after which the firmware counts as gone.
+    #[arg(long, default_value_t = 5.0)]
+    idle_timeout_s: f64,
+    /// Write the ground-truth report (fell, base height, distance, counters) here as JSON.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
+    /// Write one line "ready" here once the buses are open and the simulator is connected (so a
+    /// test can start the firmware only then).
+    #[arg(long, value_name = "FILE")]
+    ready_file: Option<PathBuf>,
+    #[arg(long)]
+    quiet: bool,
+}
+
+struct SimChild(Child, PathBuf);
+
+impl Drop for SimChild {
+    fn drop(&mut self) {
+        for _ in 0..100 {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+        let _ = std::fs::remove_file(&self.1);
+    }
+}
+
+fn sim_bin(explicit: Option<PathBuf>) -> Result<PathBuf> {
+    if let Some(p) = explicit.or_else(|| std::env::var_os("G1_SIM_BIN").map(PathBuf::from)) {
+        return Ok(p);
+    }
+    let exe = std::env::current_exe()?;
+    let c = exe.with_file_name("g1-sim");
+    if c.is_file() {
+        return Ok(c);
+    }
+    bail!(
+        "cannot find g1-sim next to {}; build it with `cargo build --release -p g1_sim` or pass --sim-bin",
+        exe.display()
+    )
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    let mut layout = BusLayout::load(&args.can_config)?;
+    if !args.can.is_empty() {
+        if args.can.len() != layout.interfaces.len() {
+            bail!(
+                "--can names {} interfaces but {} has {} buses",
+                args.can.len(),
+                args.can_config.display(),
+                layout.interfaces.len()
+            );
+        }
+        layout.interfaces = args.can.clone();
+    }
+    let mut buses = SocketCanBuses::open(&layout.interfaces)?;
+    let control_dt = 1.0 / args.control_hz as f64;
+    let mut _child = None;
+    let mut bridge = match &args.connect {
+        Some(p) => BridgeHal::connect_unix(
+            p,
+            Wants {
+                truth: true,
+                lidar: false,
+            },
+            Duration::from_secs(30),
+            || Ok(()),
+        )?,
+        None => {
+            let bin = sim_bin(args.sim_bin.clone())?;
+            let socket = std::env::temp_dir().join(format!("g1-can-emu-{}.sock", std::process::id()));
+            let _ = std::fs::remove_file(&socket);
+            let mut cmd = Command::new(&bin);
+            cmd.arg("--socket")
+                .arg(&socket)
+                .args(["--model", &args.model])
+                .args(["--seed", &args.seed.to_string()])
+                .args(["--physics-dt", &args.physics_dt.to_string()])
+                .args(["--control-dt", &control_dt.to_string()])
+                .args(args.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
+                .args(args.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
+                .arg("--quiet")
+                .stdin(Stdio::null());
+            let child = cmd.spawn().with_context(|| format!("starting {}", bin.display()))?;
+            let mut c = SimChild(child, socket.clone());
+            let hal = BridgeHal::connect_unix(
+                &socket,
+                Wants {
+                    truth: true,
+                    lidar: false,
+                },
+                Duration::from_secs(120),
+                || match c.0.try_wait() {
+                    Ok(Some(s)) => Err(format!("g1-sim exited during start-up ({s})")),
+                    _ => Ok(()),
+                },
+            )?;
+            _child = Some(c);
+            hal
+        }
+    };
+    let present = bridge.welcome().motor_slots_present;
+    let missing: Vec<&str> = layout
+        .motors
+        .iter()
+        .filter(|m| present & (1 << m.slot) == 0)
+        .map(|m| hal::G1_MOTOR_NAMES[m.slot])
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "the model '{}' has no joints for these motors of the bus layout: {}",
+            args.model,
+            missing.join(", ")
+        );
+    }
+    if let Some(p) = &args.ready_file {
+        std::fs::write(p, "ready\n").with_context(|| format!("writing {}", p.display()))?;
+    }
+    if !args.quiet {
+        eprintln!(
+            "g1-can-emu: {} motors on {} (IMU on {}), model {}, waiting for the firmware",
+            layout.motors.len(),
+            layout.interfaces.join(","),
+            layout.interfaces[layout.imu_bus],
+            args.model
+        );
+    }
+    let mut power_off = Vec::new();
+    for p in &args.power_off {
+        let (joint, at) = p
+            .split_once('@')
+            .with_context(|| format!("--power-off {p}: expected JOINT@SECONDS, e.g. right_knee@3.0"))?;
+        let slot = hal::G1_MOTOR_NAMES
+            .iter()
+            .position(|n| *n == joint)
+            .filter(|&s| layout.motors.iter().any(|m| m.slot == s))
+            .with_context(|| format!("--power-off {p}: '{joint}' is not a motor of the bus layout"))?;
+        let secs: f64 = at
+            .parse()
+            .with_context(|| format!("--power-off {p}: '{at}' is not a time in seconds"))?;
+        if !(secs >= 0.0 && secs.is_finite()) {
+            bail!("--power-off {p}: the time must be a non-negative number of seconds");
+        }
+        power_off.push((slot, (secs / control_dt).round() as u64));
+    }
+    let mut emu = MotorEmulator::new(layout);
+    let opts = ServeOptions {
+        max_ticks: args.max_ticks,
+        startup_timeout: Duration::from_secs_f64(args.startup_timeout_s),
+        idle_timeout: Duration::from_secs_f64(args.idle_timeout_s),
+        control_dt,
+        power_off,
+    };
+    let report = serve(&mut buses, &mut emu, &mut bridge, &opts, |_, _| {})?;
+    bridge.close();
+    let json = serde_json::to_string_pretty(&report)? + "\n";
+    match &args.report {
+        Some(p) => std::fs::write(p, &json).with_context(|| format!("writing {}", p.display()))?,
+        None => print!("{json}"),
+    }
+    if !args.quiet {
+        eprintln!(
+            "g1-can-emu: {} ticks ({:.2} s simulated in {:.1} s), fell: {}, ended: {}",
+            report.ticks, report.time_s, report.wall_s, report.fell, report.end
+        );
+    }
+    Ok(())
+}

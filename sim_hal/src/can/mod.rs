@@ -1,0 +1,59 @@
+//! The G1 on CAN (docs/can.md): the firmware-side HAL ([`CanHal`]), the motor-side emulator logic
+//! ([`MotorEmulator`], served by the `g1-can-emu` binary over the MuJoCo bridge), and the buses they
+//! talk over — SocketCAN ([`SocketCanBuses`]) on a robot or in the HIL VM, or an in-process bus
+//! ([`mem_buses`]) so the same code is tested on a host whose kernel has no CAN.
+mod emulator;
+mod hal_impl;
+mod mem;
+mod serve;
+mod socket;
+
+use std::time::Duration;
+
+pub use emulator::{EmuCounters, EmuEvent, MotorEmulator};
+pub use hal_impl::{CanCounters, CanError, CanHal, MOTOR_STATE_NO_REPLY};
+pub use mem::{mem_buses, MemBuses};
+pub use sensor_io::can::CanFrame;
+pub use serve::{serve, EmuReport, ServeError, ServeOptions};
+pub use socket::SocketCanBuses;
+
+/// Identifier given to frames that are not classic data frames with a standard id (extended ids,
+/// remote and error frames): no node of ours uses them, so they are foreign.
+pub const FOREIGN_ID: u16 = 0xFFFF;
+
+/// A transport failure on one bus.
+#[derive(Debug, thiserror::Error)]
+#[error("CAN bus {bus} ({name}): {source}")]
+pub struct BusError {
+    pub bus: usize,
+    pub name: String,
+    #[source]
+    pub source: std::io::Error,
+}
+
+impl BusError {
+    pub fn kind(&self) -> hal::ErrorKind {
+        use std::io::ErrorKind as K;
+        match self.source.kind() {
+            K::NotConnected | K::BrokenPipe | K::ConnectionReset | K::NotFound | K::UnexpectedEof => {
+                hal::ErrorKind::Disconnected
+            }
+            K::TimedOut => hal::ErrorKind::Timeout,
+            _ if self.source.raw_os_error() == Some(NETDOWN) => hal::ErrorKind::Disconnected,
+            _ => hal::ErrorKind::Other,
+        }
+    }
+}
+
+/// ENETDOWN on Linux: the interface went down under us.
+const NETDOWN: i32 = 100;
+
+/// One or more CAN buses, seen from one node.
+pub trait CanBuses {
+    fn count(&self) -> usize;
+    /// Queues `frame` on `bus`. `Ok(false)`: the transmit queue is full and the frame was dropped
+    /// (a congested bus, not a dead one; the caller counts it).
+    fn send(&mut self, bus: usize, frame: &CanFrame) -> Result<bool, BusError>;
+    /// The next frame received on any bus, waiting at most `timeout` (zero: do not wait).
+    fn recv(&mut self, timeout: Duration) -> Result<Option<(usize, CanFrame)>, BusError>;
+}

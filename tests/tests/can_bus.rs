@@ -1,0 +1,315 @@
+//! The firmware on CAN on a machine whose kernel has no CAN: firmware (`g1fw run`'s code) ⇄ an
+//! in-process bus ⇄ the motor emulator (`g1-can-emu`'s code) ⇄ bridge ⇄ g1-sim (MuJoCo), with a
+//! third node on the bus that sniffs and injects. The same checks run over vcan in the HIL VM
+//! (`cargo xtask hil`, with python-can as the independent peer).
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use firmware::can_run::{run_on, CanReport, CanRunOptions};
+use firmware::operator::CommandSchedule;
+use firmware::spec::DeploySpec;
+use integration_tests::*;
+use sensor_io::can::{decode_motor_rx, BusLayout, CanFrame, MotorRx, IMU_ACCEL_ID};
+use sim_hal::bridge::{BridgeHal, Wants};
+use sim_hal::can::{mem_buses, serve, CanBuses, EmuReport, MemBuses, MotorEmulator, ServeOptions};
+
+/// The robot's layout, with a longer IMU timeout: these runs are lock-stepped on a shared machine
+/// where a process can stall for longer than the robot's 250 ms.
+fn layout() -> BusLayout {
+    let mut l = BusLayout::load(&repo_root().join("specs/can/g1_12dof.toml")).expect("bus layout");
+    l.tick_timeout_ms = 10_000;
+    l
+}
+
+struct Sim(Child);
+impl Drop for Sim {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread.
+fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, power_off: Vec<(usize, u64)>) -> JoinHandle<EmuReport> {
+    let socket = scratch_dir("can_bus").join(format!("{name}.sock"));
+    let _ = std::fs::remove_file(&socket);
+    let child = Command::new(built_bin("g1-sim"))
+        .arg("--socket")
+        .arg(&socket)
+        .args(["--model", "g1-12dof", "--control-dt", "0.002", "--quiet"])
+        .stdin(Stdio::null())
+        .spawn()
+        .expect("start g1-sim");
+    std::thread::spawn(move || {
+        let sim = Sim(child);
+        let mut bridge = BridgeHal::connect_unix(
+            &socket,
+            Wants {
+                truth: true,
+                lidar: false,
+            },
+            Duration::from_secs(60),
+            || Ok(()),
+        )
+        .expect("connect to g1-sim");
+        let mut emu = MotorEmulator::new(layout());
+        let opts = ServeOptions {
+            // The firmware commands ticks 0..N-1 of an N-tick run: then the emulator is done.
+            max_ticks: Some(ticks),
+            startup_timeout: Duration::from_secs(60),
+            idle_timeout: Duration::from_secs(10),
+            control_dt: 0.002,
+            power_off,
+        };
+        let r = serve(&mut bus, &mut emu, &mut bridge, &opts, |_, _| {}).expect("emulator serves");
+        bridge.close();
+        drop(sim);
+        r
+    })
+}
+
+/// What the third node saw: every frame in order, the IMU samples counted.
+#[derive(Default)]
+struct Sniffed {
+    frames: Vec<(usize, CanFrame, u64)>,
+}
+
+/// A node that records everything and, after `at_sample` IMU samples, sends `inject` once.
+fn start_peer(
+    mut bus: MemBuses,
+    at_sample: u64,
+    inject: Vec<(usize, CanFrame)>,
+    done: Arc<AtomicBool>,
+) -> (JoinHandle<()>, Arc<Mutex<Sniffed>>) {
+    let seen = Arc::new(Mutex::new(Sniffed::default()));
+    let out = seen.clone();
+    let h = std::thread::spawn(move || {
+        let mut samples = 0u64;
+        let mut injected = inject.is_empty();
+        while !done.load(Ordering::Relaxed) {
+            let Ok(Some((b, f))) = bus.recv(Duration::from_millis(20)) else {
+                continue;
+            };
+            if f.id == IMU_ACCEL_ID {
+                samples += 1;
+            }
+            seen.lock().unwrap().frames.push((b, f, samples));
+            if !injected && samples >= at_sample {
+                for (b, f) in &inject {
+                    bus.send(*b, f).unwrap();
+                }
+                injected = true;
+            }
+        }
+    });
+    (h, out)
+}
+
+struct Run {
+    fw: CanReport,
+    emu: EmuReport,
+    sniffed: Vec<(usize, CanFrame, u64)>,
+}
+
+fn run(name: &str, cmd: [f32; 3], duration_s: f64, at_sample: u64, inject: Vec<(usize, CanFrame)>) -> Run {
+    run_with(name, cmd, duration_s, at_sample, inject, vec![])
+}
+
+fn run_with(
+    name: &str,
+    cmd: [f32; 3],
+    duration_s: f64,
+    at_sample: u64,
+    inject: Vec<(usize, CanFrame)>,
+    power_off: Vec<(usize, u64)>,
+) -> Run {
+    let mut eps = mem_buses(2, 3).into_iter();
+    let (fw_bus, emu_bus, peer_bus) = (eps.next().unwrap(), eps.next().unwrap(), eps.next().unwrap());
+    let done = Arc::new(AtomicBool::new(false));
+    let (peer, sniffed) = start_peer(peer_bus, at_sample, inject, done.clone());
+    let emu = start_emulator(name, emu_bus, (duration_s / 0.002).round() as u64, power_off);
+    let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
+    let opts = CanRunOptions {
+        schedule: CommandSchedule::constant(cmd),
+        duration_s: Some(duration_s),
+        startup_timeout: Duration::from_secs(60),
+        ..CanRunOptions::default()
+    };
+    let fw = run_on(spec, layout(), fw_bus, &opts).expect("firmware runs on CAN");
+    let emu = emu.join().expect("emulator thread");
+    done.store(true, Ordering::Relaxed);
+    peer.join().unwrap();
+    let sniffed = std::mem::take(&mut sniffed.lock().unwrap().frames);
+    eprintln!(
+        "{name}: fw {} ticks, mode {}, trip {:?}, can {:?}; emulator {} ticks, fell {}, z_min {:.3}, x {:.2} m, {:.1} s wall",
+        fw.ticks, fw.final_mode, fw.trip, fw.can, emu.ticks, emu.fell, emu.base_z_min, emu.distance_x_m, emu.wall_s
+    );
+    Run { fw, emu, sniffed }
+}
+
+/// Decoded firmware commands after IMU sample `from`: (slot, kp, kd).
+fn commands_after(r: &Run, from: u64) -> Vec<(usize, f32, f32)> {
+    let l = layout();
+    r.sniffed
+        .iter()
+        .filter(|(_, _, s)| *s > from)
+        .filter_map(|(b, f, _)| {
+            let i = l.motor_index(*b, f.id.try_into().ok()?)?;
+            match decode_motor_rx(f, &l.motors[i].ranges) {
+                Ok(MotorRx::Command(c)) => Some((l.motors[i].slot, c.kp, c.kd)),
+                _ => None,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn walks_ten_seconds_over_can() {
+    if shared_dir().is_none() {
+        return skip_or_fail("walking over CAN");
+    }
+    // 0.6 s of start-up ramp and hold, then at least 10 s under the policy.
+    let r = run("walk", [0.5, 0.0, 0.0], 11.0, 0, vec![]);
+    assert!(!r.emu.fell, "fell over CAN: {:?}", r.emu);
+    assert!(r.fw.trip.is_none(), "false trip over CAN: {:?}", r.fw.trip);
+    assert_eq!(r.fw.final_mode, "Policy");
+    assert!(r.fw.policy_steps >= 500, "{}", r.fw.policy_steps);
+    assert!(r.emu.distance_x_m > 2.0, "walked {:.2} m", r.emu.distance_x_m);
+    let c = r.fw.can;
+    assert_eq!(
+        (c.malformed, c.foreign, c.missing_replies, c.imu_gaps),
+        (0, 0, 0, 0),
+        "{c:?}"
+    );
+    // One command per motor per IMU sample, one reply per command.
+    let e = r.emu.counters;
+    assert_eq!(e.commands, 12 * r.fw.ticks, "{e:?}");
+    // Start-up repeats *enter motor mode* until the emulator listens; each one is answered too.
+    assert_eq!(c.replies, e.commands + e.specials, "{c:?} {e:?}");
+    // Ids and layout on the wire: commands on ids 1..=6 of both buses.
+    let mut ids: Vec<(usize, u16)> = r
+        .sniffed
+        .iter()
+        .filter(|(_, f, _)| f.id < 0x80)
+        .map(|(b, f, _)| (*b, f.id))
+        .collect();
+    ids.sort();
+    ids.dedup();
+    assert_eq!(
+        ids,
+        (0..2).flat_map(|b| (1..=6).map(move |i| (b, i))).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn same_inputs_give_the_same_commands_on_the_bus() {
+    if shared_dir().is_none() {
+        return skip_or_fail("CAN determinism");
+    }
+    let a = run("det_a", [0.3, 0.0, 0.0], 2.0, 0, vec![]);
+    let b = run("det_b", [0.3, 0.0, 0.0], 2.0, 0, vec![]);
+    let cmds = |r: &Run| -> Vec<(usize, CanFrame)> {
+        r.sniffed
+            .iter()
+            .filter(|(_, f, _)| f.id < 0x80 && f.data[..7] != [0xFF; 7])
+            .map(|(b, f, _)| (*b, *f))
+            .collect()
+    };
+    let (ca, cb) = (cmds(&a), cmds(&b));
+    assert!(ca.len() > 12 * 900, "{}", ca.len());
+    assert!(ca == cb, "the command frames differ between two identical runs");
+}
+
+/// Each injected fault ends in damping with the expected reason, and the bus shows it: every
+/// command after the trip has kp = 0 and kd > 0.
+#[test]
+fn every_injected_fault_ends_in_damping() {
+    if shared_dir().is_none() {
+        return skip_or_fail("CAN fault injection");
+    }
+    let flood: Vec<(usize, CanFrame)> = (0..2000)
+        .map(|i| (i % 2, CanFrame::new(0x7FF, &[i as u8; 8])))
+        .collect();
+    type Injection = Vec<(usize, CanFrame)>;
+    let cases: Vec<(&str, Injection, &str)> = vec![
+        (
+            "short_reply",
+            vec![(0, CanFrame::new(0x101, &[1, 2, 3]))],
+            "malformed_frame",
+        ),
+        (
+            "reply_names_wrong_motor",
+            vec![(0, CanFrame::new(0x101, &[2, 0x80, 0, 0x80, 0x08, 0]))],
+            "malformed_frame",
+        ),
+        (
+            "unknown_node",
+            vec![(1, CanFrame::new(0x142, &[0x42, 0, 0, 0, 0, 0]))],
+            "malformed_frame",
+        ),
+        (
+            "second_master",
+            vec![(0, CanFrame::new(0x003, &[0x80, 0, 0x80, 0, 0, 0, 0x08, 0]))],
+            "malformed_frame",
+        ),
+        ("flood", flood, "malformed_frame"),
+        // Somebody else's *exit motor mode* on the bus is a second master too.
+        (
+            "exit_motor_mode_from_elsewhere",
+            vec![(1, CanFrame::new(4, &[0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF, 0xFD]))],
+            "malformed_frame",
+        ),
+    ];
+    let inject_at = 700; // after the 0.6 s start-up, in the policy
+    for (name, frames, reason) in cases {
+        let r = run(name, [0.3, 0.0, 0.0], 2.0, inject_at, frames);
+        let trip =
+            r.fw.trip
+                .as_ref()
+                .unwrap_or_else(|| panic!("{name}: no trip: {:?}", r.fw));
+        assert_eq!(trip.reason, reason, "{name}");
+        let delay = trip.tick.saturating_sub(inject_at);
+        assert!(
+            trip.tick >= inject_at - 1 && delay <= 15,
+            "{name}: tripped at tick {}",
+            trip.tick
+        );
+        assert!(r.fw.final_mode.starts_with("Damping"), "{name}: {}", r.fw.final_mode);
+        let after = commands_after(&r, trip.tick + 2);
+        assert!(
+            after.len() >= 12 * 100,
+            "{name}: {} commands after the trip",
+            after.len()
+        );
+        assert!(
+            after.iter().all(|&(_, kp, kd)| kp == 0.0 && kd > 0.0),
+            "{name}: a command after the trip is not damping"
+        );
+        eprintln!("{name}: {reason} {delay} ticks after the injection");
+    }
+}
+
+/// A motor that loses power goes silent: after `motor_timeout_ticks` the supervisor damps, naming it.
+#[test]
+fn a_motor_that_stops_answering_ends_in_damping() {
+    if shared_dir().is_none() {
+        return skip_or_fail("CAN silent motor");
+    }
+    let knee = 9; // right_knee
+    let r = run_with("power_off", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![(knee, 700)]);
+    let trip = r.fw.trip.as_ref().expect("a trip");
+    assert_eq!(trip.reason, "motor_silent (right_knee)");
+    let timeout = layout().motor_timeout_ticks as u64;
+    assert!(
+        (700..=700 + timeout + 1).contains(&trip.tick),
+        "tripped at {}",
+        trip.tick
+    );
+    assert!(r.fw.can.missing_replies >= 1000 - 701, "{:?}", r.fw.can);
+    let after = commands_after(&r, trip.tick + 2);
+    assert!(!after.is_empty() && after.iter().all(|&(_, kp, kd)| kp == 0.0 && kd > 0.0));
+    assert_eq!(r.emu.motors_at_rest, ["right_knee"]);
+}
