@@ -34,7 +34,7 @@ impl Drop for Sim {
 
 /// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread.
 fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, power_off: Vec<(usize, u64)>) -> JoinHandle<EmuReport> {
-    let socket = scratch_dir("can_bus").join(format!("{name}.sock"));
+    let socket = scratch_dir(&format!("can_bus_{name}")).join("sim.sock");
     let _ = std::fs::remove_file(&socket);
     let child = Command::new(built_bin("g1-sim"))
         .arg("--socket")
@@ -126,6 +126,18 @@ fn run_with(
     inject: Vec<(usize, CanFrame)>,
     power_off: Vec<(usize, u64)>,
 ) -> Run {
+    run_logged(name, cmd, duration_s, at_sample, inject, power_off, None)
+}
+
+fn run_logged(
+    name: &str,
+    cmd: [f32; 3],
+    duration_s: f64,
+    at_sample: u64,
+    inject: Vec<(usize, CanFrame)>,
+    power_off: Vec<(usize, u64)>,
+    log: Option<std::path::PathBuf>,
+) -> Run {
     let mut eps = mem_buses(2, 3).into_iter();
     let (fw_bus, emu_bus, peer_bus) = (eps.next().unwrap(), eps.next().unwrap(), eps.next().unwrap());
     let done = Arc::new(AtomicBool::new(false));
@@ -136,6 +148,7 @@ fn run_with(
         schedule: CommandSchedule::constant(cmd),
         duration_s: Some(duration_s),
         startup_timeout: Duration::from_secs(60),
+        log,
         ..CanRunOptions::default()
     };
     let fw = run_on(spec, layout(), fw_bus, &opts).expect("firmware runs on CAN");
@@ -209,7 +222,8 @@ fn same_inputs_give_the_same_commands_on_the_bus() {
     if shared_dir().is_none() {
         return skip_or_fail("CAN determinism");
     }
-    let a = run("det_a", [0.3, 0.0, 0.0], 2.0, 0, vec![]);
+    let log = scratch_dir("can_bus_log").join("det_a.mcap");
+    let a = run_logged("det_a", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![], Some(log.clone()));
     let b = run("det_b", [0.3, 0.0, 0.0], 2.0, 0, vec![]);
     let cmds = |r: &Run| -> Vec<(usize, CanFrame)> {
         r.sniffed
@@ -221,6 +235,13 @@ fn same_inputs_give_the_same_commands_on_the_bus() {
     let (ca, cb) = (cmds(&a), cmds(&b));
     assert!(ca.len() > 12 * 900, "{}", ca.len());
     assert!(ca == cb, "the command frames differ between two identical runs");
+    // And the log of a CAN run replays bit-exact through the same firmware code.
+    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
+    assert!(
+        rep.compared_commands >= 999 && rep.compared_policy_steps >= 60,
+        "{rep:?}"
+    );
 }
 
 /// Each injected fault ends in damping with the expected reason, and the bus shows it: every
