@@ -191,3 +191,116 @@ fn peer_lstm_tick_path_does_not_allocate() {
     }
     run_ticks(&spec);
 }
+
+/// The motors and IMU on an in-thread bus with a fixed ring buffer: the emulator's logic answers
+/// every command set at once from a first-order plant, so `CanHal` is measured, not the transport.
+struct LoopbackMotors {
+    emu: sim_hal::can::MotorEmulator,
+    plant: LowState,
+    ring: [(usize, sensor_io::can::CanFrame); 256],
+    head: usize,
+    len: usize,
+}
+
+impl LoopbackMotors {
+    fn push(
+        ring: &mut [(usize, sensor_io::can::CanFrame); 256],
+        head: usize,
+        len: &mut usize,
+        item: (usize, sensor_io::can::CanFrame),
+    ) {
+        assert!(*len < ring.len(), "loopback ring full");
+        ring[(head + *len) % 256] = item;
+        *len += 1;
+    }
+}
+
+impl sim_hal::can::CanBuses for LoopbackMotors {
+    fn count(&self) -> usize {
+        2
+    }
+    fn send(&mut self, bus: usize, frame: &sensor_io::can::CanFrame) -> Result<bool, sim_hal::can::BusError> {
+        let (ring, head, len) = (&mut self.ring, self.head, &mut self.len);
+        let ev = self
+            .emu
+            .on_frame(bus, frame, &self.plant, &mut |b, f| Self::push(ring, head, len, (b, f)));
+        if ev == sim_hal::can::EmuEvent::Step {
+            let cmd = self.emu.low_command();
+            for (m, c) in self.plant.motors.iter_mut().zip(cmd.motors.iter()) {
+                let dq = 0.2 * (c.q - m.q) / 0.002;
+                m.q += 0.2 * (c.q - m.q);
+                m.dq = dq.clamp(-30.0, 30.0);
+                m.tau_est = c.kp * (c.q - m.q) - c.kd * m.dq;
+            }
+            self.plant.imu.accelerometer = [0.0, 0.0, 9.81];
+            let (ring, head, len) = (&mut self.ring, self.head, &mut self.len);
+            self.emu
+                .publish(&self.plant, &mut |b, f| Self::push(ring, head, len, (b, f)));
+        }
+        Ok(true)
+    }
+    fn recv(
+        &mut self,
+        _timeout: std::time::Duration,
+    ) -> Result<Option<(usize, sensor_io::can::CanFrame)>, sim_hal::can::BusError> {
+        if self.len == 0 {
+            return Ok(None);
+        }
+        let item = self.ring[self.head];
+        self.head = (self.head + 1) % 256;
+        self.len -= 1;
+        Ok(Some(item))
+    }
+}
+
+/// The CAN HAL's tick path (frame classification, IMU assembly, silence bookkeeping, state
+/// encoding for the log, command encoding) allocates nothing either.
+#[test]
+fn can_hal_tick_path_does_not_allocate() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let spec = DeploySpec::load(&root.join("specs/test/rl_lab_style.toml")).expect("spec loads");
+    let layout = sensor_io::can::BusLayout::load(&root.join("specs/can/g1_12dof.toml")).expect("layout");
+    let (obs, act) = (spec.observation_dim(), spec.num_joints());
+    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-can-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut logger = Logger::create(
+        &dir.join("can.mcap"),
+        &RunMeta::default(),
+        obs,
+        act,
+        LogOptions::default(),
+    )
+    .unwrap();
+    let bus = LoopbackMotors {
+        emu: sim_hal::can::MotorEmulator::new(layout.clone()),
+        plant: LowState::default(),
+        ring: [(0, sensor_io::can::CanFrame::default()); 256],
+        head: 0,
+        len: 0,
+    };
+    let mut hal = sim_hal::can::CanHal::open(bus, layout, 2_000_000, std::time::Duration::from_secs(1)).unwrap();
+    let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
+    rt.disable_frozen_check();
+    let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
+    let _ = schedule.source(2_000_000).at(TickTime::default());
+    let mut operator = schedule.source(2_000_000);
+    let n = 5_000u64;
+    let mut policy_ticks = 0u64;
+    let before = count();
+    let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
+        policy_ticks += v.summary.policy_step as u64;
+        logger.push(v);
+        true
+    });
+    let after = count();
+    assert!(matches!(end, LoopEnd::Completed { ticks } if ticks == n), "{end:?}");
+    assert!(policy_ticks > 400, "policy ran {policy_ticks} times");
+    let c = hal.counters();
+    assert_eq!((c.malformed, c.foreign, c.missing_replies), (0, 0, 0), "{c:?}");
+    assert_eq!(
+        after, before,
+        "allocations/deallocations on the control thread during {n} CAN ticks: {before:?} -> {after:?}"
+    );
+    logger.finish().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
