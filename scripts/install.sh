@@ -13,8 +13,10 @@ say() { printf '[install] %s\n' "$*" >&2; }
 
 # --- apt -----------------------------------------------------------------------------------------
 # user-mode-linux, kmod, iproute2, can-utils: the CAN HIL VM (`cargo xtask hil`; the host kernel has no CAN)
+# gcc-aarch64-linux-gnu, libc6-dev-arm64-cross, qemu-user: the robot's CPU (`cargo xtask cross-replay`, `image`)
 apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates fonts-dejavu-core
-  user-mode-linux kmod iproute2 can-utils)
+  user-mode-linux kmod iproute2 can-utils
+  gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user)
 missing=()
 for p in "${apt_pkgs[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then
@@ -28,6 +30,18 @@ fi
 if ! command -v cargo >/dev/null 2>&1; then
   echo "error: cargo not found. Install Rust stable (>= 1.95, e.g. with rustup) and re-run $0." >&2
   exit 1
+fi
+# The robot's target (aarch64) for the cross-replay and the deploy image.
+aarch64_std="$(rustc --print sysroot)/lib/rustlib/aarch64-unknown-linux-gnu/lib"
+if [ ! -d "$aarch64_std" ]; then
+  if command -v rustup >/dev/null 2>&1; then
+    say "rust: adding the aarch64-unknown-linux-gnu target"
+    rustup target add aarch64-unknown-linux-gnu
+  else
+    echo "error: the Rust target aarch64-unknown-linux-gnu is missing and rustup is not here to add it;" \
+      "install its standard library with your Rust toolchain and re-run $0." >&2
+    exit 1
+  fi
 fi
 
 # --- Python venv (test-side tools only; the firmware never needs Python) --------------------------

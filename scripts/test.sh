@@ -10,4 +10,11 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # Integration tests start the g1fw and g1-sim binaries: build them first.
 cargo build --release --workspace --bins
 cargo test --release --workspace
+# The robot's CPU (README, "aarch64 replay and deploy image"): cross-build g1fw once, replay the corpus
+# under qemu-aarch64 bit for bit, pack the deploy image from the same build, check the image.
+aarch64_start=$(date +%s)
+cargo xtask cross-replay
+cargo xtask image
+cargo test --release -p integration_tests --test image -- --ignored
+echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64_start )) s" >&2
 echo "[test] all tests passed in $(( $(date +%s) - start )) s" >&2
