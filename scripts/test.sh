@@ -17,4 +17,9 @@ cargo xtask cross-replay
 cargo xtask image
 cargo test --release -p integration_tests --test image -- --ignored
 echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64_start )) s" >&2
+# The CAN hardware-in-loop suite, in a User-Mode Linux VM (the host kernel has no CAN): smoke test of the
+# plumbing, then the python-can peer test against g1fw and g1-can-emu (README, "CAN hardware-in-loop").
+hil_start=$(date +%s)
+cargo xtask hil
+echo "[test] HIL suite passed in $(( $(date +%s) - hil_start )) s" >&2
 echo "[test] all tests passed in $(( $(date +%s) - start )) s" >&2
