@@ -33,7 +33,7 @@ fn gone(bus: usize) -> BusError {
     BusError {
         bus,
         name: "mem".into(),
-        source: std::io::Error::new(std::io::ErrorKind::BrokenPipe, "every other node left the bus"),
+        io: std::io::Error::new(std::io::ErrorKind::BrokenPipe, "every other node left the bus"),
     }
 }
 

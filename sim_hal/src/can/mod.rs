@@ -23,23 +23,22 @@ pub const FOREIGN_ID: u16 = 0xFFFF;
 
 /// A transport failure on one bus.
 #[derive(Debug, thiserror::Error)]
-#[error("CAN bus {bus} ({name}): {source}")]
+#[error("CAN bus {bus} ({name}): {io}")]
 pub struct BusError {
     pub bus: usize,
     pub name: String,
-    #[source]
-    pub source: std::io::Error,
+    pub io: std::io::Error,
 }
 
 impl BusError {
     pub fn kind(&self) -> hal::ErrorKind {
         use std::io::ErrorKind as K;
-        match self.source.kind() {
+        match self.io.kind() {
             K::NotConnected | K::BrokenPipe | K::ConnectionReset | K::NotFound | K::UnexpectedEof => {
                 hal::ErrorKind::Disconnected
             }
             K::TimedOut => hal::ErrorKind::Timeout,
-            _ if self.source.raw_os_error() == Some(NETDOWN) => hal::ErrorKind::Disconnected,
+            _ if self.io.raw_os_error() == Some(NETDOWN) => hal::ErrorKind::Disconnected,
             _ => hal::ErrorKind::Other,
         }
     }

@@ -26,19 +26,26 @@ impl SocketCanBuses {
         let epoll = Epoll::new(EpollCreateFlags::EPOLL_CLOEXEC).map_err(|e| BusError {
             bus: 0,
             name: names.first().cloned().unwrap_or_default(),
-            source: e.into(),
+            io: e.into(),
         })?;
         for (bus, name) in names.iter().enumerate() {
-            let err = |e: std::io::Error| BusError {
-                bus,
-                name: name.clone(),
-                source: std::io::Error::new(
-                    e.kind(),
+            let err = |e: std::io::Error| {
+                // EAFNOSUPPORT, or no /proc/net/can: the kernel itself has no CAN.
+                let hint = if e.raw_os_error() == Some(97) || !std::path::Path::new("/proc/net/can").exists() {
+                    "this kernel has no CAN support (CONFIG_CAN); `cargo xtask hil` runs the CAN suite in a VM \
+                     that has it"
+                        .to_string()
+                } else {
                     format!(
-                        "{e} (is the interface up? on a bench: `ip link set {name} up type can bitrate 1000000`; \
-                         for a virtual bus: `ip link add dev {name} type vcan && ip link set {name} up`)"
-                    ),
-                ),
+                        "is the interface up? on a bench: `ip link set {name} up type can bitrate 1000000`; \
+                         for a virtual bus: `ip link add dev {name} type vcan && ip link set {name} up`"
+                    )
+                };
+                BusError {
+                    bus,
+                    name: name.clone(),
+                    io: std::io::Error::new(e.kind(), format!("{e} ({hint})")),
+                }
             };
             let s = CanSocket::open(name).map_err(err)?;
             s.set_nonblocking(true).map_err(err)?;
@@ -57,11 +64,11 @@ impl SocketCanBuses {
         })
     }
 
-    fn err(&self, bus: usize, source: std::io::Error) -> BusError {
+    fn err(&self, bus: usize, io: std::io::Error) -> BusError {
         BusError {
             bus,
             name: self.names[bus].clone(),
-            source,
+            io,
         }
     }
 
