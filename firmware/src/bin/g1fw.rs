@@ -203,6 +203,10 @@ struct RunArgs {
     /// Seconds to wait at start-up for every motor to answer and the first IMU sample.
     #[arg(long, default_value_t = 10.0)]
     startup_timeout: f64,
+    /// Override the layout's `tick_timeout_ms` (no IMU sample for this long ends the run with
+    /// damping); e.g. for emulated buses on a loaded machine.
+    #[arg(long, value_name = "MS")]
+    tick_timeout_ms: Option<u32>,
     /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
     #[arg(long)]
     rt_priority: Option<i32>,
@@ -400,6 +404,12 @@ fn run_can(a: RunArgs) -> Result<ExitCode> {
             );
         }
         layout.interfaces = a.can.clone();
+    }
+    if let Some(ms) = a.tick_timeout_ms {
+        if ms == 0 {
+            bail!("--tick-timeout-ms must be at least 1");
+        }
+        layout.tick_timeout_ms = ms;
     }
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
