@@ -235,7 +235,11 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
         "the unit must not be enabled at boot"
     );
     let exec: Vec<&str> = value_of(&unit, "ExecStart").unwrap().split_whitespace().collect();
-    assert_eq!(exec.len(), 8, "{exec:?}");
+    assert_eq!(exec.len(), 9, "{exec:?}");
+    assert_eq!(
+        exec[8], "--mlockall",
+        "the control loop must never page-fault: {exec:?}"
+    );
     assert_eq!(
         [exec[0], exec[1], exec[2], exec[3], exec[4], exec[6]],
         [

@@ -188,15 +188,15 @@ After=sys-subsystem-net-devices-can0.device sys-subsystem-net-devices-can1.devic
 [Service]
 Type=simple
 WorkingDirectory={INSTALL_DIR}
-ExecStart={INSTALL_DIR}/bin/g1fw run --can can0,can1 --can-config {INSTALL_DIR}/{UNIT_CAN_CONFIG} --spec {INSTALL_DIR}/{UNIT_SPEC}
+ExecStart={INSTALL_DIR}/bin/g1fw run --can can0,can1 --can-config {INSTALL_DIR}/{UNIT_CAN_CONFIG} --spec {INSTALL_DIR}/{UNIT_SPEC} --mlockall
 # Never restart by itself: a robot that tripped (exit 3), failed or fell stays damped until a person
 # has looked at it and starts the service again.
 Restart=no
 # g1fw damps every motor on SIGTERM before it exits.
 KillSignal=SIGTERM
 TimeoutStopSec=5
-# Real time: SCHED_FIFO for the control loop, memory lockable, on the cores kept for it (match
-# these to the kernel's isolcpus= on the robot's computer).
+# Real time: SCHED_FIFO for the control loop, memory locked (--mlockall, allowed by LimitMEMLOCK), on
+# the cores kept for it (match these to the kernel's isolcpus= on the robot's computer).
 CPUSchedulingPolicy=fifo
 CPUSchedulingPriority=80
 LimitRTPRIO=80
