@@ -11,7 +11,7 @@ use serde::Serialize;
 use sim_hal::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
 
 use crate::controller::Controller;
-use crate::log::{LogOptions, LogStats, Logger, RunMeta};
+use crate::log::{LogOptions, LogStats, Logger};
 use crate::operator::CommandSchedule;
 use crate::replay::key;
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
@@ -109,16 +109,8 @@ pub fn run_on<B: CanBuses>(
             missing.join(", ")
         );
     }
-    let mut meta = RunMeta::default();
-    meta.set("firmware_version", env!("CARGO_PKG_VERSION"))
-        .set(key::SPEC_PATH, spec.path.display())
-        .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
-        .set(key::SPEC_TOML, &spec.source_text)
-        .set(key::HOLD_ONLY, opts.hold_only)
-        .set(key::RAMP_S, spec.startup.ramp_s)
-        .set(key::HOLD_S, spec.startup.hold_s)
-        .set("control_hz", spec.rates.control_hz)
-        .set("hal", "can")
+    let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
+    meta.set("hal", "can")
         // Quantized readings repeat exactly while a joint rests; a dead motor is a missing reply.
         .set(key::FROZEN_CHECK, false)
         .set("can_interfaces", layout.interfaces.join(","));

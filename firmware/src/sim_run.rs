@@ -574,17 +574,24 @@ fn log_note(log: &Option<PathBuf>) -> String {
 }
 
 /// What pins a run in its log: the spec text and hash, the start-up, the simulator settings.
-fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
+/// What pins any run to its spec in the log (replay checks these): the firmware version, the spec
+/// (path, text, sha256) and the start-up it ran with.
+pub(crate) fn spec_meta(spec: &DeploySpec, hold_only: bool) -> RunMeta {
     let mut m = RunMeta::default();
     m.set("firmware_version", env!("CARGO_PKG_VERSION"))
         .set(key::SPEC_PATH, spec.path.display())
         .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
         .set(key::SPEC_TOML, &spec.source_text)
-        .set(key::HOLD_ONLY, opts.hold_only)
+        .set(key::HOLD_ONLY, hold_only)
         .set(key::RAMP_S, spec.startup.ramp_s)
         .set(key::HOLD_S, spec.startup.hold_s)
-        .set("control_hz", spec.rates.control_hz)
-        .set("model", &opts.model)
+        .set("control_hz", spec.rates.control_hz);
+    m
+}
+
+fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
+    let mut m = spec_meta(spec, opts.hold_only);
+    m.set("model", &opts.model)
         .set("seed", opts.seed)
         .set("physics_dt", opts.physics_dt)
         .set("duration_s", opts.duration_s)

@@ -123,15 +123,8 @@ struct SimArgs {
     /// /perception/terrain and /truth/terrain.
     #[arg(long, value_name = "PRESET|SCENARIO.toml")]
     world: Option<String>,
-    /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
-    #[arg(long)]
-    rt_priority: Option<i32>,
-    /// Pin the control thread to this CPU.
-    #[arg(long)]
-    cpu: Option<usize>,
-    /// Lock all memory (mlockall) so the control loop never page-faults.
-    #[arg(long)]
-    mlockall: bool,
+    #[command(flatten)]
+    rt: RtArgs,
     /// Simulated seconds to run.
     #[arg(long, default_value_t = 20.0)]
     duration: f64,
@@ -207,6 +200,13 @@ struct RunArgs {
     /// damping); e.g. for emulated buses on a loaded machine.
     #[arg(long, value_name = "MS")]
     tick_timeout_ms: Option<u32>,
+    #[command(flatten)]
+    rt: RtArgs,
+}
+
+/// Real-time set-up of the control thread (`g1fw sim` and `g1fw run`).
+#[derive(clap::Args)]
+struct RtArgs {
     /// Run the control thread with SCHED_FIFO at this priority (1-99; needs CAP_SYS_NICE).
     #[arg(long)]
     rt_priority: Option<i32>,
@@ -216,6 +216,16 @@ struct RunArgs {
     /// Lock all memory (mlockall) so the control loop never page-faults.
     #[arg(long)]
     mlockall: bool,
+}
+
+impl RtArgs {
+    fn options(&self) -> firmware::rt::RtOptions {
+        firmware::rt::RtOptions {
+            fifo_priority: self.rt_priority,
+            cpu: self.cpu,
+            mlockall: self.mlockall,
+        }
+    }
 }
 
 fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
@@ -355,11 +365,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         world: a.world,
         log: a.log.clone(),
         log_options: Default::default(),
-        rt: firmware::rt::RtOptions {
-            fifo_priority: a.rt_priority,
-            cpu: a.cpu,
-            mlockall: a.mlockall,
-        },
+        rt: a.rt.options(),
     };
     let report = run_sim(spec, &opts, |_| {})?;
     let json = serde_json::to_string_pretty(&report)?;
@@ -394,16 +400,7 @@ fn run_can(a: RunArgs) -> Result<ExitCode> {
     let spec = DeploySpec::load(&a.spec)?;
     let mut layout = sensor_io::can::BusLayout::load(&a.can_config)?;
     if !a.can.is_empty() {
-        if a.can.len() != layout.interfaces.len() {
-            bail!(
-                "--can names {} interfaces but {} has {} buses ({})",
-                a.can.len(),
-                a.can_config.display(),
-                layout.interfaces.len(),
-                layout.interfaces.join(",")
-            );
-        }
-        layout.interfaces = a.can.clone();
+        layout.rename_interfaces(&a.can)?;
     }
     if let Some(ms) = a.tick_timeout_ms {
         if ms == 0 {
@@ -426,11 +423,7 @@ fn run_can(a: RunArgs) -> Result<ExitCode> {
         startup_timeout: std::time::Duration::from_secs_f64(a.startup_timeout),
         log: a.log.clone(),
         log_options: Default::default(),
-        rt: firmware::rt::RtOptions {
-            fifo_priority: a.rt_priority,
-            cpu: a.cpu,
-            mlockall: a.mlockall,
-        },
+        rt: a.rt.options(),
         stop,
     };
     tracing::info!(

@@ -143,6 +143,21 @@ impl BusLayout {
         Self::from_toml(&text)
     }
 
+    /// Renames the buses (`--can vcan0,vcan1`): one name per bus of the layout, in order.
+    pub fn rename_interfaces(&mut self, names: &[String]) -> Result<(), ConfigError> {
+        if names.len() != self.interfaces.len() {
+            return Err(ConfigError::Invalid(format!(
+                "{} interface names given ({}) but the layout has {} buses ({})",
+                names.len(),
+                names.join(","),
+                self.interfaces.len(),
+                self.interfaces.join(",")
+            )));
+        }
+        self.interfaces = names.to_vec();
+        Ok(())
+    }
+
     /// The motor with node `id` on `bus`, as an index into `motors`.
     pub fn motor_index(&self, bus: usize, id: u8) -> Option<usize> {
         self.motors.iter().position(|m| m.bus == bus && m.id == id)
@@ -195,6 +210,10 @@ kd_max = 5.0
     #[test]
     fn names_what_is_wrong() {
         let dup = OK.replace("slot = 6\nbus = 1", "slot = 6\nbus = 0");
+        let mut l = BusLayout::from_toml(OK).unwrap();
+        assert!(l.rename_interfaces(&["vcan0".into()]).is_err());
+        l.rename_interfaces(&["vcan0".into(), "vcan1".into()]).unwrap();
+        assert_eq!(l.interfaces, ["vcan0", "vcan1"]);
         let e = BusLayout::from_toml(&dup).unwrap_err().to_string();
         assert!(e.contains("id 1 used twice on bus 0"), "{e}");
         let e = BusLayout::from_toml(&OK.replace("t_max = 88.0", "t_max = -1.0"))

@@ -100,19 +100,20 @@ fn sim_bin(explicit: Option<PathBuf>) -> Result<PathBuf> {
     )
 }
 
-fn main() -> Result<()> {
-    let args = Args::parse();
+fn main() -> std::process::ExitCode {
+    match run(Args::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("g1-can-emu: error: {e:#}");
+            std::process::ExitCode::from(2)
+        }
+    }
+}
+
+fn run(args: Args) -> Result<()> {
     let mut layout = BusLayout::load(&args.can_config)?;
     if !args.can.is_empty() {
-        if args.can.len() != layout.interfaces.len() {
-            bail!(
-                "--can names {} interfaces but {} has {} buses",
-                args.can.len(),
-                args.can_config.display(),
-                layout.interfaces.len()
-            );
-        }
-        layout.interfaces = args.can.clone();
+        layout.rename_interfaces(&args.can)?;
     }
     let mut buses = SocketCanBuses::open(&layout.interfaces)?;
     let control_dt = 1.0 / args.control_hz as f64;
