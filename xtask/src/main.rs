@@ -8,7 +8,10 @@ mod hil;
 mod image;
 
 #[derive(Parser)]
-#[command(name = "cargo xtask", about = "Project automation: HIL in a VM, aarch64 replay, deploy image")]
+#[command(
+    name = "cargo xtask",
+    about = "Project automation: HIL in a VM, aarch64 replay, deploy image"
+)]
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
