@@ -33,8 +33,11 @@ mount -t devtmpfs devtmpfs /dev 2>/dev/null || true # usually automounted (CONFI
 mkdir -p /dev/pts /dev/shm 2>/dev/null
 mount -t devpts devpts /dev/pts 2>/dev/null || true
 mount -t tmpfs -o mode=1777 tmpfs /dev/shm || fail "cannot mount /dev/shm"
-mount -t tmpfs -o mode=1777 tmpfs /tmp || fail "cannot mount /tmp"
 mount -t tmpfs -o mode=755 tmpfs /run || fail "cannot mount /run"
+# Scratch space is /run/tmp (TMPDIR, HOME), not a tmpfs over /tmp: the checkout (and ../shared beside
+# it) may itself live under the host's /tmp, which the guest must still see.
+mkdir -p -m 1777 /run/tmp || fail "cannot create /run/tmp"
+export TMPDIR=/run/tmp
 
 [ -n "${hil_dir:-}" ] || fail "hil_dir= missing from the kernel command line"
 [ -n "${hil_repo:-}" ] || fail "hil_repo= missing from the kernel command line"

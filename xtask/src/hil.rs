@@ -26,8 +26,8 @@ What it does:
   2. builds the host binaries the suite runs (cargo build --release -p firmware -p g1_sim -p sim_hal
      --bins: g1fw, g1-sim, g1-can-emu), unless --no-build;
   3. boots UML (root = the host / read-only through hostfs, init = scripts/hil/guest_init.sh): the
-     guest mounts proc/sys/tmpfs, loads can, can-raw, can-dev, vcan, creates vcan0 and vcan1, raises
-     the socket receive buffers (net.core.rmem_max/rmem_default), then runs the suite as root with the
+     guest mounts proc/sys and tmpfs on /run (TMPDIR=/run/tmp; the host's /tmp stays visible),
+     loads can, can-raw, can-gw, can-dev, vcan, creates vcan0-vcan3, raises the socket receive buffers (net.core.rmem_max/rmem_default), then runs the suite as root with the
      repository root as its working directory;
   4. streams the suite's output, and prints the boot time (spawn -> vcan up, host clock, and the guest's
      uptime at that point), the suite's wall time and the total.
@@ -282,7 +282,9 @@ fn guest_env(repo: &Path, run_dir: &Path, bin_dir: &Path, suite: &[String]) -> S
                 bin_dir.display()
             ),
         ),
-        ("HOME".into(), "/tmp".into()),
+        // The guest's writable scratch (guest_init.sh): its /tmp is the host's, read-only.
+        ("HOME".into(), "/run/tmp".into()),
+        ("TMPDIR".into(), "/run/tmp".into()),
         ("LANG".into(), "C.UTF-8".into()),
         ("TERM".into(), "dumb".into()),
         ("PYTHONUNBUFFERED".into(), "1".into()),
