@@ -27,8 +27,9 @@ What it does:
      --bins: g1fw, g1-sim, g1-can-emu), unless --no-build;
   3. boots UML (root = the host / read-only through hostfs, init = scripts/hil/guest_init.sh): the
      guest mounts proc/sys and tmpfs on /run (TMPDIR=/run/tmp; the host's /tmp stays visible),
-     loads can, can-raw, can-gw, can-dev, vcan, creates vcan0-vcan3, raises the socket receive buffers (net.core.rmem_max/rmem_default), then runs the suite as root with the
-     repository root as its working directory;
+     loads can, can-raw, can-gw, can-dev, vcan, creates vcan0-vcan3, raises the socket receive
+     buffers (net.core.rmem_max/rmem_default), then runs the suite as root with the repository root
+     as its working directory;
   4. streams the suite's output, and prints the boot time (spawn -> vcan up, host clock, and the guest's
      uptime at that point), the suite's wall time and the total.
 
