@@ -277,6 +277,17 @@ fn every_injected_fault_ends_in_damping() {
             "malformed_frame",
         ),
         ("flood", flood, "malformed_frame"),
+        (
+            "imu_short_frame",
+            vec![(0, CanFrame::new(0x082, &[0, 0, 0, 0]))],
+            "malformed_frame",
+        ),
+        // A gyroscope frame whose sequence the accelerometer frame will not match.
+        (
+            "imu_sequence_mismatch",
+            vec![(0, CanFrame::new(0x082, &[0, 0, 0, 0, 0, 0, 0xFF, 0xFF]))],
+            "malformed_frame",
+        ),
         // Somebody else's *exit motor mode* on the bus is a second master too.
         (
             "exit_motor_mode_from_elsewhere",

@@ -117,6 +117,8 @@ pub enum CanDecodeError {
     ImuSequence { gyro: u16, accel: u16 },
     #[error("IMU accelerometer frame without a quaternion and gyroscope before it")]
     ImuIncomplete,
+    #[error("IMU frame {id:#05x} twice in one sample (a second sender, or a lost accelerometer frame)")]
+    ImuDuplicate { id: u16 },
 }
 
 pub fn encode_special(id: u8, s: Special) -> CanFrame {
@@ -269,15 +271,18 @@ impl ImuAssembler {
             });
         }
         match f.id {
+            // A second copy within one sample is an error; the newest is kept to resynchronise.
             IMU_QUAT_ID => {
                 let v = |i: usize| i16::from_be_bytes([f.data[2 * i], f.data[2 * i + 1]]) as f32 * QUAT_LSB;
-                self.quat = Some([v(0), v(1), v(2), v(3)]);
-                Ok(None)
+                match self.quat.replace([v(0), v(1), v(2), v(3)]) {
+                    Some(_) => Err(CanDecodeError::ImuDuplicate { id: f.id }),
+                    None => Ok(None),
+                }
             }
-            IMU_GYRO_ID => {
-                self.gyro = Some(get3(&f.data, GYRO_LSB));
-                Ok(None)
-            }
+            IMU_GYRO_ID => match self.gyro.replace(get3(&f.data, GYRO_LSB)) {
+                Some(_) => Err(CanDecodeError::ImuDuplicate { id: f.id }),
+                None => Ok(None),
+            },
             _ => {
                 let (accel, seq) = get3(&f.data, ACCEL_LSB);
                 let (Some(quat), Some((gyro, gseq))) = (self.quat.take(), self.gyro.take()) else {
@@ -382,7 +387,13 @@ mod tests {
         assert!((out.accelerometer[2] - 9.81).abs() <= 0.0025);
         assert!((out.gyroscope[1] + 1.25).abs() <= 0.0005);
         assert!((out.quaternion[0] - 0.9).abs() <= 1.0 / 32767.0);
-        // Accelerometer alone, and mismatched sequences, are errors.
+        // A frame twice in one sample, an accelerometer alone, and mismatched sequences are errors.
+        asm.push(&frames[1], &mut out).unwrap();
+        assert_eq!(
+            asm.push(&frames[1], &mut out),
+            Err(CanDecodeError::ImuDuplicate { id: IMU_GYRO_ID })
+        );
+        asm = ImuAssembler::default();
         assert_eq!(asm.push(&frames[2], &mut out), Err(CanDecodeError::ImuIncomplete));
         let other = encode_imu(&imu, 1);
         asm.push(&frames[0], &mut out).unwrap();
