@@ -164,27 +164,15 @@ pub fn run_on<B: CanBuses>(
         Some(l) => Some(l.finish().context("closing the log")?),
         None => None,
     };
-    let counters = runtime.counters();
     Ok(CanReport {
         interfaces,
         ticks,
         time_s: ticks as f64 * control_dt,
         policy_steps: runtime.controller().policy_steps(),
         final_mode: format!("{:?}", runtime.mode()),
-        trip: runtime.trip().map(|(tick, reason)| TripReport {
-            tick,
-            time_s: tick as f64 * control_dt,
-            reason: reason.to_string(),
-        }),
+        trip: TripReport::of(&runtime, control_dt),
         end: end_text,
-        safety: SafetyReport {
-            crc_failures: counters.crc_failures,
-            missing_frames: counters.missing_frames,
-            stale_frames: counters.stale_frames,
-            malformed_frames: counters.malformed_frames,
-            clamped_targets: runtime.controller().clamped_targets(),
-            overruns: runtime.overruns(),
-        },
+        safety: SafetyReport::of(&runtime),
         can: hal.counters(),
         spec: spec_name,
         weights_sha256,

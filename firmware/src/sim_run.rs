@@ -237,6 +237,17 @@ pub struct TripReport {
     pub reason: String,
 }
 
+impl TripReport {
+    /// The run's first latched damping, if any.
+    pub fn of(runtime: &Runtime, control_dt: f64) -> Option<Self> {
+        runtime.trip().map(|(tick, reason)| TripReport {
+            tick,
+            time_s: tick as f64 * control_dt,
+            reason: reason.to_string(),
+        })
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct SafetyReport {
     pub crc_failures: u64,
@@ -245,6 +256,20 @@ pub struct SafetyReport {
     pub malformed_frames: u64,
     pub clamped_targets: u64,
     pub overruns: Overruns,
+}
+
+impl SafetyReport {
+    pub fn of(runtime: &Runtime) -> Self {
+        let c = runtime.counters();
+        SafetyReport {
+            crc_failures: c.crc_failures,
+            missing_frames: c.missing_frames,
+            stale_frames: c.stale_frames,
+            malformed_frames: c.malformed_frames,
+            clamped_targets: runtime.controller().clamped_targets(),
+            overruns: runtime.overruns(),
+        }
+    }
 }
 
 /// Tracking error of one command segment, measured after `settle_s` (the robot needs time to reach
@@ -361,12 +386,6 @@ fn unique() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
     static N: AtomicU64 = AtomicU64::new(0);
     N.fetch_add(1, Ordering::Relaxed)
-}
-
-fn tilt_deg(q: [f64; 4]) -> f64 {
-    let [_, x, y, _] = q;
-    // Body z axis in world: its z component is 1 - 2(x² + y²).
-    libm::acos((1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0)).to_degrees()
 }
 
 fn yaw(q: [f64; 4]) -> f64 {
@@ -516,7 +535,6 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     };
 
     let time_s = ticks as f64 * control_dt;
-    let counters = runtime.counters();
     Ok(Report {
         fell: agg.fell_at.is_some(),
         fell_at_s: agg.fell_at,
@@ -541,19 +559,8 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         command: opts.schedule.velocity_at(0.0),
         seed: opts.seed,
         tracking: agg.tracking(&opts.schedule, opts.duration_s),
-        trip: runtime.trip().map(|(tick, reason)| TripReport {
-            tick,
-            time_s: tick as f64 * control_dt,
-            reason: reason.to_string(),
-        }),
-        safety: SafetyReport {
-            crc_failures: counters.crc_failures,
-            missing_frames: counters.missing_frames,
-            stale_frames: counters.stale_frames,
-            malformed_frames: counters.malformed_frames,
-            clamped_targets: runtime.controller().clamped_targets(),
-            overruns: runtime.overruns(),
-        },
+        trip: TripReport::of(&runtime, control_dt),
+        safety: SafetyReport::of(&runtime),
         end: end_text,
         log: log_stats,
         estimator: est_eval.report(),
@@ -680,9 +687,8 @@ impl Aggregate {
         let z = t.base_pos[2];
         self.z_min = self.z_min.min(z);
         self.z_max = self.z_max.max(z);
-        let tilt = tilt_deg(t.base_quat);
-        self.tilt_max = self.tilt_max.max(tilt);
-        if self.fell_at.is_none() && (z < 0.5 || tilt > 60.0) {
+        self.tilt_max = self.tilt_max.max(t.tilt_deg());
+        if self.fell_at.is_none() && t.fallen() {
             self.fell_at = Some(time_s);
         }
         let meas = [t.base_lin_vel_body[0], t.base_lin_vel_body[1], t.base_ang_vel_body[2]];

@@ -115,20 +115,10 @@ struct Run {
 }
 
 fn run(name: &str, cmd: [f32; 3], duration_s: f64, at_sample: u64, inject: Vec<(usize, CanFrame)>) -> Run {
-    run_with(name, cmd, duration_s, at_sample, inject, vec![])
+    run_logged(name, cmd, duration_s, at_sample, inject, vec![], None)
 }
 
-fn run_with(
-    name: &str,
-    cmd: [f32; 3],
-    duration_s: f64,
-    at_sample: u64,
-    inject: Vec<(usize, CanFrame)>,
-    power_off: Vec<(usize, u64)>,
-) -> Run {
-    run_logged(name, cmd, duration_s, at_sample, inject, power_off, None)
-}
-
+/// `run` with motors that lose power ((slot, tick)) and an MCAP log of the firmware.
 fn run_logged(
     name: &str,
     cmd: [f32; 3],
@@ -331,7 +321,7 @@ fn a_motor_that_stops_answering_ends_in_damping() {
         return skip_or_fail("CAN silent motor");
     }
     let knee = 9; // right_knee
-    let r = run_with("power_off", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![(knee, 700)]);
+    let r = run_logged("power_off", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![(knee, 700)], None);
     let trip = r.fw.trip.as_ref().expect("a trip");
     assert_eq!(trip.reason, "motor_silent (right_knee)");
     let timeout = layout().motor_timeout_ticks as u64;

@@ -255,6 +255,18 @@ pub struct Truth {
 }
 
 impl Truth {
+    /// Angle between the base's z axis and the world's vertical, degrees.
+    pub fn tilt_deg(&self) -> f64 {
+        let [_, x, y, _] = self.base_quat;
+        // Body z axis in world: its z component is 1 - 2(x² + y²).
+        libm::acos((1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0)).to_degrees()
+    }
+
+    /// The evaluations' fall: base below 0.5 m or tilted more than 60°.
+    pub fn fallen(&self) -> bool {
+        self.base_pos[2] < 0.5 || self.tilt_deg() > 60.0
+    }
+
     pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2 + 1 + 12;
     const TERRAIN_AT: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
     pub fn encode(&self) -> [u8; Self::LEN] {

@@ -51,11 +51,6 @@ pub enum ServeError {
     Bridge(#[from] BridgeError),
 }
 
-fn tilt_deg(q: [f64; 4]) -> f64 {
-    let [_, x, y, _] = q;
-    libm::acos((1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0)).to_degrees()
-}
-
 /// Serves the motors of `emu` on `buses` from the simulator behind `bridge` until the firmware goes
 /// quiet, `max_ticks` steps were served, or the simulator ends.
 pub fn serve<B: CanBuses>(
@@ -77,7 +72,7 @@ pub fn serve<B: CanBuses>(
         fell_at_s: None,
         base_z_min: t0.base_pos[2],
         base_z_max: t0.base_pos[2],
-        tilt_max_deg: tilt_deg(t0.base_quat),
+        tilt_max_deg: t0.tilt_deg(),
         distance_x_m: 0.0,
         distance_y_m: 0.0,
         end: String::new(),
@@ -135,11 +130,10 @@ pub fn serve<B: CanBuses>(
         let time = rep.ticks as f64 * opts.control_dt;
         rep.base_z_min = rep.base_z_min.min(t.base_pos[2]);
         rep.base_z_max = rep.base_z_max.max(t.base_pos[2]);
-        let tilt = tilt_deg(t.base_quat);
-        rep.tilt_max_deg = rep.tilt_max_deg.max(tilt);
+        rep.tilt_max_deg = rep.tilt_max_deg.max(t.tilt_deg());
         rep.distance_x_m = t.base_pos[0] - t0.base_pos[0];
         rep.distance_y_m = t.base_pos[1] - t0.base_pos[1];
-        if !rep.fell && (t.base_pos[2] < 0.5 || tilt > 60.0) {
+        if !rep.fell && t.fallen() {
             rep.fell = true;
             rep.fell_at_s = Some(time);
         }
