@@ -37,6 +37,9 @@ pub struct FitConfig {
     /// Start from this checkpoint (`checkpoint.safetensors` of an earlier `fit`) instead of the
     /// seeded initialisation: continues a run with a fresh schedule.
     pub init: Option<std::path::PathBuf>,
+    /// Write the unfolded weights here after every epoch (atomically: a temporary file, then a
+    /// rename), so a long run stopped part-way keeps its last finished epoch for `--init`.
+    pub checkpoint: Option<std::path::PathBuf>,
 }
 
 impl Default for FitConfig {
@@ -50,6 +53,7 @@ impl Default for FitConfig {
             mirror: true,
             max_steps: 0,
             init: None,
+            checkpoint: None,
         }
     }
 }
@@ -145,6 +149,16 @@ pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<(
         var.set(&Tensor::from_vec(v, var.dims(), dev)?)?;
     }
     Ok(())
+}
+
+/// Saves `varmap` to `path` through a temporary file and a rename, so `path` always holds a
+/// complete checkpoint even if the process dies while writing.
+pub fn save_atomically(varmap: &VarMap, path: &std::path::Path) -> anyhow::Result<()> {
+    let tmp = path.with_extension("safetensors.partial");
+    varmap
+        .save(&tmp)
+        .map_err(|e| anyhow::anyhow!("writing {}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("renaming {} to {}: {e}", tmp.display(), path.display()))
 }
 
 /// Trains a fresh model on `train` (indices into `ds`), validating on `val` after each epoch.
@@ -245,6 +259,9 @@ pub fn fit(
             val: val_stats,
             seconds: t0.elapsed().as_secs_f64(),
         };
+        if let Some(path) = &cfg.checkpoint {
+            save_atomically(&varmap, path)?;
+        }
         on_epoch(&e);
         log.push(e);
         if step >= total_steps {

@@ -28,7 +28,8 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Cmd {
     /// Train on g1-dataset exports; writes the firmware export (terrain_cnn.safetensors + .toml),
-    /// checkpoint.safetensors (unfolded), history.json and training.png into --out.
+    /// checkpoint.safetensors (unfolded; rewritten after every epoch, so an interrupted run can
+    /// go on with --init), history.json and training.png into --out.
     Fit {
         /// Dataset directories (g1-dataset export --out); repeat for several.
         #[arg(long, required = true)]
@@ -171,6 +172,7 @@ fn main() -> anyhow::Result<()> {
                 tr.len(),
                 val.len()
             );
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
             let cfg = FitConfig {
                 epochs,
                 batch,
@@ -179,6 +181,7 @@ fn main() -> anyhow::Result<()> {
                 mirror: !no_mirror,
                 max_steps,
                 init,
+                checkpoint: Some(out.join("checkpoint.safetensors")),
                 ..FitConfig::default()
             };
             let dev = Device::Cpu;
@@ -220,8 +223,7 @@ fn main() -> anyhow::Result<()> {
             )?;
             pb.finish_and_clear();
             let secs = t.elapsed().as_secs_f64();
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            varmap.save(out.join("checkpoint.safetensors"))?;
+            train::fit::save_atomically(&varmap, &out.join("checkpoint.safetensors"))?;
             let mut meta = BTreeMap::new();
             meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
             meta.insert("train_samples".into(), tr.len().to_string());

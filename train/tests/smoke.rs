@@ -35,11 +35,15 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     let ds = Dataset::load_dir(&data).unwrap();
     assert_eq!(ds.len(), 24);
     let (tr, val) = split_by_world(&ds, 0.2);
+    let out = temp("smoke-out");
+    std::fs::create_dir_all(&out).unwrap();
+    let checkpoint = out.join("checkpoint.safetensors");
     let cfg = FitConfig {
         epochs: 12,
         batch: 12,
         lr: 3e-3,
         mirror: false,
+        checkpoint: Some(checkpoint.clone()),
         ..FitConfig::default()
     };
     let mut losses = Vec::new();
@@ -60,8 +64,19 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     assert!(last < 0.7 * first, "loss {first:.3} -> {last:.3}: {losses:?}");
     assert!(log.iter().all(|e| e.train.total.is_finite()));
 
+    // The per-epoch checkpoint holds the final weights (an interrupted run resumes from it).
+    let saved = candle_core::safetensors::load(&checkpoint, &Device::Cpu).unwrap();
+    let vars = vm.data().lock().unwrap();
+    assert_eq!(saved.len(), vars.len());
+    for (name, var) in vars.iter() {
+        let a = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let b = saved[name].flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        assert_eq!(a, b, "{name}");
+    }
+    drop(vars);
+    assert!(!out.join("checkpoint.safetensors.partial").exists());
+
     // Fold and write; the firmware's loader accepts it and computes a token.
-    let out = temp("smoke-out");
     let sha = train::export::fold(&vm)
         .unwrap()
         .write(&out, &Default::default())
