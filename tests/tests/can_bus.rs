@@ -33,7 +33,7 @@ impl Drop for Sim {
 }
 
 /// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread.
-fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, power_off: Vec<(usize, u64)>) -> JoinHandle<EmuReport> {
+fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, faults: &Scenario) -> JoinHandle<EmuReport> {
     let socket = scratch_dir(&format!("can_bus_{name}")).join("sim.sock");
     let _ = std::fs::remove_file(&socket);
     let child = Command::new(built_bin("g1-sim"))
@@ -43,6 +43,16 @@ fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, power_off: Vec<(usi
         .stdin(Stdio::null())
         .spawn()
         .expect("start g1-sim");
+    let opts = ServeOptions {
+        // The firmware commands ticks 0..N-1 of an N-tick run: then the emulator is done.
+        max_ticks: Some(ticks),
+        startup_timeout: Duration::from_secs(60),
+        // Without an IMU the firmware stops early: do not wait long for it after that.
+        idle_timeout: Duration::from_secs(if faults.imu_off.is_some() { 2 } else { 10 }),
+        control_dt: 0.002,
+        power_off: faults.power_off.clone(),
+        imu_off: faults.imu_off,
+    };
     std::thread::spawn(move || {
         let sim = Sim(child);
         let mut bridge = BridgeHal::connect_unix(
@@ -56,14 +66,6 @@ fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, power_off: Vec<(usi
         )
         .expect("connect to g1-sim");
         let mut emu = MotorEmulator::new(layout());
-        let opts = ServeOptions {
-            // The firmware commands ticks 0..N-1 of an N-tick run: then the emulator is done.
-            max_ticks: Some(ticks),
-            startup_timeout: Duration::from_secs(60),
-            idle_timeout: Duration::from_secs(10),
-            control_dt: 0.002,
-            power_off,
-        };
         let r = serve(&mut bus, &mut emu, &mut bridge, &opts, |_, _| {}).expect("emulator serves");
         bridge.close();
         drop(sim);
@@ -114,34 +116,71 @@ struct Run {
     sniffed: Vec<(usize, CanFrame, u64)>,
 }
 
-fn run(name: &str, cmd: [f32; 3], duration_s: f64, at_sample: u64, inject: Vec<(usize, CanFrame)>) -> Run {
-    run_logged(name, cmd, duration_s, at_sample, inject, vec![], None)
-}
-
-/// `run` with motors that lose power ((slot, tick)) and an MCAP log of the firmware.
-fn run_logged(
-    name: &str,
+/// One firmware ⇄ emulator run and what goes wrong in it.
+struct Scenario {
     cmd: [f32; 3],
     duration_s: f64,
+    /// The third node sends `inject` once after this many IMU samples.
     at_sample: u64,
     inject: Vec<(usize, CanFrame)>,
+    /// Motors that lose power: (slot, tick).
     power_off: Vec<(usize, u64)>,
+    /// The IMU loses power after this tick.
+    imu_off: Option<u64>,
+    /// The firmware's IMU timeout instead of `layout()`'s.
+    tick_timeout_ms: Option<u32>,
+    /// MCAP log of the firmware.
     log: Option<std::path::PathBuf>,
-) -> Run {
+}
+
+impl Scenario {
+    /// A 2 s walk at 0.3 m/s with nothing wrong.
+    fn walk() -> Self {
+        Self {
+            cmd: [0.3, 0.0, 0.0],
+            duration_s: 2.0,
+            at_sample: 0,
+            inject: vec![],
+            power_off: vec![],
+            imu_off: None,
+            tick_timeout_ms: None,
+            log: None,
+        }
+    }
+}
+
+fn run(name: &str, cmd: [f32; 3], duration_s: f64, at_sample: u64, inject: Vec<(usize, CanFrame)>) -> Run {
+    run_scenario(
+        name,
+        Scenario {
+            cmd,
+            duration_s,
+            at_sample,
+            inject,
+            ..Scenario::walk()
+        },
+    )
+}
+
+fn run_scenario(name: &str, sc: Scenario) -> Run {
     let mut eps = mem_buses(2, 3).into_iter();
     let (fw_bus, emu_bus, peer_bus) = (eps.next().unwrap(), eps.next().unwrap(), eps.next().unwrap());
     let done = Arc::new(AtomicBool::new(false));
-    let (peer, sniffed) = start_peer(peer_bus, at_sample, inject, done.clone());
-    let emu = start_emulator(name, emu_bus, (duration_s / 0.002).round() as u64, power_off);
+    let (peer, sniffed) = start_peer(peer_bus, sc.at_sample, sc.inject.clone(), done.clone());
+    let emu = start_emulator(name, emu_bus, (sc.duration_s / 0.002).round() as u64, &sc);
     let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
     let opts = CanRunOptions {
-        schedule: CommandSchedule::constant(cmd),
-        duration_s: Some(duration_s),
+        schedule: CommandSchedule::constant(sc.cmd),
+        duration_s: Some(sc.duration_s),
         startup_timeout: Duration::from_secs(60),
-        log,
+        log: sc.log,
         ..CanRunOptions::default()
     };
-    let fw = run_on(spec, layout(), fw_bus, &opts).expect("firmware runs on CAN");
+    let mut fw_layout = layout();
+    if let Some(ms) = sc.tick_timeout_ms {
+        fw_layout.tick_timeout_ms = ms;
+    }
+    let fw = run_on(spec, fw_layout, fw_bus, &opts).expect("firmware runs on CAN");
     let emu = emu.join().expect("emulator thread");
     done.store(true, Ordering::Relaxed);
     peer.join().unwrap();
@@ -153,19 +192,27 @@ fn run_logged(
     Run { fw, emu, sniffed }
 }
 
-/// Decoded firmware commands after IMU sample `from`: (slot, kp, kd).
-fn commands_after(r: &Run, from: u64) -> Vec<(usize, f32, f32)> {
+/// Decoded firmware commands on the bus, in order: (IMU samples seen before it, slot, kp, kd).
+fn commands(r: &Run) -> Vec<(u64, usize, f32, f32)> {
     let l = layout();
     r.sniffed
         .iter()
-        .filter(|(_, _, s)| *s > from)
-        .filter_map(|(b, f, _)| {
+        .filter_map(|(b, f, s)| {
             let i = l.motor_index(*b, f.id.try_into().ok()?)?;
             match decode_motor_rx(f, &l.motors[i].ranges) {
-                Ok(MotorRx::Command(c)) => Some((l.motors[i].slot, c.kp, c.kd)),
+                Ok(MotorRx::Command(c)) => Some((*s, l.motors[i].slot, c.kp, c.kd)),
                 _ => None,
             }
         })
+        .collect()
+}
+
+/// Decoded firmware commands after IMU sample `from`: (slot, kp, kd).
+fn commands_after(r: &Run, from: u64) -> Vec<(usize, f32, f32)> {
+    commands(r)
+        .into_iter()
+        .filter(|c| c.0 > from)
+        .map(|(_, slot, kp, kd)| (slot, kp, kd))
         .collect()
 }
 
@@ -213,7 +260,13 @@ fn same_inputs_give_the_same_commands_on_the_bus() {
         return skip_or_fail("CAN determinism");
     }
     let log = scratch_dir("can_bus_log").join("det_a.mcap");
-    let a = run_logged("det_a", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![], Some(log.clone()));
+    let a = run_scenario(
+        "det_a",
+        Scenario {
+            log: Some(log.clone()),
+            ..Scenario::walk()
+        },
+    );
     let b = run("det_b", [0.3, 0.0, 0.0], 2.0, 0, vec![]);
     let cmds = |r: &Run| -> Vec<(usize, CanFrame)> {
         r.sniffed
@@ -321,7 +374,13 @@ fn a_motor_that_stops_answering_ends_in_damping() {
         return skip_or_fail("CAN silent motor");
     }
     let knee = 9; // right_knee
-    let r = run_logged("power_off", [0.3, 0.0, 0.0], 2.0, 0, vec![], vec![(knee, 700)], None);
+    let r = run_scenario(
+        "power_off",
+        Scenario {
+            power_off: vec![(knee, 700)],
+            ..Scenario::walk()
+        },
+    );
     let trip = r.fw.trip.as_ref().expect("a trip");
     assert_eq!(trip.reason, "motor_silent (right_knee)");
     let timeout = layout().motor_timeout_ticks as u64;
@@ -334,4 +393,48 @@ fn a_motor_that_stops_answering_ends_in_damping() {
     let after = commands_after(&r, trip.tick + 2);
     assert!(!after.is_empty() && after.iter().all(|&(_, kp, kd)| kp == 0.0 && kd > 0.0));
     assert_eq!(r.emu.motors_at_rest, ["right_knee"]);
+}
+
+/// An IMU that stops (the tick never comes again): after `tick_timeout_ms` the firmware damps
+/// every motor, ends with a HAL failure that says what to check, and its log keeps every tick it
+/// ran and replays bit-exact.
+#[test]
+fn an_imu_that_stops_ends_the_run_in_damping() {
+    if shared_dir().is_none() {
+        return skip_or_fail("CAN silent IMU");
+    }
+    let log = scratch_dir("can_bus_log").join("imu_off.mcap");
+    let r = run_scenario(
+        "imu_off",
+        Scenario {
+            imu_off: Some(700),
+            // Long enough not to fire on a stall of this shared machine, short enough to wait for.
+            tick_timeout_ms: Some(1000),
+            log: Some(log.clone()),
+            ..Scenario::walk()
+        },
+    );
+    // Sample 700 was the IMU's last: tick 701 never came, and that is where the run ends.
+    assert_eq!(r.fw.ticks, 701);
+    assert!(
+        r.fw.end.contains("HAL failure") && r.fw.end.contains("the IMU stopped"),
+        "{}",
+        r.fw.end
+    );
+    let trip = r.fw.trip.as_ref().expect("a trip");
+    assert_eq!((trip.reason.as_str(), trip.tick), ("hal_fault", 701));
+    assert!(r.fw.final_mode.starts_with("Damping"), "{}", r.fw.final_mode);
+    // On the bus: the walk's commands up to the last sample, then one damping command per motor.
+    let cmds = commands(&r);
+    let (walk, last) = cmds.split_at(cmds.len() - 12);
+    let mut slots: Vec<usize> = last.iter().map(|c| c.1).collect();
+    slots.sort();
+    assert_eq!(slots, layout().motors.iter().map(|m| m.slot).collect::<Vec<_>>());
+    assert!(last.iter().all(|&(_, _, kp, kd)| kp == 0.0 && kd > 0.0), "{last:?}");
+    assert!(walk.iter().filter(|c| c.0 > 600).all(|&(_, _, kp, _)| kp > 0.0));
+    assert!(r.emu.end.contains("went quiet"), "{}", r.emu.end);
+    // Nothing already logged is lost: the log closes and replays to its last tick.
+    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
+    assert!(rep.compared_commands >= 700, "{rep:?}");
 }

@@ -49,6 +49,10 @@ struct Args {
     /// e.g. `right_knee@3.0`. Repeatable.
     #[arg(long, value_name = "JOINT@SECONDS")]
     power_off: Vec<String>,
+    /// Fault: the IMU loses power at this time (the motors keep answering, but no sample closes a
+    /// tick any more), e.g. `3.0`.
+    #[arg(long, value_name = "SECONDS")]
+    imu_off: Option<f64>,
     /// Stop after this many control ticks.
     #[arg(long)]
     max_ticks: Option<u64>,
@@ -205,6 +209,13 @@ fn run(args: Args) -> Result<()> {
         }
         power_off.push((slot, (secs / control_dt).round() as u64));
     }
+    let imu_off = match args.imu_off {
+        Some(secs) if !(secs >= 0.0 && secs.is_finite()) => {
+            bail!("--imu-off {secs}: the time must be a non-negative number of seconds")
+        }
+        Some(secs) => Some((secs / control_dt).round() as u64),
+        None => None,
+    };
     let mut emu = MotorEmulator::new(layout);
     let opts = ServeOptions {
         max_ticks: args.max_ticks,
@@ -212,6 +223,7 @@ fn run(args: Args) -> Result<()> {
         idle_timeout: Duration::from_secs_f64(args.idle_timeout_s),
         control_dt,
         power_off,
+        imu_off,
     };
     let report = serve(&mut buses, &mut emu, &mut bridge, &opts, |_, _| {})?;
     bridge.close();

@@ -38,6 +38,8 @@ pub struct MotorEmulator {
     powered: [bool; NUM_MOTORS],
     commanded: [bool; NUM_MOTORS],
     last: [MitCommand; NUM_MOTORS],
+    /// False once the IMU lost power (an injected fault): no more samples, so no more ticks.
+    imu_powered: bool,
     started: bool,
     seq: u16,
     counters: EmuCounters,
@@ -51,6 +53,7 @@ impl MotorEmulator {
             powered: [true; NUM_MOTORS],
             commanded: [false; NUM_MOTORS],
             last: [MitCommand::default(); NUM_MOTORS],
+            imu_powered: true,
             started: false,
             seq: 0,
             counters: EmuCounters::default(),
@@ -69,6 +72,12 @@ impl MotorEmulator {
         self.powered[slot] = false;
         self.in_mode[slot] = false;
         self.last[slot] = MitCommand::default();
+    }
+
+    /// Cuts the IMU's power (a fault to inject): the motors still answer, but no sample closes a
+    /// tick any more, so the firmware's next tick never comes.
+    pub fn imu_off(&mut self) {
+        self.imu_powered = false;
     }
 
     /// Names of the configured joints whose motor is at rest.
@@ -199,7 +208,9 @@ impl MotorEmulator {
                 }
             }
         }
-        self.send_imu(state, send);
+        if self.imu_powered {
+            self.send_imu(state, send);
+        }
     }
 
     fn send_imu(&mut self, state: &LowState, send: &mut dyn FnMut(usize, CanFrame)) {

@@ -19,6 +19,8 @@ pub struct ServeOptions {
     pub control_dt: f64,
     /// Faults: (slot, tick) — that motor loses power after that many steps.
     pub power_off: Vec<(usize, u64)>,
+    /// Fault: the IMU loses power after this many steps (its last sample is that step's).
+    pub imu_off: Option<u64>,
 }
 
 /// Judged from ground truth: did the robot stay up?
@@ -145,6 +147,9 @@ pub fn serve<B: CanBuses>(
             if rep.ticks == at {
                 emu.power_off(slot);
             }
+        }
+        if opts.imu_off == Some(rep.ticks) {
+            emu.imu_off();
         }
         on_step(rep.ticks, &state);
         if opts.max_ticks.is_some_and(|m| rep.ticks >= m) {
