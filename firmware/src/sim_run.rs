@@ -1,13 +1,12 @@
 //! `g1fw sim`: start the simulator, run the firmware loop against it over the bridge, and evaluate
 //! the run from the simulator's privileged ground truth (which never reaches the controller).
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use sim_hal::bridge::{BridgeHal, Truth, Wants};
+use sim_hal::bridge::{BridgeHal, SimLaunch, SimProcess, Truth, Wants};
 
 use crate::controller::{Controller, Mode};
 use crate::log::{LogOptions, LogStats, Logger, RunMeta};
@@ -302,92 +301,6 @@ pub struct Timing {
     pub tick_compute_us: LatencySummary,
 }
 
-/// A running simulator child process; killed if dropped before `finish`.
-struct SimChild {
-    child: Child,
-    socket: PathBuf,
-}
-
-impl SimChild {
-    fn status_line(&mut self) -> Result<(), String> {
-        match self.child.try_wait() {
-            Ok(Some(status)) => Err(format!(
-                "the simulator exited during start-up ({status}); see its message above"
-            )),
-            Ok(None) => Ok(()),
-            Err(e) => Err(format!("cannot poll the simulator process: {e}")),
-        }
-    }
-}
-
-impl Drop for SimChild {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            // Give it a moment to exit after Bye, then make sure it is gone.
-            for _ in 0..100 {
-                if let Ok(Some(_)) = self.child.try_wait() {
-                    break;
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-        let _ = std::fs::remove_file(&self.socket);
-    }
-}
-
-/// Locates the `g1-sim` binary: explicit path, `$G1_SIM_BIN`, or beside this executable (also one
-/// level up, for test binaries in `target/*/deps`).
-pub fn find_sim_bin(explicit: Option<&Path>) -> Result<PathBuf> {
-    if let Some(p) = explicit {
-        return Ok(p.to_path_buf());
-    }
-    if let Some(p) = std::env::var_os("G1_SIM_BIN") {
-        return Ok(PathBuf::from(p));
-    }
-    let exe = std::env::current_exe().context("locating this executable")?;
-    let dir = exe.parent().context("executable has no directory")?;
-    for d in [Some(dir), dir.parent()].into_iter().flatten() {
-        let c = d.join("g1-sim");
-        if c.is_file() {
-            return Ok(c);
-        }
-    }
-    bail!(
-        "cannot find the simulator binary g1-sim next to {}; build it with `cargo build --release -p g1_sim` \
-         or pass --sim-bin PATH (or set G1_SIM_BIN)",
-        exe.display()
-    )
-}
-
-fn spawn_sim(opts: &SimOptions, control_dt: f64) -> Result<SimChild> {
-    let bin = find_sim_bin(opts.sim_bin.as_deref())?;
-    let socket = std::env::temp_dir().join(format!("g1fw-{}-{}.sock", std::process::id(), unique()));
-    let _ = std::fs::remove_file(&socket);
-    let child = Command::new(&bin)
-        .arg("--socket")
-        .arg(&socket)
-        .args(["--model", &opts.model])
-        .args(["--seed", &opts.seed.to_string()])
-        .args(["--physics-dt", &opts.physics_dt.to_string()])
-        .args(["--control-dt", &control_dt.to_string()])
-        .args(opts.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
-        .args(opts.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
-        .args(opts.world.iter().flat_map(|w| ["--world", w.as_str(), "--lidar"]))
-        .arg("--quiet")
-        .stdin(Stdio::null())
-        .spawn()
-        .with_context(|| format!("starting the simulator {}", bin.display()))?;
-    Ok(SimChild { child, socket })
-}
-
-fn unique() -> u64 {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static N: AtomicU64 = AtomicU64::new(0);
-    N.fetch_add(1, Ordering::Relaxed)
-}
-
 fn yaw(q: [f64; 4]) -> f64 {
     let [w, x, y, z] = q;
     libm::atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
@@ -420,9 +333,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let mut hal = match &opts.connect {
         Some(path) => BridgeHal::connect_unix(path, want, Duration::from_secs(10), || Ok(()))?,
         None => {
-            let mut c = spawn_sim(opts, control_dt)?;
-            let socket = c.socket.clone();
-            let hal = BridgeHal::connect_unix(&socket, want, Duration::from_secs(30), || c.status_line())?;
+            let launch = SimLaunch {
+                bin: opts.sim_bin.clone(),
+                seed: opts.seed,
+                physics_dt: opts.physics_dt,
+                faults: opts.faults.clone(),
+                imu_noise: opts.imu_noise.clone(),
+                world: opts.world.clone(),
+                ..SimLaunch::new(&opts.model, control_dt)
+            };
+            let (c, hal) = launch.start("g1fw", want, Duration::from_secs(30))?;
             child = Some(c);
             hal
         }
@@ -613,9 +533,9 @@ fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
         );
     m
 }
-fn simulator_gone(child: &mut Option<SimChild>) -> String {
-    match child.as_mut().map(|c| c.child.try_wait()) {
-        Some(Ok(Some(status))) => format!("the simulator exited mid-run ({status})"),
+fn simulator_gone(child: &mut Option<SimProcess>) -> String {
+    match child.as_mut().map(|c| c.alive()) {
+        Some(Err(why)) => format!("lost the simulator mid-run: {why}"),
         _ => "lost the simulator bridge mid-run".into(),
     }
 }

@@ -2,7 +2,6 @@
 //! in-process bus ⇄ the motor emulator (`g1-can-emu`'s code) ⇄ bridge ⇄ g1-sim (MuJoCo), with a
 //! third node on the bus that sniffs and injects. The same checks run over vcan in the HIL VM
 //! (`cargo xtask hil`, with python-can as the independent peer).
-use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -13,7 +12,7 @@ use firmware::operator::CommandSchedule;
 use firmware::spec::DeploySpec;
 use integration_tests::*;
 use sensor_io::can::{decode_motor_rx, BusLayout, CanFrame, MotorRx, IMU_ACCEL_ID};
-use sim_hal::bridge::{BridgeHal, Wants};
+use sim_hal::bridge::{SimLaunch, Wants};
 use sim_hal::can::{mem_buses, serve, CanBuses, EmuReport, MemBuses, MotorEmulator, ServeOptions};
 
 /// The robot's layout, with a longer IMU timeout: these runs are lock-stepped on a shared machine
@@ -24,25 +23,12 @@ fn layout() -> BusLayout {
     l
 }
 
-struct Sim(Child);
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread.
 fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, faults: &Scenario) -> JoinHandle<EmuReport> {
-    let socket = scratch_dir(&format!("can_bus_{name}")).join("sim.sock");
-    let _ = std::fs::remove_file(&socket);
-    let child = Command::new(built_bin("g1-sim"))
-        .arg("--socket")
-        .arg(&socket)
-        .args(["--model", "g1-12dof", "--control-dt", "0.002", "--quiet"])
-        .stdin(Stdio::null())
-        .spawn()
-        .expect("start g1-sim");
+    let launch = SimLaunch {
+        bin: Some(built_bin("g1-sim")),
+        ..SimLaunch::new("g1-12dof", 0.002)
+    };
     let opts = ServeOptions {
         // The firmware commands ticks 0..N-1 of an N-tick run: then the emulator is done.
         max_ticks: Some(ticks),
@@ -53,18 +39,15 @@ fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, faults: &Scenario) 
         power_off: faults.power_off.clone(),
         imu_off: faults.imu_off,
     };
+    let tag = format!("can_bus_{name}");
     std::thread::spawn(move || {
-        let sim = Sim(child);
-        let mut bridge = BridgeHal::connect_unix(
-            &socket,
-            Wants {
-                truth: true,
-                lidar: false,
-            },
-            Duration::from_secs(60),
-            || Ok(()),
-        )
-        .expect("connect to g1-sim");
+        let wants = Wants {
+            truth: true,
+            lidar: false,
+        };
+        let (sim, mut bridge) = launch
+            .start(&tag, wants, Duration::from_secs(60))
+            .expect("start g1-sim and connect");
         let mut emu = MotorEmulator::new(layout());
         let r = serve(&mut bus, &mut emu, &mut bridge, &opts, |_, _| {}).expect("emulator serves");
         bridge.close();

@@ -5,13 +5,12 @@
 //! control period and the motors answer. It never links MuJoCo: it starts `g1-sim` (or connects to
 //! a running one) and talks to it over the bridge, exactly like `g1fw sim` does.
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use sensor_io::can::BusLayout;
-use sim_hal::bridge::{BridgeHal, Wants};
+use sim_hal::bridge::{BridgeHal, SimLaunch, Wants};
 use sim_hal::can::{serve, MotorEmulator, ServeOptions, SocketCanBuses};
 
 #[derive(Parser)]
@@ -73,37 +72,6 @@ struct Args {
     quiet: bool,
 }
 
-struct SimChild(Child, PathBuf);
-
-impl Drop for SimChild {
-    fn drop(&mut self) {
-        for _ in 0..100 {
-            if let Ok(Some(_)) = self.0.try_wait() {
-                break;
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-        let _ = std::fs::remove_file(&self.1);
-    }
-}
-
-fn sim_bin(explicit: Option<PathBuf>) -> Result<PathBuf> {
-    if let Some(p) = explicit.or_else(|| std::env::var_os("G1_SIM_BIN").map(PathBuf::from)) {
-        return Ok(p);
-    }
-    let exe = std::env::current_exe()?;
-    let c = exe.with_file_name("g1-sim");
-    if c.is_file() {
-        return Ok(c);
-    }
-    bail!(
-        "cannot find g1-sim next to {}; build it with `cargo build --release -p g1_sim` or pass --sim-bin",
-        exe.display()
-    )
-}
-
 fn main() -> std::process::ExitCode {
     match run(Args::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
@@ -133,35 +101,23 @@ fn run(args: Args) -> Result<()> {
             || Ok(()),
         )?,
         None => {
-            let bin = sim_bin(args.sim_bin.clone())?;
-            let socket = std::env::temp_dir().join(format!("g1-can-emu-{}.sock", std::process::id()));
-            let _ = std::fs::remove_file(&socket);
-            let mut cmd = Command::new(&bin);
-            cmd.arg("--socket")
-                .arg(&socket)
-                .args(["--model", &args.model])
-                .args(["--seed", &args.seed.to_string()])
-                .args(["--physics-dt", &args.physics_dt.to_string()])
-                .args(["--control-dt", &control_dt.to_string()])
-                .args(args.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
-                .args(args.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
-                .arg("--quiet")
-                .stdin(Stdio::null());
-            let child = cmd.spawn().with_context(|| format!("starting {}", bin.display()))?;
-            let mut c = SimChild(child, socket.clone());
-            let hal = BridgeHal::connect_unix(
-                &socket,
+            let launch = SimLaunch {
+                bin: args.sim_bin.clone(),
+                seed: args.seed,
+                physics_dt: args.physics_dt,
+                faults: args.faults.clone(),
+                imu_noise: args.imu_noise.clone(),
+                ..SimLaunch::new(&args.model, control_dt)
+            };
+            let (child, hal) = launch.start(
+                "g1-can-emu",
                 Wants {
                     truth: true,
                     lidar: false,
                 },
                 Duration::from_secs(120),
-                || match c.0.try_wait() {
-                    Ok(Some(s)) => Err(format!("g1-sim exited during start-up ({s})")),
-                    _ => Ok(()),
-                },
             )?;
-            _child = Some(c);
+            _child = Some(child);
             hal
         }
     };

@@ -1,0 +1,152 @@
+//! Starting `g1-sim` as a child process and connecting to it over the bridge: the one launcher
+//! that `g1fw sim`, `g1-can-emu` and the tests share. The simulator is always another process, so
+//! nothing that uses this links MuJoCo.
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use super::client::{BridgeError, BridgeHal, Wants};
+
+#[derive(Debug, thiserror::Error)]
+pub enum LaunchError {
+    #[error(
+        "cannot find the simulator binary g1-sim next to {exe}; build it with \
+         `cargo build --release -p g1_sim` or pass --sim-bin PATH (or set G1_SIM_BIN)"
+    )]
+    NotFound { exe: String },
+    #[error("locating this executable: {0}")]
+    CurrentExe(std::io::Error),
+    #[error("starting the simulator {bin}: {source}")]
+    Spawn { bin: String, source: std::io::Error },
+    #[error(transparent)]
+    Bridge(#[from] BridgeError),
+}
+
+/// Locates the `g1-sim` binary: `explicit`, `$G1_SIM_BIN`, or beside this executable (also one
+/// level up, for test binaries in `target/*/deps`).
+pub fn find_sim_bin(explicit: Option<&Path>) -> Result<PathBuf, LaunchError> {
+    if let Some(p) = explicit {
+        return Ok(p.to_path_buf());
+    }
+    if let Some(p) = std::env::var_os("G1_SIM_BIN") {
+        return Ok(PathBuf::from(p));
+    }
+    let exe = std::env::current_exe().map_err(LaunchError::CurrentExe)?;
+    let dir = exe.parent().unwrap_or(Path::new("."));
+    for d in [Some(dir), dir.parent()].into_iter().flatten() {
+        let c = d.join("g1-sim");
+        if c.is_file() {
+            return Ok(c);
+        }
+    }
+    Err(LaunchError::NotFound {
+        exe: exe.display().to_string(),
+    })
+}
+
+/// `g1-sim`'s command line.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimLaunch {
+    /// The binary (`None`: [`find_sim_bin`]).
+    pub bin: Option<PathBuf>,
+    /// `g1-29dof`, `g1-12dof` or an MJCF path.
+    pub model: String,
+    pub seed: u64,
+    pub physics_dt: f64,
+    pub control_dt: f64,
+    /// `--fault` specs.
+    pub faults: Vec<String>,
+    /// `--imu-noise`.
+    pub imu_noise: Option<String>,
+    /// `--world` (a preset, scenario file or random:SEED); also turns the lidar on.
+    pub world: Option<String>,
+}
+
+impl SimLaunch {
+    /// `model` at `control_dt`, everything else at g1-sim's defaults.
+    pub fn new(model: &str, control_dt: f64) -> Self {
+        Self {
+            bin: None,
+            model: model.to_string(),
+            seed: 0,
+            physics_dt: 0.002,
+            control_dt,
+            faults: Vec::new(),
+            imu_noise: None,
+            world: None,
+        }
+    }
+
+    /// Starts the simulator on a fresh socket in the temp directory (named after `tag`) and
+    /// connects to it within `timeout`; fails early, with its exit status, if it dies first.
+    pub fn start(&self, tag: &str, wants: Wants, timeout: Duration) -> Result<(SimProcess, BridgeHal), LaunchError> {
+        static N: AtomicU64 = AtomicU64::new(0);
+        let bin = find_sim_bin(self.bin.as_deref())?;
+        let socket = std::env::temp_dir().join(format!(
+            "{tag}-{}-{}.sock",
+            std::process::id(),
+            N.fetch_add(1, Ordering::Relaxed)
+        ));
+        let _ = std::fs::remove_file(&socket);
+        let child = Command::new(&bin)
+            .arg("--socket")
+            .arg(&socket)
+            .args(["--model", &self.model])
+            .args(["--seed", &self.seed.to_string()])
+            .args(["--physics-dt", &self.physics_dt.to_string()])
+            .args(["--control-dt", &self.control_dt.to_string()])
+            .args(self.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
+            .args(self.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
+            .args(self.world.iter().flat_map(|w| ["--world", w.as_str(), "--lidar"]))
+            .arg("--quiet")
+            .stdin(Stdio::null())
+            .spawn()
+            .map_err(|source| LaunchError::Spawn {
+                bin: bin.display().to_string(),
+                source,
+            })?;
+        let mut sim = SimProcess { child, socket };
+        let socket = sim.socket.clone();
+        let hal = BridgeHal::connect_unix(&socket, wants, timeout, || sim.alive())?;
+        Ok((sim, hal))
+    }
+}
+
+/// A running simulator; dropping it gives it a moment to exit after the bridge's goodbye, then
+/// kills it and removes its socket.
+pub struct SimProcess {
+    child: Child,
+    socket: PathBuf,
+}
+
+impl SimProcess {
+    /// `Err` with the exit status once the process has exited.
+    pub fn alive(&mut self) -> Result<(), String> {
+        match self.child.try_wait() {
+            Ok(Some(status)) => Err(format!("the simulator exited ({status}); see its message above")),
+            Ok(None) => Ok(()),
+            Err(e) => Err(format!("cannot poll the simulator process: {e}")),
+        }
+    }
+
+    pub fn socket(&self) -> &Path {
+        &self.socket
+    }
+}
+
+impl Drop for SimProcess {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            for _ in 0..100 {
+                if let Ok(Some(_)) = self.child.try_wait() {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+        let _ = std::fs::remove_file(&self.socket);
+    }
+}
