@@ -11,7 +11,9 @@
 //! - [`replay`]: `g1fw replay`, recorded inputs through the same runtime, outputs compared bit for bit.
 //! - [`rt`]: real-time process set-up (SCHED_FIFO, CPU pinning, mlockall).
 //! - [`robot`]: the G1's joint ranges.
+//! - [`alloc_probe`]: a counting global allocator that tests install to prove the tick allocates nothing.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
+pub mod alloc_probe;
 pub mod bev_render;
 pub mod can_run;
 pub mod controller;

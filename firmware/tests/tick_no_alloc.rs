@@ -4,8 +4,7 @@
 //! hold, policy, an operator e-stop (damping) and a reset back through start-up.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use firmware::alloc_probe::{counts, CountingAlloc};
 use std::path::Path;
 
 use firmware::controller::{Controller, Mode};
@@ -16,34 +15,8 @@ use firmware::spec::DeploySpec;
 use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_state, DecodeError, LOW_STATE_LEN};
 
-thread_local! {
-    static COUNT: Cell<(usize, usize)> = const { Cell::new((0, 0)) };
-}
-
-/// Counts allocations and deallocations per thread (parallel tests and the log writer thread do
-/// not interfere).
-struct Counting;
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        COUNT.with(|c| c.set((c.get().0 + 1, c.get().1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        COUNT.with(|c| c.set((c.get().0, c.get().1 + 1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        COUNT.with(|c| c.set((c.get().0 + 1, c.get().1 + 1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// A HAL that synthesises valid, changing LowState frames and decodes them like a real one.
 struct SyntheticHal {
@@ -125,10 +98,6 @@ impl FrameSource for SyntheticHal {
     }
 }
 
-fn count() -> (usize, usize) {
-    COUNT.with(|c| c.get())
-}
-
 fn run_ticks(spec_path: &Path) {
     let spec = DeploySpec::load(spec_path).expect("spec loads");
     let (obs, act) = (spec.observation_dim(), spec.num_joints());
@@ -148,7 +117,7 @@ fn run_ticks(spec_path: &Path) {
     let mut operator = schedule.source(2_000_000);
 
     let (mut policy_ticks, mut damping_ticks, mut reset_seen, mut pushed) = (0u64, 0u64, false, 0u64);
-    let before = count();
+    let before = counts();
     let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
         policy_ticks += v.summary.policy_step as u64;
         damping_ticks += matches!(v.summary.mode, Mode::Damping(_)) as u64;
@@ -156,7 +125,7 @@ fn run_ticks(spec_path: &Path) {
         pushed += logger.push(v) as u64;
         true
     });
-    let after = count();
+    let after = counts();
     assert!(matches!(end, LoopEnd::Completed { ticks } if ticks == n), "{end:?}");
     assert!(policy_ticks > 1000, "policy ran {policy_ticks} times");
     assert!(damping_ticks >= 400, "damping for {damping_ticks} ticks");
@@ -286,13 +255,13 @@ fn can_hal_tick_path_does_not_allocate() {
     let mut operator = schedule.source(2_000_000);
     let n = 5_000u64;
     let mut policy_ticks = 0u64;
-    let before = count();
+    let before = counts();
     let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
         policy_ticks += v.summary.policy_step as u64;
         logger.push(v);
         true
     });
-    let after = count();
+    let after = counts();
     assert!(matches!(end, LoopEnd::Completed { ticks } if ticks == n), "{end:?}");
     assert!(policy_ticks > 400, "policy ran {policy_ticks} times");
     let c = hal.counters();
@@ -303,4 +272,14 @@ fn can_hal_tick_path_does_not_allocate() {
     );
     logger.finish().unwrap();
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The probe itself can fail the tests above: an allocation on this thread is counted.
+#[test]
+fn the_probe_counts_this_threads_allocations() {
+    let before = counts();
+    let v = std::hint::black_box(vec![1u8; 64]);
+    drop(v);
+    let after = counts();
+    assert_eq!((after.0 - before.0, after.1 - before.1), (1, 1));
 }

@@ -8,8 +8,7 @@
 //! variant of it that observes the terrain token), so it needs nothing from ../shared.
 // Integration tests never run on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use firmware::alloc_probe::{counts, CountingAlloc};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -223,37 +222,8 @@ fn a_world_log_without_lidar_frames_still_replays_when_the_policy_ignores_the_to
 
 // ---- The tick path with lidar frames and their logging does not allocate. ----
 
-thread_local! {
-    static COUNT: Cell<(usize, usize)> = const { Cell::new((0, 0)) };
-}
-
-/// Counts allocations and deallocations per thread (the log writer thread does not interfere).
-struct Counting;
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        COUNT.with(|c| c.set((c.get().0 + 1, c.get().1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        COUNT.with(|c| c.set((c.get().0, c.get().1 + 1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        COUNT.with(|c| c.set((c.get().0 + 1, c.get().1 + 1)));
-        // SAFETY: forwarded unchanged to the system allocator.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn count() -> (usize, usize) {
-    COUNT.with(|c| c.get())
-}
+static GLOBAL: CountingAlloc = CountingAlloc;
 
 /// Standing still on flat ground, with a lidar frame of a floor and a step every 50 ticks.
 struct LidarHal {
@@ -367,14 +337,14 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
     };
     let n = 3_000u64;
     let (mut fresh_steps, mut policy_steps) = (0u64, 0u64);
-    let before = count();
+    let before = counts();
     let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
         fresh_steps += v.summary.perception.is_some_and(|p| p.fresh) as u64;
         policy_steps += v.summary.policy_step as u64;
         logger.push(v);
         true
     });
-    let after = count();
+    let after = counts();
     assert!(matches!(end, LoopEnd::Completed { ticks } if ticks == n), "{end:?}");
     assert_eq!(fresh_steps, n / 50 + 1, "a fresh frame on every perception tick");
     assert!(policy_steps > 200, "{policy_steps} policy steps");
