@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Context;
 use candle_core::Device;
 use clap::{Parser, Subcommand};
-use indicatif::{ProgressBar, ProgressStyle};
+use g1_sim::progress::{bar, default_jobs};
 use train::data::{split_by_world, Dataset};
 use train::export::{fold, DESC_FILE, WEIGHTS_FILE};
 use train::fit::{fit, FitConfig, LAMBDA_CLS, LAMBDA_D, LAMBDA_H, LAMBDA_YAW};
@@ -110,10 +110,6 @@ enum Cmd {
     },
 }
 
-fn default_jobs() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
 fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terrain_net::TerrainNet> {
     Ok(match weights {
         None => firmware::terrain_net::TerrainNet::embedded()?,
@@ -125,21 +121,6 @@ fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terra
                 )
             })?,
     })
-}
-
-fn bar(total: usize, quiet: bool, what: &str) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(total as u64);
-    pb.set_style(
-        ProgressStyle::with_template(&format!(
-            "{{elapsed_precise}} [{{bar:40}}] {{pos}}/{{len}} {what} ({{per_sec}}, eta {{eta}}) {{msg}}"
-        ))
-        .expect("valid template")
-        .progress_chars("=> "),
-    );
-    pb
 }
 
 fn main() -> anyhow::Result<()> {

@@ -22,6 +22,7 @@ pub mod dataset;
 pub mod faults;
 pub mod lidar;
 pub mod model;
+pub mod progress;
 pub mod rng;
 pub mod server;
 pub mod slots;

@@ -10,7 +10,7 @@ use clap::{Parser, Subcommand};
 use g1_sim::dataset::{
     evaluate_geometric, export, DatasetConfig, ExportConfig, ModeChoice, WorldSet, EVAL_SEED_BASE, TENSOR_DOC,
 };
-use indicatif::{ProgressBar, ProgressStyle};
+use g1_sim::progress::{bar, default_jobs};
 
 /// Terrain datasets from the simulated G1 (29-dof model, simulated MID-360, MuJoCo worlds).
 ///
@@ -97,10 +97,6 @@ struct Common {
     quiet: bool,
 }
 
-fn default_jobs() -> usize {
-    std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
 fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
     let mut d = DatasetConfig {
         mode,
@@ -111,19 +107,6 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
         d.height_noise_m = 0.0;
     }
     d
-}
-
-fn bar(total: usize, quiet: bool) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(total as u64);
-    pb.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} samples ({per_sec}, eta {eta})")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    pb
 }
 
 fn main() -> anyhow::Result<()> {
@@ -163,7 +146,7 @@ fn main() -> anyhow::Result<()> {
                 jobs: common.jobs,
                 dataset: dataset_config(mode, &common),
             };
-            let pb = bar(total, common.quiet);
+            let pb = bar(total, common.quiet, "samples");
             let t = Instant::now();
             let m = export(&cfg, &|| pb.inc(1)).with_context(|| format!("exporting to {}", out.display()))?;
             pb.finish_and_clear();
@@ -201,7 +184,7 @@ fn main() -> anyhow::Result<()> {
                 first_seed: EVAL_SEED_BASE + seed,
                 count: worlds,
             };
-            let pb = bar(worlds * poses_per_world, common.quiet);
+            let pb = bar(worlds * poses_per_world, common.quiet, "samples");
             let t = Instant::now();
             let r = evaluate_geometric(
                 &set,
