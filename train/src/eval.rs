@@ -5,7 +5,7 @@ use std::path::Path;
 use estimator::terrain::{GeometricTerrainConfig, GeometricTerrainEstimator};
 use firmware::terrain_net::TerrainNet;
 use g1_sim::dataset::{render_worlds, token_array, DatasetConfig, EvalStats, WorldSet};
-use hal::{TerrainClass, TerrainToken};
+use hal::TerrainToken;
 use serde::Serialize;
 
 /// Errors of one estimator, in the report's shape.
@@ -26,33 +26,15 @@ pub struct Summary {
     pub confusion: [[usize; 3]; 3],
 }
 
-/// Accumulates [`EvalStats`] plus the stairs-only h/d errors.
-#[derive(Clone, Debug, Default)]
-pub struct Scorer {
-    pub stats: EvalStats,
-    stairs_h: f64,
-    stairs_d: f64,
-}
-
-impl Scorer {
-    pub fn add(&mut self, truth: &TerrainToken, est: &TerrainToken) {
-        self.stats.add(truth, est);
-        if truth.class != TerrainClass::Flat {
-            self.stairs_h += (truth.step_height_m - est.step_height_m).abs() as f64;
-            self.stairs_d += (truth.step_depth_m - est.step_depth_m).abs() as f64;
-        }
-    }
-
-    pub fn summary(&self) -> Summary {
-        let s = &self.stats;
-        let n = s.stairs_samples.max(1) as f64;
+impl Summary {
+    pub fn of(s: &EvalStats) -> Self {
         Summary {
             mae_h_cm: s.mae_h_cm,
             mae_d_cm: s.mae_d_cm,
             mae_yaw_deg: s.mae_yaw_deg,
             class_acc: s.class_accuracy,
-            mae_h_cm_stairs: 100.0 * self.stairs_h / n,
-            mae_d_cm_stairs: 100.0 * self.stairs_d / n,
+            mae_h_cm_stairs: s.mae_h_cm_stairs,
+            mae_d_cm_stairs: s.mae_d_cm_stairs,
             samples: s.samples,
             stairs_samples: s.stairs_samples,
             confusion: s.confusion,
@@ -147,7 +129,7 @@ pub fn evaluate(
 ) -> anyhow::Result<Report> {
     let t0 = std::time::Instant::now();
     let mut geo = GeometricTerrainEstimator::new(GeometricTerrainConfig::default());
-    let (mut cnn, mut base) = (Scorer::default(), Scorer::default());
+    let (mut cnn, mut base) = (EvalStats::default(), EvalStats::default());
     let mut records = Vec::new();
     let mut worlds = 0;
     render_worlds(set, poses_per_world, cfg, jobs, |wi, seed, s| {
@@ -171,8 +153,8 @@ pub fn evaluate(
         Ok(())
     })?;
     Ok(Report {
-        cnn: cnn.summary(),
-        baseline: base.summary(),
+        cnn: Summary::of(&cnn),
+        baseline: Summary::of(&base),
         worlds,
         poses_per_world,
         world_set: match set {

@@ -767,6 +767,9 @@ pub struct EvalStats {
     /// Over all samples (flat counts with h = d = 0), cm.
     pub mae_h_cm: f64,
     pub mae_d_cm: f64,
+    /// h and d over samples whose true class is stairs only, cm (the stricter reading).
+    pub mae_h_cm_stairs: f64,
+    pub mae_d_cm_stairs: f64,
     /// Over samples whose true class is stairs, degrees (wrapped difference).
     pub mae_yaw_deg: f64,
     pub stairs_samples: usize,
@@ -779,8 +782,9 @@ pub struct EvalStats {
     /// Estimates that `estimator::terrain::plausible` rejects (the firmware would not use them;
     /// they are counted in the errors above all the same).
     pub implausible: usize,
+    /// h, d, yaw (stairs), yaw (both stairs), h (stairs), d (stairs): sums of absolute errors.
     #[serde(skip)]
-    sums: [f64; 4],
+    sums: [f64; 6],
 }
 
 impl EvalStats {
@@ -793,6 +797,8 @@ impl EvalStats {
             let e = wrap_angle(truth.yaw_rad as f64 - est.yaw_rad as f64).abs();
             self.stairs_samples += 1;
             self.sums[2] += e;
+            self.sums[4] += (truth.step_height_m - est.step_height_m).abs() as f64;
+            self.sums[5] += (truth.step_depth_m - est.step_depth_m).abs() as f64;
             if stairs(est.class) {
                 self.both_stairs_samples += 1;
                 self.sums[3] += e;
@@ -809,7 +815,10 @@ impl EvalStats {
         let n = self.samples.max(1) as f64;
         self.mae_h_cm = 100.0 * self.sums[0] / n;
         self.mae_d_cm = 100.0 * self.sums[1] / n;
-        self.mae_yaw_deg = self.sums[2].to_degrees() / self.stairs_samples.max(1) as f64;
+        let n_stairs = self.stairs_samples.max(1) as f64;
+        self.mae_h_cm_stairs = 100.0 * self.sums[4] / n_stairs;
+        self.mae_d_cm_stairs = 100.0 * self.sums[5] / n_stairs;
+        self.mae_yaw_deg = self.sums[2].to_degrees() / n_stairs;
         self.mae_yaw_deg_both_stairs = self.sums[3].to_degrees() / self.both_stairs_samples.max(1) as f64;
         let correct: usize = (0..3).map(|i| self.confusion[i][i]).sum();
         self.class_accuracy = correct as f64 / n;
@@ -910,4 +919,46 @@ pub fn evaluate_geometric(
         walking,
         records,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn token(class: TerrainClass, h: f32, d: f32, yaw_deg: f32) -> TerrainToken {
+        TerrainToken {
+            class,
+            step_height_m: h,
+            step_depth_m: d,
+            yaw_rad: yaw_deg.to_radians(),
+        }
+    }
+
+    #[test]
+    fn eval_stats_average_each_error_over_its_own_samples() {
+        let mut s = EvalStats::default();
+        // Stairs, estimated as stairs: 1 cm h, 2 cm d, 3° yaw off.
+        s.add(
+            &token(TerrainClass::StairsUp, 0.15, 0.30, 10.0),
+            &token(TerrainClass::StairsUp, 0.16, 0.28, 13.0),
+        );
+        // Stairs, estimated flat: 15 cm h, 30 cm d off; yaw 20° off (counted in mae_yaw_deg only).
+        s.add(
+            &token(TerrainClass::StairsDown, 0.15, 0.30, 0.0),
+            &token(TerrainClass::Flat, 0.0, 0.0, 20.0),
+        );
+        // Flat, estimated flat: no error.
+        s.add(&TerrainToken::FLAT, &TerrainToken::FLAT);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-4;
+        assert_eq!((s.samples, s.stairs_samples, s.both_stairs_samples), (3, 2, 1));
+        assert!(close(s.mae_h_cm, 16.0 / 3.0), "{s:?}");
+        assert!(close(s.mae_d_cm, 32.0 / 3.0), "{s:?}");
+        assert!(close(s.mae_h_cm_stairs, 8.0) && close(s.mae_d_cm_stairs, 16.0), "{s:?}");
+        assert!(
+            close(s.mae_yaw_deg, 11.5) && close(s.mae_yaw_deg_both_stairs, 3.0),
+            "{s:?}"
+        );
+        assert!(close(s.class_accuracy, 2.0 / 3.0));
+        assert_eq!(s.confusion[2][0], 1);
+    }
 }
