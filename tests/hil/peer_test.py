@@ -943,6 +943,51 @@ def run_fault(f: Fault, args, lay, out) -> Check:
         ticks_to_damping=ttd, wall_s=wall, reason=reason)
 
 
+def run_imu_off(args, lay, out) -> list[Check]:
+    """The IMU stops (g1-can-emu --imu-off) while the motors keep answering: the firmware's tick
+    never comes again, so after tick_timeout_ms it damps every motor once and ends (docs/can.md)."""
+    off_s = args.inject_after * 0.002
+    t0 = time.monotonic()
+    with Run("imu_off", out, lay, args) as r:
+        r.start_sniffer()
+        r.start_emu(r.dir / "emu.json", extra=["--imu-off", f"{off_s}"])
+        r.start_fw(args.fault_s, r.dir / "fw.json", cmd=args.walk_cmd)
+        rc = r.wait_fw()
+        rec = r.finish()
+        wall = time.monotonic() - t0
+        fw = load_json(r.dir / "fw.json", "g1fw")
+    name = f"fault imu_off: the IMU loses power after sample {args.inject_after}, the motors keep answering"
+    problems = []
+    last_sample = rec.ticks[-1].k if rec.ticks else None
+    if last_sample != args.inject_after:
+        problems.append(f"the last IMU sample on the bus is {last_sample}, expected {args.inject_after}")
+    trip = fw.get("trip") if isinstance(fw.get("trip"), dict) else {}
+    if trip.get("reason") != "hal_fault" or trip.get("tick") != args.inject_after + 1:
+        problems.append(f"trip {trip or None}, docs/can.md says hal_fault at the tick that never came "
+                        f"({args.inject_after + 1})")
+    end = str(fw.get("end", ""))
+    if "HAL failure" not in end or "the IMU stopped" not in end:
+        problems.append(f"report end {end!r} does not say the IMU stopped")
+    if rc != 3:
+        problems.append(f"g1fw exit {rc}, expected 3 (a trip)")
+    # On the wire: the last command of every motor is damping, and it follows the last IMU sample.
+    cmds = [(fr, m) for fr, m in (rec.ticks[-1].commands if rec.ticks else [])
+            if len(fr.data) == 8 and not SPECIALS.get(fr.data)]
+    last = cmds[-len(lay.motors):]
+    slots = sorted(m.slot for _, m in last)
+    damped = [command_fields(fr.data)[2] == 0 and command_fields(fr.data)[3] > 0 for fr, _ in last]
+    if len(cmds) != 2 * len(lay.motors):
+        problems.append(f"{len(cmds)} commands after the last IMU sample, expected {2 * len(lay.motors)} "
+                        "(that sample's tick, then one damping command per motor)")
+    elif slots != sorted(m.slot for m in lay.motors) or not all(damped):
+        problems.append(f"the last {len(last)} commands are not one damping command per motor: "
+                        f"{[(G1_SLOTS[m.slot], command_fields(fr.data)[2:4]) for fr, m in last]}")
+    detail = "; ".join(problems) if problems else (
+        f"last IMU sample {last_sample}; trip {trip.get('reason')} at tick {trip.get('tick')}; then "
+        f"{len(last)} damping commands (kp 0, kd > 0), one per motor; g1fw exit {rc}: {end}")
+    return [Check(name, not problems, detail, wall_s=wall, reason=trip.get("reason", ""))]
+
+
 # ------------------------------------------------------------------------------------------------
 
 
@@ -965,7 +1010,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--self-test", action="store_true", help="only the codec self-test (no CAN needed)")
     ap.add_argument("--only", default=os.environ.get("HIL_PEER_ONLY", ""),
-                    help="comma-separated runs: walk,dlc3,bad_byte0,foreign_id,flood,silent,second_master (default: all)")
+                    help="comma-separated runs: walk,dlc3,bad_byte0,foreign_id,flood,silent,second_master,imu_off "
+                         "(default: all)")
     ap.add_argument("--can-config", type=Path, default=REPO / "specs/can/g1_12dof.toml")
     ap.add_argument("--spec", type=Path, default=REPO / "specs/peer/unitree_g1_lstm.toml")
     ap.add_argument("--walk-s", type=float, default=float(os.environ.get("HIL_WALK_S", "11")),
@@ -995,7 +1041,7 @@ def main() -> int:
     gains = Gains.load(args.spec, lay)
     ranges = joint_ranges(args.spec)
     faults = fault_list(lay)
-    names = ["walk"] + [f.name for f in faults]
+    names = ["walk"] + [f.name for f in faults] + ["imu_off"]
     only = [s for s in args.only.split(",") if s]
     unknown = [s for s in only if s not in names]
     if unknown:
@@ -1012,6 +1058,8 @@ def main() -> int:
         try:
             if name == "walk":
                 res = run_walk(args, lay, gains, ranges, args.out)
+            elif name == "imu_off":
+                res = run_imu_off(args, lay, args.out)
             else:
                 res = [run_fault(next(f for f in faults if f.name == name), args, lay, args.out)]
         except Failed as e:
