@@ -123,7 +123,26 @@ fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terra
     })
 }
 
+/// glibc hands every freed block over 128 KiB back to the kernel and maps it again on the next
+/// step, so each training step page-faults its tensors (a few MB each at batch 64) back in: a third
+/// of the step time here. Keeping them in the heap trains 1.5–2× faster (measured A/B, same data).
+/// An explicit `MALLOC_MMAP_THRESHOLD_` in the environment wins.
+fn keep_freed_tensors_in_the_heap() {
+    if std::env::var_os("MALLOC_MMAP_THRESHOLD_").is_some() {
+        return;
+    }
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets glibc allocator thresholds; it runs first thing in main, before any
+    // other thread exists, and its failure (return 0) leaves the defaults in place.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+        libc::mallopt(libc::M_TOP_PAD, 64 << 20);
+    }
+}
+
 fn main() -> anyhow::Result<()> {
+    keep_freed_tensors_in_the_heap();
     let cli = Cli::parse();
     match cli.cmd {
         Cmd::Fit {
