@@ -27,6 +27,7 @@ mod common;
 use common::{loud, percentile};
 use estimator::terrain_cnn::decode;
 use firmware::nn::{LayerDesc, Network, NetworkDesc};
+use hal::XorShift64 as Rng;
 use hal::{LidarPoint, TerrainToken};
 use safetensors::tensor::{Dtype, TensorView};
 use sensor_io::bev::{BevBuilder, BevGrid, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_LEN, CH_DENSITY};
@@ -156,28 +157,10 @@ impl CnnModel {
     }
 }
 
-/// xorshift64*.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    /// Uniform in [-1, 1).
-    fn signed(&mut self) -> f32 {
-        2.0 * self.unit() - 1.0
-    }
-    /// Roughly normal (sum of four uniforms), standard deviation `sigma`.
-    fn noise(&mut self, sigma: f32) -> f32 {
-        let s: f32 = (0..4).map(|_| self.signed()).sum();
-        s * sigma * (3.0f32 / 4.0).sqrt()
-    }
+/// Roughly normal (sum of four uniforms), standard deviation `sigma`.
+fn noise(rng: &mut Rng, sigma: f32) -> f32 {
+    let s: f32 = (0..4).map(|_| rng.signed()).sum();
+    s * sigma * (3.0f32 / 4.0).sqrt()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -213,16 +196,20 @@ fn staircase_cloud(rf: &RobotFrame) -> Vec<LidarPoint> {
                 1 => [3.5 + rng.unit(), 4.0 * rng.signed(), 2.0 * rng.unit()],           // far wall
                 2..=4 => {
                     // Risers: the vertical faces the sensor sees.
-                    let k = (rng.next() % N_STEPS as u64) as f32;
+                    let k = (rng.next_u64() % N_STEPS as u64) as f32;
                     let x = FIRST_RISER_X + k * STEP_D;
-                    [x + rng.noise(0.002), 1.5 * rng.signed(), STEP_H * (k + rng.unit())]
+                    [
+                        x + noise(&mut rng, 0.002),
+                        1.5 * rng.signed(),
+                        STEP_H * (k + rng.unit()),
+                    ]
                 }
                 _ => {
                     // Ground and treads, density falling off with range like a scanning lidar.
                     let r = 0.3 + 2.4 * rng.unit() * rng.unit().sqrt();
                     let theta = std::f32::consts::PI * rng.signed();
                     let (x, y) = (r * theta.cos(), r * theta.sin());
-                    [x, y, stairs(x) + rng.noise(0.002)]
+                    [x, y, stairs(x) + noise(&mut rng, 0.002)]
                 }
             };
             // Back into the sensor frame: p_s = Rᵀ (p − t).

@@ -2,21 +2,12 @@
 //! CNN's shapes, load errors that say what to fix, and the description's TOML form.
 
 use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError};
+use hal::XorShift64 as Rng;
 use safetensors::tensor::{Dtype, TensorView};
 
-/// xorshift64* in [-scale, scale).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let u = (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32;
-        2.0 * u - 1.0
-    }
-    fn vec(&mut self, n: usize, scale: f32) -> Vec<f32> {
-        (0..n).map(|_| scale * self.next()).collect()
-    }
+/// `n` values uniform in [-scale, scale).
+fn rand_vec(rng: &mut Rng, n: usize, scale: f32) -> Vec<f32> {
+    (0..n).map(|_| scale * rng.signed()).collect()
 }
 
 /// Named f32 tensors, serialized to safetensors bytes.
@@ -134,14 +125,18 @@ fn terrain_cnn(rng: &mut Rng) -> (NetworkDesc, File) {
         f.add(
             &format!("{name}.weight"),
             &[cout, cin, 3, 3],
-            rng.vec(cout * cin * 9, 1.0 / fan_in.sqrt()),
+            rand_vec(rng, cout * cin * 9, 1.0 / fan_in.sqrt()),
         );
-        f.add(&format!("{name}.bias"), &[cout], rng.vec(cout, 0.1));
+        f.add(&format!("{name}.bias"), &[cout], rand_vec(rng, cout, 0.1));
     }
-    f.add("fc.weight", &[128, 8192], rng.vec(128 * 8192, 1.0 / 8192f32.sqrt()));
-    f.add("fc.bias", &[128], rng.vec(128, 0.1));
-    f.add("head.weight", &[7, 128], rng.vec(7 * 128, 1.0 / 128f32.sqrt()));
-    f.add("head.bias", &[7], rng.vec(7, 0.1));
+    f.add(
+        "fc.weight",
+        &[128, 8192],
+        rand_vec(rng, 128 * 8192, 1.0 / 8192f32.sqrt()),
+    );
+    f.add("fc.bias", &[128], rand_vec(rng, 128, 0.1));
+    f.add("head.weight", &[7, 128], rand_vec(rng, 7 * 128, 1.0 / 128f32.sqrt()));
+    f.add("head.bias", &[7], rand_vec(rng, 7, 0.1));
     let desc = NetworkDesc {
         input: 21600,
         input_shape: Some(vec![6, 60, 60]),
@@ -186,7 +181,7 @@ fn terrain_cnn_shapes_and_output_match_reference() {
     let want_params = 24 * 6 * 9 + 24 + 48 * 24 * 9 + 48 + 128 * 48 * 9 + 128 + 128 * 8192 + 128 + 7 * 128 + 7;
     assert_eq!(net.param_count(), want_params);
 
-    let x: Vec<f32> = rng.vec(21600, 0.5).iter().map(|v| v + 0.2).collect();
+    let x: Vec<f32> = rand_vec(&mut rng, 21600, 0.5).iter().map(|v| v + 0.2).collect();
     let (mut a, s) = ref_conv(
         &x,
         (6, 60, 60),
@@ -228,15 +223,23 @@ fn conv_relu_conv_linear_chain_matches_reference() {
     ] {
         let mut rng = Rng(seed);
         let mut f = File::default();
-        f.add("a.weight", &[c1, cin, k1, k1], rng.vec(c1 * cin * k1 * k1, 0.5));
-        f.add("a.bias", &[c1], rng.vec(c1, 0.5));
-        f.add("b.weight", &[c2, c1, k2, k2], rng.vec(c2 * c1 * k2 * k2, 0.5));
-        f.add("b.bias", &[c2], rng.vec(c2, 0.5));
+        f.add(
+            "a.weight",
+            &[c1, cin, k1, k1],
+            rand_vec(&mut rng, c1 * cin * k1 * k1, 0.5),
+        );
+        f.add("a.bias", &[c1], rand_vec(&mut rng, c1, 0.5));
+        f.add(
+            "b.weight",
+            &[c2, c1, k2, k2],
+            rand_vec(&mut rng, c2 * c1 * k2 * k2, 0.5),
+        );
+        f.add("b.bias", &[c2], rand_vec(&mut rng, c2, 0.5));
         let (ho1, wo1) = ((h + 2 * p1 - k1) / s1 + 1, (w + 2 * p1 - k1) / s1 + 1);
         let (ho2, wo2) = ((ho1 + 2 * p2 - k2) / s2 + 1, (wo1 + 2 * p2 - k2) / s2 + 1);
         let flat = c2 * ho2 * wo2;
-        f.add("l.weight", &[n_out, flat], rng.vec(n_out * flat, 0.5));
-        f.add("l.bias", &[n_out], rng.vec(n_out, 0.5));
+        f.add("l.weight", &[n_out, flat], rand_vec(&mut rng, n_out * flat, 0.5));
+        f.add("l.bias", &[n_out], rand_vec(&mut rng, n_out, 0.5));
         let desc = NetworkDesc {
             input: cin * h * w,
             input_shape: Some(vec![cin, h, w]),
@@ -252,7 +255,7 @@ fn conv_relu_conv_linear_chain_matches_reference() {
         assert_eq!(net.layer_output_shape(2).unwrap(), &[c2, ho2, wo2]);
         let mut y = vec![0.0f32; n_out];
         for trial in 0..5 {
-            let x = rng.vec(cin * h * w, 2.0);
+            let x = rand_vec(&mut rng, cin * h * w, 2.0);
             let (mut a, s) = ref_conv(
                 &x,
                 (cin, h, w),
@@ -277,8 +280,8 @@ fn conv_as_last_layer_and_after_elementwise() {
     // conv -> tanh keeps the image shape; the output is the CHW-flattened conv output.
     let mut rng = Rng(11);
     let mut f = File::default();
-    f.add("c.weight", &[4, 2, 3, 3], rng.vec(72, 0.5));
-    f.add("c.bias", &[4], rng.vec(4, 0.5));
+    f.add("c.weight", &[4, 2, 3, 3], rand_vec(&mut rng, 72, 0.5));
+    f.add("c.bias", &[4], rand_vec(&mut rng, 4, 0.5));
     let desc = NetworkDesc {
         input: 2 * 6 * 5,
         input_shape: Some(vec![2, 6, 5]),
@@ -286,7 +289,7 @@ fn conv_as_last_layer_and_after_elementwise() {
     };
     let mut net = Network::from_safetensors_bytes(&desc, &f.bytes()).unwrap();
     assert_eq!(net.output_dim(), 4 * 6 * 5);
-    let x = rng.vec(60, 1.0);
+    let x = rand_vec(&mut rng, 60, 1.0);
     let mut xr = x.clone();
     ref_relu(&mut xr);
     let (want, _) = ref_conv(&xr, (2, 6, 5), f.get("c.weight"), f.get("c.bias"), (4, 3, 3), 1, 1);
@@ -301,8 +304,8 @@ fn conv_relu_as_last_layers() {
     // output (NaN stays NaN, negative zero stays negative zero, like the separate layer).
     let mut rng = Rng(12);
     let mut f = File::default();
-    f.add("c.weight", &[9, 2, 3, 3], rng.vec(162, 0.5));
-    f.add("c.bias", &[9], rng.vec(9, 0.5));
+    f.add("c.weight", &[9, 2, 3, 3], rand_vec(&mut rng, 162, 0.5));
+    f.add("c.bias", &[9], rand_vec(&mut rng, 9, 0.5));
     let desc = NetworkDesc {
         input: 2 * 5 * 7,
         input_shape: Some(vec![2, 5, 7]),
@@ -310,7 +313,7 @@ fn conv_relu_as_last_layers() {
     };
     let mut net = Network::from_safetensors_bytes(&desc, &f.bytes()).unwrap();
     assert_eq!(net.layer_output_shape(1).unwrap(), &[9, 3, 4]);
-    let mut x = rng.vec(70, 1.0);
+    let mut x = rand_vec(&mut rng, 70, 1.0);
     x[3] = f32::NAN;
     let (mut want, _) = ref_conv(&x, (2, 5, 7), f.get("c.weight"), f.get("c.bias"), (9, 3, 3), 2, 1);
     ref_relu(&mut want);
@@ -378,11 +381,11 @@ fn conv_errors_say_what_to_fix() {
 
     // Flat input that is not cin * side^2: a generic hint.
     let mut g = File::default();
-    g.add("c.weight", &[2, 3, 3, 3], rng.vec(54, 1.0));
-    g.add("c.bias", &[2], rng.vec(2, 1.0));
-    g.add("l.weight", &[4, 10], rng.vec(40, 1.0));
-    g.add("l.bias", &[4], rng.vec(4, 1.0));
-    g.add("c3.weight", &[2, 3, 3], rng.vec(18, 1.0));
+    g.add("c.weight", &[2, 3, 3, 3], rand_vec(&mut rng, 54, 1.0));
+    g.add("c.bias", &[2], rand_vec(&mut rng, 2, 1.0));
+    g.add("l.weight", &[4, 10], rand_vec(&mut rng, 40, 1.0));
+    g.add("l.bias", &[4], rand_vec(&mut rng, 4, 1.0));
+    g.add("c3.weight", &[2, 3, 3], rand_vec(&mut rng, 18, 1.0));
     let gb = g.bytes();
     let net = |input, input_shape, layers| NetworkDesc {
         input,

@@ -4,6 +4,7 @@
 #![allow(clippy::disallowed_methods)]
 
 use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError};
+use hal::XorShift64 as Rng;
 use safetensors::tensor::{Dtype, TensorView};
 use safetensors::SafeTensors;
 use std::collections::HashMap;
@@ -162,19 +163,9 @@ layers = [{ type = "lstm", weight_ih = "a", weight_hh = "b", bias_ih = "c", bias
 // ---------------------------------------------------------------------------------------------
 // Random weights and an f64 reference.
 
-/// xorshift64*: deterministic, dependency-free test data in [-1, 1).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f32 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        let v = self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40;
-        (v as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
-    }
-    fn vec(&mut self, n: usize, scale: f32) -> Vec<f32> {
-        (0..n).map(|_| self.next() * scale).collect()
-    }
+/// `n` values uniform in [-scale, scale).
+fn rand_vec(rng: &mut Rng, n: usize, scale: f32) -> Vec<f32> {
+    (0..n).map(|_| scale * rng.signed()).collect()
 }
 
 /// Tensors to be written into a safetensors file (any dtype via raw bytes).
@@ -251,13 +242,17 @@ fn ref_lstm(f: &File, p: &str, x: &[f64], h: &mut [f64], c: &mut [f64]) {
 
 fn add_lstm(f: &mut File, rng: &mut Rng, p: &str, n_in: usize, hsz: usize, initial: bool) {
     let s = 1.0 / (hsz as f32).sqrt();
-    f.add(&format!("{p}.w_ih"), &[4 * hsz, n_in], &rng.vec(4 * hsz * n_in, s));
-    f.add(&format!("{p}.w_hh"), &[4 * hsz, hsz], &rng.vec(4 * hsz * hsz, s));
-    f.add(&format!("{p}.b_ih"), &[4 * hsz], &rng.vec(4 * hsz, s));
-    f.add(&format!("{p}.b_hh"), &[4 * hsz], &rng.vec(4 * hsz, s));
+    f.add(
+        &format!("{p}.w_ih"),
+        &[4 * hsz, n_in],
+        &rand_vec(rng, 4 * hsz * n_in, s),
+    );
+    f.add(&format!("{p}.w_hh"), &[4 * hsz, hsz], &rand_vec(rng, 4 * hsz * hsz, s));
+    f.add(&format!("{p}.b_ih"), &[4 * hsz], &rand_vec(rng, 4 * hsz, s));
+    f.add(&format!("{p}.b_hh"), &[4 * hsz], &rand_vec(rng, 4 * hsz, s));
     if initial {
-        f.add(&format!("{p}.h0"), &[1, 1, hsz], &rng.vec(hsz, 0.5));
-        f.add(&format!("{p}.c0"), &[1, 1, hsz], &rng.vec(hsz, 0.5));
+        f.add(&format!("{p}.h0"), &[1, 1, hsz], &rand_vec(rng, hsz, 0.5));
+        f.add(&format!("{p}.c0"), &[1, 1, hsz], &rand_vec(rng, hsz, 0.5));
     }
 }
 
@@ -275,8 +270,8 @@ fn assert_close(got: &[f32], want: &[f64], tol: f64, what: &str) {
 fn check_linear_then(act: Option<LayerDesc>, f: fn(f64) -> f64, n_in: usize, n_out: usize) {
     let mut rng = Rng(0x1234_5678 + n_in as u64 * 31 + n_out as u64);
     let mut file = File::default();
-    file.add("w", &[n_out, n_in], &rng.vec(n_out * n_in, 1.0));
-    file.add("b", &[n_out], &rng.vec(n_out, 1.0));
+    file.add("w", &[n_out, n_in], &rand_vec(&mut rng, n_out * n_in, 1.0));
+    file.add("b", &[n_out], &rand_vec(&mut rng, n_out, 1.0));
     let mut layers = vec![linear_desc("w", "b")];
     layers.extend(act);
     let desc = NetworkDesc {
@@ -288,7 +283,7 @@ fn check_linear_then(act: Option<LayerDesc>, f: fn(f64) -> f64, n_in: usize, n_o
     assert_eq!((net.input_dim(), net.output_dim()), (n_in, n_out));
     let mut y = vec![0.0f32; n_out];
     for trial in 0..20 {
-        let x = rng.vec(n_in, 2.0);
+        let x = rand_vec(&mut rng, n_in, 2.0);
         net.step(&x, &mut y).unwrap();
         let xd: Vec<f64> = x.iter().map(|&v| v as f64).collect();
         let want: Vec<f64> = ref_linear(&file.get("w"), &file.get("b"), &xd)
@@ -345,7 +340,7 @@ fn lstm_cell_matches_reference() {
         };
         let mut y = vec![0.0f32; hsz];
         for t in 0..50 {
-            let x = rng.vec(n_in, 1.5);
+            let x = rand_vec(&mut rng, n_in, 1.5);
             net.step(&x, &mut y).unwrap();
             let xd: Vec<f64> = x.iter().map(|&v| v as f64).collect();
             ref_lstm(&file, "m", &xd, &mut h, &mut c);
@@ -359,10 +354,10 @@ fn small_recurrent(initial: bool) -> (NetworkDesc, Vec<u8>) {
     let mut rng = Rng(7);
     let mut f = File::default();
     add_lstm(&mut f, &mut rng, "m", 6, 8, initial);
-    f.add("a0.w", &[5, 8], &rng.vec(40, 0.5));
-    f.add("a0.b", &[5], &rng.vec(5, 0.5));
-    f.add("a2.w", &[3, 5], &rng.vec(15, 0.5));
-    f.add("a2.b", &[3], &rng.vec(3, 0.5));
+    f.add("a0.w", &[5, 8], &rand_vec(&mut rng, 40, 0.5));
+    f.add("a0.b", &[5], &rand_vec(&mut rng, 5, 0.5));
+    f.add("a2.w", &[3, 5], &rand_vec(&mut rng, 15, 0.5));
+    f.add("a2.b", &[3], &rand_vec(&mut rng, 3, 0.5));
     let desc = NetworkDesc {
         input: 6,
         input_shape: None,
@@ -381,7 +376,7 @@ fn run_seq(net: &mut Network, n: usize) -> Vec<u32> {
     let mut y = vec![0.0f32; net.output_dim()];
     let mut bits = Vec::new();
     for _ in 0..n {
-        let x = rng.vec(net.input_dim(), 1.0);
+        let x = rand_vec(&mut rng, net.input_dim(), 1.0);
         net.step(&x, &mut y).unwrap();
         bits.extend(y.iter().map(|v| v.to_bits()));
     }
@@ -441,11 +436,11 @@ fn error_missing_tensor() {
 fn error_wrong_shapes() {
     let mut rng = Rng(3);
     let mut f = File::default();
-    f.add("w", &[4, 6], &rng.vec(24, 1.0));
-    f.add("b5", &[5], &rng.vec(5, 1.0));
-    f.add("b4", &[4], &rng.vec(4, 1.0));
-    f.add("w3d", &[2, 2, 6], &rng.vec(24, 1.0));
-    f.add("w2", &[3, 5], &rng.vec(15, 1.0));
+    f.add("w", &[4, 6], &rand_vec(&mut rng, 24, 1.0));
+    f.add("b5", &[5], &rand_vec(&mut rng, 5, 1.0));
+    f.add("b4", &[4], &rand_vec(&mut rng, 4, 1.0));
+    f.add("w3d", &[2, 2, 6], &rand_vec(&mut rng, 24, 1.0));
+    f.add("w2", &[3, 5], &rand_vec(&mut rng, 15, 1.0));
     let bytes = f.bytes();
     let net = |input, layers| NetworkDesc {
         input,
@@ -492,10 +487,10 @@ fn error_wrong_shapes() {
     );
     // LSTM hh weight inconsistent with ih.
     let mut f2 = File::default();
-    f2.add("m.w_ih", &[8, 3], &rng.vec(24, 1.0));
-    f2.add("m.w_hh", &[8, 3], &rng.vec(24, 1.0));
-    f2.add("m.b_ih", &[8], &rng.vec(8, 1.0));
-    f2.add("m.b_hh", &[8], &rng.vec(8, 1.0));
+    f2.add("m.w_ih", &[8, 3], &rand_vec(&mut rng, 24, 1.0));
+    f2.add("m.w_hh", &[8, 3], &rand_vec(&mut rng, 24, 1.0));
+    f2.add("m.b_ih", &[8], &rand_vec(&mut rng, 8, 1.0));
+    f2.add("m.b_hh", &[8], &rand_vec(&mut rng, 8, 1.0));
     let (e, s) = load_err(&net(3, vec![lstm_desc("m", false)]), &f2.bytes());
     assert!(matches!(e, NnError::Shape { .. }) && s.contains("[8, 2]"), "{s}");
 }

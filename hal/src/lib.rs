@@ -8,10 +8,12 @@
 #![no_std]
 
 mod lidar;
+mod rng;
 mod terrain;
 mod types;
 
 pub use lidar::{LidarPoint, PointFrame};
+pub use rng::XorShift64;
 pub use terrain::{wrap_angle, TerrainClass, TerrainToken};
 pub use types::*;
 

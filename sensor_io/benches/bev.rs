@@ -7,25 +7,11 @@ use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use hal::LidarPoint;
+use hal::{LidarPoint, XorShift64 as Rng};
 use sensor_io::bev::*;
 use sensor_io::livox::*;
 
 const N: usize = 20_000;
-
-/// xorshift64*.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
 
 /// Stairs ahead: 0.15 m risers every 0.3 m from x = 0.5 m, eight steps, flat floor elsewhere.
 fn stairs(x: f32) -> f32 {

@@ -2,7 +2,7 @@
 //! and std), plus analytic cases: flat floor, a step edge, frame transforms and the self filter.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
-use hal::LidarPoint;
+use hal::{LidarPoint, XorShift64 as Rng};
 use sensor_io::bev::*;
 
 /// The reference: collect every point's height per cell, then compute each channel directly.
@@ -39,22 +39,6 @@ fn reference_bev(points_robot: &[[f32; 3]]) -> Vec<f32> {
         }
     }
     out
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn range(&mut self, lo: f32, hi: f32) -> f32 {
-        lo + (hi - lo) * self.unit()
-    }
 }
 
 fn grid() -> Box<BevGrid> {
@@ -103,7 +87,7 @@ fn random_cloud(rng: &mut Rng, n: usize) -> Vec<[f32; 3]> {
 }
 
 fn self_u(rng: &mut Rng) -> u64 {
-    rng.next() >> 32
+    rng.next_u64() >> 32
 }
 
 #[test]

@@ -5,26 +5,8 @@
 //! invariants). `LIVOX_FUZZ_INPUTS` overrides the input count (200,000 in release, 20,000 in debug).
 use std::time::Instant;
 
-use hal::LidarPoint;
+use hal::{LidarPoint, XorShift64 as Rng};
 use sensor_io::livox::*;
-
-/// xorshift64*: small, fast, deterministic.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn chance(&mut self, percent: u64) -> bool {
-        self.next() % 100 < percent
-    }
-}
 
 fn reseal(buf: &mut [u8]) {
     if buf.len() >= HEADER_LEN {
@@ -61,8 +43,8 @@ fn seeds(rng: &mut Rng) -> Vec<Vec<u8>> {
                         (rng.below(4_000) as f32 - 2_000.0) / 1000.0,
                     ],
                 },
-                reflectivity: rng.next() as u8,
-                tag: rng.next() as u8,
+                reflectivity: rng.next_u64() as u8,
+                tag: rng.next_u64() as u8,
                 offset_ns: 0,
             })
             .collect();
@@ -104,7 +86,7 @@ fn mutate(rng: &mut Rng, seeds: &[Vec<u8>], buf: &mut Vec<u8>) {
                 buf[i] = if rng.chance(50) {
                     INTERESTING[rng.below(8)]
                 } else {
-                    rng.next() as u8
+                    rng.next_u64() as u8
                 };
             }
             2 => {
@@ -113,13 +95,13 @@ fn mutate(rng: &mut Rng, seeds: &[Vec<u8>], buf: &mut Vec<u8>) {
             }
             3 => {
                 for _ in 0..1 + rng.below(40) {
-                    buf.push(rng.next() as u8);
+                    buf.push(rng.next_u64() as u8);
                 }
             }
             4 if buf.len() >= 3 => {
                 // length field: random, off by a little, or the true length.
                 let v = match rng.below(3) {
-                    0 => rng.next() as u16,
+                    0 => rng.next_u64() as u16,
                     1 => (buf.len() as u16).wrapping_add(rng.below(5) as u16).wrapping_sub(2),
                     _ => buf.len() as u16,
                 };
@@ -127,7 +109,7 @@ fn mutate(rng: &mut Rng, seeds: &[Vec<u8>], buf: &mut Vec<u8>) {
             }
             5 if buf.len() >= 7 => {
                 let v = match rng.below(3) {
-                    0 => rng.next() as u16,
+                    0 => rng.next_u64() as u16,
                     1 => u16::from_le_bytes([buf[5], buf[6]])
                         .wrapping_add(rng.below(3) as u16)
                         .wrapping_sub(1),
@@ -153,7 +135,7 @@ fn mutate(rng: &mut Rng, seeds: &[Vec<u8>], buf: &mut Vec<u8>) {
                 buf[field] = if rng.chance(50) {
                     rng.below(4) as u8
                 } else {
-                    rng.next() as u8
+                    rng.next_u64() as u8
                 };
             }
             _ => {

@@ -684,6 +684,7 @@ pub(crate) fn elu(x: f32, alpha: f32) -> f32 {
 #[allow(clippy::disallowed_methods)]
 mod tests {
     use super::*;
+    use hal::XorShift64 as Rng;
 
     #[test]
     fn exp_matches_std_closely() {
@@ -748,22 +749,9 @@ mod tests {
         }
     }
 
-    /// xorshift64* in [-1, 1).
-    struct Rng(u64);
-    impl Rng {
-        fn next(&mut self) -> f32 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            let u = (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32 / (1u64 << 24) as f32;
-            2.0 * u - 1.0
-        }
-        fn below(&mut self, n: usize) -> usize {
-            ((self.next() + 1.0) * 0.5 * n as f32) as usize % n
-        }
-        fn vec(&mut self, n: usize) -> Vec<f32> {
-            (0..n).map(|_| self.next()).collect()
-        }
+    /// `n` values uniform in [-1, 1).
+    fn rand_vec(rng: &mut Rng, n: usize) -> Vec<f32> {
+        (0..n).map(|_| rng.signed()).collect()
     }
 
     /// PyTorch's definition, literally: every tap in (ci, ky, kx) order, zeros for padding.
@@ -807,11 +795,11 @@ mod tests {
     }
 
     fn check_conv(g: ConvGeom, rng: &mut Rng) {
-        let w = rng.vec(g.cout * g.taps());
-        let b = rng.vec(g.cout);
+        let w = rand_vec(rng, g.cout * g.taps());
+        let b = rand_vec(rng, g.cout);
         let mut conv = PackedConv::pack(g, &w, &b, Isa::Portable);
         for _ in 0..2 {
-            let x = rng.vec(g.cin * g.h * g.w);
+            let x = rand_vec(rng, g.cin * g.h * g.w);
             let want = naive_conv(&g, &w, &b, &x);
             for isa in isas() {
                 conv.set_isa(isa);
@@ -896,8 +884,8 @@ mod tests {
             pad: 1,
         };
         let mut rng = Rng(5);
-        let (w, b) = (rng.vec(g.cout * g.taps()), rng.vec(g.cout));
-        let mut x = rng.vec(g.cin * g.h * g.w);
+        let (w, b) = (rand_vec(&mut rng, g.cout * g.taps()), rand_vec(&mut rng, g.cout));
+        let mut x = rand_vec(&mut rng, g.cin * g.h * g.w);
         x[10] = f32::NAN;
         x[100] = f32::INFINITY;
         let want = naive_conv(&g, &w, &b, &x);
