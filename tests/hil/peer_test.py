@@ -527,9 +527,7 @@ def check_layout(rec: Recording, lay: Layout, gains: Gains, ranges: dict, exclud
     bad_gain, bad_vt, bad_pos = [], [], []
     modes_seen: dict[str, int] = {}
     for t in full:
-        for fr, m in t.commands:
-            if SPECIALS.get(fr.data) or len(fr.data) != 8:
-                continue
+        for fr, m in motor_commands(t):
             c = decode_command(m, fr.data)
             match = [name for name, kp, kd in gains.allowed[m.slot]
                      if abs(c["kp"] - kp) <= m.step("kp") and abs(c["kd"] - kd) <= m.step("kd")]
@@ -572,20 +570,27 @@ def check_layout(rec: Recording, lay: Layout, gains: Gains, ranges: dict, exclud
     return out
 
 
+def motor_commands(t: Tick) -> list:
+    """Tick `t`'s MIT commands (DLC 8, not a special frame): (Frame, Motor)."""
+    return [(fr, m) for fr, m in t.commands if len(fr.data) == 8 and not SPECIALS.get(fr.data)]
+
+
+def damped(fr: Frame) -> bool:
+    """A damping command: kp = 0 and kd > 0 (raw fields)."""
+    _, _, kpu, kdu, _ = command_fields(fr.data)
+    return kpu == 0 and kdu > 0
+
+
 def damping_after(rec: Recording, trip_tick: int, k_inj: int, lay: Layout) -> tuple[bool, str, int | None]:
     """Every motor's every command from tick `trip_tick` on has kp = 0 and kd > 0. Returns (ok,
     detail, the first tick from which every command on the bus is damping, counted from k_inj)."""
-    def damped(fr):
-        _, _, kpu, kdu, _ = command_fields(fr.data)
-        return kpu == 0 and kdu > 0
-
     last_not = None
     bad = []
     cmds_after = 0
     for t in rec.ticks:
         if t.k < k_inj:
             continue
-        cmds = [(fr, m) for fr, m in t.commands if len(fr.data) == 8 and not SPECIALS.get(fr.data)]
+        cmds = motor_commands(t)
         if not cmds:
             continue
         if len(cmds) != len(lay.motors) or not all(damped(fr) for fr, _ in cmds):
@@ -971,15 +976,13 @@ def run_imu_off(args, lay, out) -> list[Check]:
     if rc != 3:
         problems.append(f"g1fw exit {rc}, expected 3 (a trip)")
     # On the wire: the last command of every motor is damping, and it follows the last IMU sample.
-    cmds = [(fr, m) for fr, m in (rec.ticks[-1].commands if rec.ticks else [])
-            if len(fr.data) == 8 and not SPECIALS.get(fr.data)]
+    cmds = motor_commands(rec.ticks[-1]) if rec.ticks else []
     last = cmds[-len(lay.motors):]
     slots = sorted(m.slot for _, m in last)
-    damped = [command_fields(fr.data)[2] == 0 and command_fields(fr.data)[3] > 0 for fr, _ in last]
     if len(cmds) != 2 * len(lay.motors):
         problems.append(f"{len(cmds)} commands after the last IMU sample, expected {2 * len(lay.motors)} "
                         "(that sample's tick, then one damping command per motor)")
-    elif slots != sorted(m.slot for m in lay.motors) or not all(damped):
+    elif slots != sorted(m.slot for m in lay.motors) or not all(damped(fr) for fr, _ in last):
         problems.append(f"the last {len(last)} commands are not one damping command per motor: "
                         f"{[(G1_SLOTS[m.slot], command_fields(fr.data)[2:4]) for fr, m in last]}")
     detail = "; ".join(problems) if problems else (

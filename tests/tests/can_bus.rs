@@ -23,21 +23,22 @@ fn layout() -> BusLayout {
     l
 }
 
-/// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread.
-fn start_emulator(name: &str, mut bus: MemBuses, ticks: u64, faults: &Scenario) -> JoinHandle<EmuReport> {
+/// g1-sim with the 12-dof model, and the emulator serving it on `bus` in a thread, with `sc`'s
+/// length and emulator-side faults.
+fn start_emulator(name: &str, mut bus: MemBuses, sc: &Scenario) -> JoinHandle<EmuReport> {
     let launch = SimLaunch {
         bin: Some(built_bin("g1-sim")),
         ..SimLaunch::new("g1-12dof", 0.002)
     };
     let opts = ServeOptions {
         // The firmware commands ticks 0..N-1 of an N-tick run: then the emulator is done.
-        max_ticks: Some(ticks),
+        max_ticks: Some((sc.duration_s / 0.002).round() as u64),
         startup_timeout: Duration::from_secs(60),
         // Without an IMU the firmware stops early: do not wait long for it after that.
-        idle_timeout: Duration::from_secs(if faults.imu_off.is_some() { 2 } else { 10 }),
+        idle_timeout: Duration::from_secs(if sc.imu_off.is_some() { 2 } else { 10 }),
         control_dt: 0.002,
-        power_off: faults.power_off.clone(),
-        imu_off: faults.imu_off,
+        power_off: sc.power_off.clone(),
+        imu_off: sc.imu_off,
     };
     let tag = format!("can_bus_{name}");
     std::thread::spawn(move || {
@@ -150,7 +151,7 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
     let (fw_bus, emu_bus, peer_bus) = (eps.next().unwrap(), eps.next().unwrap(), eps.next().unwrap());
     let done = Arc::new(AtomicBool::new(false));
     let (peer, sniffed) = start_peer(peer_bus, sc.at_sample, sc.inject.clone(), done.clone());
-    let emu = start_emulator(name, emu_bus, (sc.duration_s / 0.002).round() as u64, &sc);
+    let emu = start_emulator(name, emu_bus, &sc);
     let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
     let opts = CanRunOptions {
         schedule: CommandSchedule::constant(sc.cmd),

@@ -153,7 +153,7 @@ pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<(
 
 /// Saves `varmap` to `path` through a temporary file and a rename, so `path` always holds a
 /// complete checkpoint even if the process dies while writing.
-pub fn save_atomically(varmap: &VarMap, path: &std::path::Path) -> anyhow::Result<()> {
+fn save_atomically(varmap: &VarMap, path: &std::path::Path) -> anyhow::Result<()> {
     let tmp = path.with_extension("safetensors.partial");
     varmap
         .save(&tmp)

@@ -222,8 +222,8 @@ fn main() -> anyhow::Result<()> {
                 },
             )?;
             pb.finish_and_clear();
+            // fit() wrote checkpoint.safetensors after the last epoch.
             let secs = t.elapsed().as_secs_f64();
-            train::fit::save_atomically(&varmap, &out.join("checkpoint.safetensors"))?;
             let mut meta = BTreeMap::new();
             meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
             meta.insert("train_samples".into(), tr.len().to_string());

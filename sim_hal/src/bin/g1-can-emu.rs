@@ -82,24 +82,54 @@ fn main() -> std::process::ExitCode {
     }
 }
 
+/// The control tick at `secs` seconds; `flag` names the argument in the error.
+fn tick_at(flag: &str, secs: f64, control_dt: f64) -> Result<u64> {
+    if !(secs >= 0.0 && secs.is_finite()) {
+        bail!("{flag}: the time must be a non-negative number of seconds");
+    }
+    Ok((secs / control_dt).round() as u64)
+}
+
+/// `--power-off JOINT@S` as (slot, tick).
+fn power_off_ticks(args: &Args, layout: &BusLayout, control_dt: f64) -> Result<Vec<(usize, u64)>> {
+    let mut power_off = Vec::new();
+    for p in &args.power_off {
+        let (joint, at) = p
+            .split_once('@')
+            .with_context(|| format!("--power-off {p}: expected JOINT@SECONDS, e.g. right_knee@3.0"))?;
+        let slot = hal::G1_MOTOR_NAMES
+            .iter()
+            .position(|n| *n == joint)
+            .filter(|&s| layout.motors.iter().any(|m| m.slot == s))
+            .with_context(|| format!("--power-off {p}: '{joint}' is not a motor of the bus layout"))?;
+        let secs: f64 = at
+            .parse()
+            .with_context(|| format!("--power-off {p}: '{at}' is not a time in seconds"))?;
+        power_off.push((slot, tick_at(&format!("--power-off {p}"), secs, control_dt)?));
+    }
+    Ok(power_off)
+}
+
 fn run(args: Args) -> Result<()> {
     let mut layout = BusLayout::load(&args.can_config)?;
     if !args.can.is_empty() {
         layout.rename_interfaces(&args.can)?;
     }
-    let mut buses = SocketCanBuses::open(&layout.interfaces)?;
     let control_dt = 1.0 / args.control_hz as f64;
+    // Faults are checked before any bus or simulator is opened: a typo fails at once.
+    let power_off = power_off_ticks(&args, &layout, control_dt)?;
+    let imu_off = args
+        .imu_off
+        .map(|secs| tick_at(&format!("--imu-off {secs}"), secs, control_dt))
+        .transpose()?;
+    let mut buses = SocketCanBuses::open(&layout.interfaces)?;
+    let wants = Wants {
+        truth: true,
+        lidar: false,
+    };
     let mut _child = None;
     let mut bridge = match &args.connect {
-        Some(p) => BridgeHal::connect_unix(
-            p,
-            Wants {
-                truth: true,
-                lidar: false,
-            },
-            Duration::from_secs(30),
-            || Ok(()),
-        )?,
+        Some(p) => BridgeHal::connect_unix(p, wants, Duration::from_secs(30), || Ok(()))?,
         None => {
             let launch = SimLaunch {
                 bin: args.sim_bin.clone(),
@@ -109,14 +139,7 @@ fn run(args: Args) -> Result<()> {
                 imu_noise: args.imu_noise.clone(),
                 ..SimLaunch::new(&args.model, control_dt)
             };
-            let (child, hal) = launch.start(
-                "g1-can-emu",
-                Wants {
-                    truth: true,
-                    lidar: false,
-                },
-                Duration::from_secs(120),
-            )?;
+            let (child, hal) = launch.start("g1-can-emu", wants, Duration::from_secs(120))?;
             _child = Some(child);
             hal
         }
@@ -147,31 +170,6 @@ fn run(args: Args) -> Result<()> {
             args.model
         );
     }
-    let mut power_off = Vec::new();
-    for p in &args.power_off {
-        let (joint, at) = p
-            .split_once('@')
-            .with_context(|| format!("--power-off {p}: expected JOINT@SECONDS, e.g. right_knee@3.0"))?;
-        let slot = hal::G1_MOTOR_NAMES
-            .iter()
-            .position(|n| *n == joint)
-            .filter(|&s| layout.motors.iter().any(|m| m.slot == s))
-            .with_context(|| format!("--power-off {p}: '{joint}' is not a motor of the bus layout"))?;
-        let secs: f64 = at
-            .parse()
-            .with_context(|| format!("--power-off {p}: '{at}' is not a time in seconds"))?;
-        if !(secs >= 0.0 && secs.is_finite()) {
-            bail!("--power-off {p}: the time must be a non-negative number of seconds");
-        }
-        power_off.push((slot, (secs / control_dt).round() as u64));
-    }
-    let imu_off = match args.imu_off {
-        Some(secs) if !(secs >= 0.0 && secs.is_finite()) => {
-            bail!("--imu-off {secs}: the time must be a non-negative number of seconds")
-        }
-        Some(secs) => Some((secs / control_dt).round() as u64),
-        None => None,
-    };
     let mut emu = MotorEmulator::new(layout);
     let opts = ServeOptions {
         max_ticks: args.max_ticks,

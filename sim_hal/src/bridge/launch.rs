@@ -129,10 +129,6 @@ impl SimProcess {
             Err(e) => Err(format!("cannot poll the simulator process: {e}")),
         }
     }
-
-    pub fn socket(&self) -> &Path {
-        &self.socket
-    }
 }
 
 impl Drop for SimProcess {
