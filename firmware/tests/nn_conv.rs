@@ -55,7 +55,8 @@ fn linear(name: &str) -> LayerDesc {
     }
 }
 
-/// PyTorch `nn.Conv2d` literally: every tap in (ci, ky, kx) order, zeros for padding.
+/// PyTorch `nn.Conv2d` literally: every tap in (ci, ky, kx) order, zeros for padding, each a
+/// fused multiply-add (the executor's documented arithmetic).
 fn ref_conv(
     x: &[f32],
     (cin, h, w): (usize, usize, usize),
@@ -80,7 +81,7 @@ fn ref_conv(
                             } else {
                                 0.0
                             };
-                            acc += wt[((co * cin + ci) * kh + ky) * kw + kx] * v;
+                            acc = wt[((co * cin + ci) * kh + ky) * kw + kx].mul_add(v, acc);
                         }
                     }
                 }

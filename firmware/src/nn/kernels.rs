@@ -2,10 +2,13 @@
 //! activation functions.
 //!
 //! Determinism contract: every output element is computed by the same sequence of IEEE-754 f32
-//! additions, multiplications and divisions in a fixed order, independent of SIMD width. Rust
-//! never contracts `a * b + c` into an FMA and we call no libm function (whose results differ
-//! between platforms and libc versions), so results are bit-identical on x86-64 and aarch64.
-//! Speed comes from the layout (independent output lanes), not from reassociating sums.
+//! operations in a fixed order, independent of SIMD width, so results are bit-identical on x86-64
+//! and aarch64. The matrix-vector product uses separate multiplies and adds (Rust never contracts
+//! `a * b + c`); the convolution uses fused multiply-adds (`f32::mul_add`: one rounding, exactly
+//! specified by IEEE-754, so the FMA3 instruction on x86-64, NEON's `fmla` on aarch64 and a
+//! correctly rounded software `fmaf` all give the same bits). No other libm function is called
+//! (their results differ between platforms and libc versions). Speed comes from the layout
+//! (independent output lanes), not from reassociating sums.
 
 /// Output rows processed together: 32 independent accumulators (8 SSE / 4 AVX / 8 NEON
 /// registers), enough to hide add latency while staying in registers on every target.
@@ -74,14 +77,14 @@ impl PackedMatrix {
         match self.isa {
             Isa::Portable => self.matvec_panels::<false>(x, y),
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Isa::Avx2` is only ever set from `Isa::detect()` (`pack` stores its result,
-            // `set_isa` checks it), which checked at run time that this CPU supports AVX2.
-            Isa::Avx2 => unsafe { self.matvec_avx2(x, y) },
+            // SAFETY: `Isa::Avx2Fma` is only ever set from `Isa::detect()` (`pack` stores its
+            // result, `set_isa` checks it), which checked at run time that this CPU supports AVX2.
+            Isa::Avx2Fma => unsafe { self.matvec_avx2(x, y) },
         }
     }
 
-    /// The AVX2 copy of [`Self::matvec_panels`], two panels at a time (no FMA: see
-    /// [`conv_avx2`]).
+    /// The AVX2 copy of [`Self::matvec_panels`], two panels at a time (separate multiplies and
+    /// adds, never fused: the recorded policy logs replay bit-exact against this order).
     ///
     /// # Safety
     /// The CPU must support AVX2.
@@ -199,16 +202,17 @@ impl ConvGeom {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Isa {
     Portable,
+    /// AVX2 vectors; the convolution's multiply-adds are FMA3 instructions.
     #[cfg(target_arch = "x86_64")]
-    Avx2,
+    Avx2Fma,
 }
 
 impl Isa {
-    /// The best kernel this CPU runs (AVX2 on x86-64 when present).
+    /// The best kernel this CPU runs (AVX2 + FMA on x86-64 when present).
     pub(crate) fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return Isa::Avx2;
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            return Isa::Avx2Fma;
         }
         Isa::Portable
     }
@@ -217,7 +221,7 @@ impl Isa {
         match self {
             Isa::Portable => TILES_PORTABLE,
             #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => TILES_AVX2,
+            Isa::Avx2Fma => TILES_AVX2,
         }
     }
 }
@@ -392,9 +396,10 @@ impl PackedConv {
         match self.isa {
             Isa::Portable => conv_dispatch(&args, self.tile, y),
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Isa::Avx2` is only ever set from `Isa::detect()` (`pack` is given its result,
-            // `set_isa` checks it), which checked at run time that this CPU supports AVX2.
-            Isa::Avx2 => unsafe { conv_avx2(&args, self.tile, y) },
+            // SAFETY: `Isa::Avx2Fma` is only ever set from `Isa::detect()` (`pack` is given its
+            // result, `set_isa` checks it), which checked at run time that this CPU supports AVX2
+            // and FMA.
+            Isa::Avx2Fma => unsafe { conv_avx2(&args, self.tile, y) },
         }
     }
 
@@ -423,14 +428,14 @@ struct ConvArgs<'a> {
     relu: bool,
 }
 
-/// The AVX2 copy of [`conv_dispatch`]: the same code, compiled with 256-bit vectors. No FMA
-/// (`avx2` does not enable `fma`, and Rust never contracts `a * b + c` anyway), so results are
-/// bit-identical to the portable kernels.
+/// The AVX2 copy of [`conv_dispatch`]: the same code, compiled with 256-bit vectors and FMA3
+/// instructions for its `mul_add`s (the portable copy computes the same fused results: NEON
+/// `fmla` on aarch64, software `fmaf` on an x86-64 without FMA), so results are bit-identical.
 ///
 /// # Safety
-/// The CPU must support AVX2.
+/// The CPU must support AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,fma")]
 unsafe fn conv_avx2(a: &ConvArgs<'_>, tile: usize, y: &mut [f32]) {
     conv_dispatch(a, tile, y);
 }
@@ -582,13 +587,13 @@ fn tile<const NP: usize, const P: usize, const S: usize, const K: usize, const L
     acc
 }
 
-/// `acc[j][k] += w[j][k] * x` for every panel and lane: independent lanes, one multiply and one
-/// add each (never fused).
+/// `acc[j][k] = fma(w[j][k], x, acc[j][k])` for every panel and lane: independent lanes, one
+/// fused multiply-add each (one rounding: see the module's determinism contract).
 #[inline(always)]
 fn mac<const NP: usize>(acc: &mut [Lanes; NP], w: &[Lanes; NP], x: f32) {
     for (a, w) in acc.iter_mut().zip(w) {
         for k in 0..CONV_LANES {
-            a.0[k] += w.0[k] * x;
+            a.0[k] = w.0[k].mul_add(x, a.0[k]);
         }
     }
 }
@@ -773,7 +778,7 @@ mod tests {
                                 } else {
                                     0.0
                                 };
-                                acc += w[((co * g.cin + ci) * g.kh + ky) * g.kw + kx] * v;
+                                acc = w[((co * g.cin + ci) * g.kh + ky) * g.kw + kx].mul_add(v, acc);
                             }
                         }
                     }
@@ -789,7 +794,7 @@ mod tests {
         if Isa::detect() != Isa::Portable {
             v.push(Isa::detect());
         } else {
-            eprintln!("note: no AVX2 on this CPU; only the portable conv kernel is tested");
+            eprintln!("note: no AVX2 + FMA on this CPU; only the portable conv kernel is tested");
         }
         v
     }
