@@ -50,6 +50,15 @@ pub struct Record {
     pub truth: [f32; 4],
     pub cnn: [f32; 4],
     pub baseline: [f32; 4],
+    /// Where the robot stood: pelvis world x, y (m) and heading (rad).
+    pub pose: [f64; 3],
+    /// The riser the truth describes (none on flat labels): its index, the staircase's riser
+    /// count and its robot-frame distance ahead (m, < 0 behind): finds the hard cases.
+    pub riser: Option<(usize, usize, f64)>,
+    /// The world is the outdoor variant (per-step jitter, sloped treads, rounded nosings).
+    pub outdoor: bool,
+    /// The robot was walking (else standing).
+    pub walking: bool,
 }
 
 /// The report `--report` writes.
@@ -61,17 +70,20 @@ pub struct Report {
     pub poses_per_world: usize,
     pub world_set: String,
     pub cnn_weights_sha256: String,
-    /// Errors binned by true step height (stairs samples).
-    pub by_step_height: Vec<HeightBin>,
+    /// Errors of stairs samples binned by true step height (`lo`, `hi` in m).
+    pub by_step_height: Vec<Bin>,
+    /// Errors of stairs samples binned by the labelled riser's robot-frame distance ahead (`lo`,
+    /// `hi` in m; negative: behind).
+    pub by_riser_ahead: Vec<Bin>,
     pub seconds: f64,
     pub records: Vec<Record>,
 }
 
-/// Errors of stairs samples whose true h falls in `[h_lo_m, h_hi_m)`.
+/// Errors of the stairs samples whose binned quantity (see the report field) falls in `[lo, hi)`.
 #[derive(Clone, Debug, Serialize)]
-pub struct HeightBin {
-    pub h_lo_m: f32,
-    pub h_hi_m: f32,
+pub struct Bin {
+    pub lo: f32,
+    pub hi: f32,
     pub samples: usize,
     pub cnn: BinErr,
     pub baseline: BinErr,
@@ -85,15 +97,14 @@ pub struct BinErr {
     pub class_acc: f64,
 }
 
-/// Bins of 2 cm from 4 to 26 cm.
-pub fn bin_by_height(records: &[Record]) -> Vec<HeightBin> {
-    let edges: Vec<f32> = (0..=11).map(|k| 0.04 + 0.02 * k as f32).collect();
+/// Stairs samples binned by `key` (none: left out) at `edges`.
+fn bin_stairs(records: &[Record], edges: &[f32], key: impl Fn(&Record) -> Option<f32>) -> Vec<Bin> {
     edges
         .windows(2)
         .map(|w| {
             let inside: Vec<&Record> = records
                 .iter()
-                .filter(|r| r.truth[0] != 0.0 && r.truth[1] >= w[0] && r.truth[1] < w[1])
+                .filter(|r| r.truth[0] != 0.0 && key(r).is_some_and(|k| k >= w[0] && k < w[1]))
                 .collect();
             let err = |pick: fn(&Record) -> [f32; 4]| {
                 let n = inside.len().max(1) as f64;
@@ -107,15 +118,28 @@ pub fn bin_by_height(records: &[Record]) -> Vec<HeightBin> {
                 }
                 e
             };
-            HeightBin {
-                h_lo_m: w[0],
-                h_hi_m: w[1],
+            Bin {
+                lo: w[0],
+                hi: w[1],
                 samples: inside.len(),
                 cnn: err(|r| r.cnn),
                 baseline: err(|r| r.baseline),
             }
         })
         .collect()
+}
+
+/// Bins of 2 cm of true step height from 4 to 26 cm.
+pub fn bin_by_height(records: &[Record]) -> Vec<Bin> {
+    let edges: Vec<f32> = (0..=11).map(|k| 0.04 + 0.02 * k as f32).collect();
+    bin_stairs(records, &edges, |r| Some(r.truth[1]))
+}
+
+/// Bins of 25 cm of the labelled riser's distance ahead, from 0.5 m behind to the look-ahead
+/// box's far edge (1.5 m): where in the box the errors come from.
+pub fn bin_by_riser_ahead(records: &[Record]) -> Vec<Bin> {
+    let edges: Vec<f32> = (0..=8).map(|k| -0.5 + 0.25 * k as f32).collect();
+    bin_stairs(records, &edges, |r| r.riser.map(|(_, _, x)| x as f32))
 }
 
 /// Renders `set` and scores the CNN and the geometric baseline on every grid.
@@ -132,8 +156,18 @@ pub fn evaluate(
     let (mut cnn, mut base) = (EvalStats::default(), EvalStats::default());
     let mut records = Vec::new();
     let mut worlds = 0;
+    let mut world: Option<(usize, g1_sim::world::World)> = None;
     render_worlds(set, poses_per_world, cfg, jobs, |wi, seed, s| {
         worlds = worlds.max(wi + 1);
+        if world.as_ref().is_none_or(|w| w.0 != wi) {
+            world = Some((wi, set.get(wi)?.0));
+        }
+        // Where the renderer labelled the sample: the pelvis, the pose's heading.
+        let p = [s.meta.pelvis[0], s.meta.pelvis[1], s.meta.pose.yaw];
+        let riser = world
+            .as_ref()
+            .and_then(|w| w.1.labelled_riser(p[0], p[1], p[2]))
+            .map(|r| (r.index, r.count, r.mid_x_m));
         let heading = s.meta.pose.yaw as f32;
         // A non-finite output (never seen) scores as flat: the firmware would hold its last token.
         let c = net.estimate(&s.bev, heading).unwrap_or(TerrainToken {
@@ -148,6 +182,10 @@ pub fn evaluate(
             truth: token_array(&s.truth),
             cnn: token_array(&c),
             baseline: token_array(&g),
+            pose: p,
+            riser,
+            outdoor: world.as_ref().is_some_and(|w| w.1.spec.outdoor.is_some()),
+            walking: s.meta.pose.mode == g1_sim::dataset::Mode::Walking,
         });
         progress();
         Ok(())
@@ -165,6 +203,7 @@ pub fn evaluate(
         },
         cnn_weights_sha256: net.weights_sha256().to_string(),
         by_step_height: bin_by_height(&records),
+        by_riser_ahead: bin_by_riser_ahead(&records),
         seconds: t0.elapsed().as_secs_f64(),
         records,
     })
@@ -201,6 +240,23 @@ impl std::fmt::Display for Report {
         for (name, a, b) in rows {
             writeln!(f, "{name:<22} {a:>12.3} {b:>12.3}")?;
         }
+        writeln!(f, "CNN by the labelled riser's distance ahead (stairs samples):")?;
+        writeln!(
+            f,
+            "{:<16} {:>7} {:>8} {:>9} {:>9}",
+            "riser ahead (m)", "samples", "class %", "MAE h cm", "MAE d cm"
+        )?;
+        for b in self.by_riser_ahead.iter().filter(|b| b.samples > 0) {
+            writeln!(
+                f,
+                "{:<16} {:>7} {:>8.2} {:>9.2} {:>9.2}",
+                format!("{:+.2} .. {:+.2}", b.lo, b.hi),
+                b.samples,
+                100.0 * b.cnn.class_acc,
+                b.cnn.mae_h_cm,
+                b.cnn.mae_d_cm
+            )?;
+        }
         Ok(())
     }
 }
@@ -209,4 +265,46 @@ impl std::fmt::Display for Report {
 pub fn write_report(path: &Path, r: &Report) -> anyhow::Result<()> {
     std::fs::write(path, serde_json::to_string_pretty(r)? + "\n")
         .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(truth: [f32; 4], cnn: [f32; 4], riser: Option<f64>) -> Record {
+        Record {
+            world_seed: 0,
+            truth,
+            cnn,
+            baseline: truth,
+            pose: [0.0; 3],
+            riser: riser.map(|x| (0, 4, x)),
+            outdoor: false,
+            walking: false,
+        }
+    }
+
+    #[test]
+    fn riser_bins_average_the_stairs_samples_inside_them() {
+        let up = [1.0, 0.15, 0.30, 0.0];
+        let records = [
+            rec(up, [1.0, 0.16, 0.30, 0.0], Some(0.10)), // h off by 1 cm
+            rec(up, [1.0, 0.12, 0.34, 0.0], Some(0.20)), // h 3 cm, d 4 cm
+            rec(up, [0.0, 0.0, 0.0, 0.0], Some(-0.30)),  // wrong class, behind
+            rec(up, [1.0, 0.0, 0.0, 0.0], Some(1.60)),   // past the box: no bin
+            rec([0.0; 4], [1.0, 0.1, 0.1, 0.0], None),   // flat label: not binned
+        ];
+        let bins = bin_by_riser_ahead(&records);
+        assert_eq!(bins.len(), 8);
+        assert_eq!((bins[0].lo, bins[7].hi), (-0.5, 1.5));
+        assert_eq!(bins.iter().map(|b| b.samples).sum::<usize>(), 3);
+        let near = &bins[2];
+        assert_eq!((near.lo, near.hi, near.samples), (0.0, 0.25, 2));
+        assert!((near.cnn.mae_h_cm - 2.0).abs() < 1e-4, "{near:?}");
+        assert!((near.cnn.mae_d_cm - 2.0).abs() < 1e-4, "{near:?}");
+        assert_eq!(near.cnn.class_acc, 1.0);
+        assert_eq!(near.baseline.mae_h_cm, 0.0);
+        let behind = &bins[0];
+        assert_eq!((behind.samples, behind.cnn.class_acc), (1, 0.0));
+    }
 }

@@ -88,6 +88,11 @@ enum Cmd {
         worlds: String,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Evaluate on the export's own world seeds (World::random(SEED + i), the worlds
+        /// `g1-dataset export --seed SEED` renders) instead of held-out ones: the fit check.
+        /// Errors here close to the held-out ones mean the network underfits, not overfits.
+        #[arg(long)]
+        training_worlds: bool,
         #[arg(long, default_value_t = 2)]
         poses_per_world: usize,
         /// standing, walking or mixed.
@@ -271,6 +276,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::EvalTerrain {
             worlds,
             seed,
+            training_worlds,
             poses_per_world,
             mode,
             weights,
@@ -280,9 +286,18 @@ fn main() -> anyhow::Result<()> {
             quiet,
         } => {
             use g1_sim::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
+            let base = if training_worlds {
+                eprintln!(
+                    "note: --training-worlds: world seeds {seed}.. are the ones `g1-dataset export --seed {seed}` \
+                     renders, NOT held out; these figures measure the fit, not generalisation"
+                );
+                0
+            } else {
+                EVAL_SEED_BASE
+            };
             let set = match worlds.trim().parse::<usize>() {
                 Ok(count) => WorldSet::Random {
-                    first_seed: EVAL_SEED_BASE + seed,
+                    first_seed: base + seed,
                     count,
                 },
                 Err(_) => WorldSet::Named {
@@ -291,7 +306,7 @@ fn main() -> anyhow::Result<()> {
                         .map(|w| w.trim().to_string())
                         .filter(|w| !w.is_empty())
                         .collect(),
-                    seed: EVAL_SEED_BASE + seed,
+                    seed: base + seed,
                 },
             };
             anyhow::ensure!(!set.is_empty(), "--worlds: no worlds given");

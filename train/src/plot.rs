@@ -4,7 +4,7 @@ use std::path::Path;
 use anyhow::Context;
 use plotters::prelude::*;
 
-use crate::eval::HeightBin;
+use crate::eval::Bin;
 use crate::fit::EpochLog;
 
 const CNN: RGBColor = RGBColor(31, 119, 180);
@@ -101,7 +101,7 @@ where
 
 /// Four panels (MAE h, MAE d, MAE yaw, class accuracy) over true step height, CNN vs baseline,
 /// with the paper's Table II figures as grey lines.
-pub fn error_vs_height_png(path: &Path, bins: &[HeightBin], title: &str) -> anyhow::Result<()> {
+pub fn error_vs_height_png(path: &Path, bins: &[Bin], title: &str) -> anyhow::Result<()> {
     check_png(path)?;
     let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -109,8 +109,8 @@ pub fn error_vs_height_png(path: &Path, bins: &[HeightBin], title: &str) -> anyh
         .titled(title, ("sans-serif", 24))
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let areas = root.split_evenly((2, 2));
-    let used: Vec<&HeightBin> = bins.iter().filter(|b| b.samples > 0).collect();
-    let mid = |b: &HeightBin| 50.0 * (b.h_lo_m + b.h_hi_m) as f64;
+    let used: Vec<&Bin> = bins.iter().filter(|b| b.samples > 0).collect();
+    let mid = |b: &Bin| 50.0 * (b.lo + b.hi) as f64;
     let x = (4.0, 26.0);
     let xl = "true step height (cm)";
     let pick = |f: fn(&crate::eval::BinErr) -> f64| -> [Vec<(f64, f64)>; 2] {

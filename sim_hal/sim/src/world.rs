@@ -424,29 +424,10 @@ impl World {
             yaw_rad: wrap_angle(yaw) as f32,
             ..TerrainToken::FLAT
         };
-        let Some(st) = &self.stairs else { return flat };
-        let (c, s) = (yaw.cos(), yaw.sin());
-        let to_robot = |p: [f64; 2]| {
-            let (dx, dy) = (p[0] - x, p[1] - y);
-            [c * dx + s * dy, -s * dx + c * dy]
+        let (Some(st), Some(lr)) = (&self.stairs, self.labelled_riser(x, y, yaw)) else {
+            return flat;
         };
-        // Nearest riser ahead (smallest x ≥ 0 of the clipped segment's midpoint), else the last behind.
-        let mut ahead: Option<(f64, usize)> = None;
-        let mut behind: Option<(f64, usize)> = None;
-        for (i, r) in st.risers.iter().enumerate() {
-            let (a, b) = st.riser_ends(r.s);
-            if let Some(mid_x) = clip_to_lookahead(to_robot(a), to_robot(b)) {
-                if mid_x >= 0.0 {
-                    if ahead.is_none_or(|(best, _)| mid_x < best) {
-                        ahead = Some((mid_x, i));
-                    }
-                } else if behind.is_none_or(|(best, _)| mid_x > best) {
-                    behind = Some((mid_x, i));
-                }
-            }
-        }
-        let Some((_, i)) = ahead.or(behind) else { return flat };
-        let r = st.risers[i];
+        let r = st.risers[lr.index];
         let along_u = (yaw - st.yaw).cos() >= 0.0;
         let travel = if along_u { st.yaw } else { st.yaw + PI };
         let rise = if along_u {
@@ -466,6 +447,38 @@ impl World {
         }
     }
 
+    /// The riser [`Self::truth`] describes for a robot at (x, y) with heading `yaw`: the nearest
+    /// one ahead inside the look-ahead box (smallest x ≥ 0 of its clipped midpoint, robot frame),
+    /// else the nearest behind; `None` when no riser is in the box (the label is flat).
+    pub fn labelled_riser(&self, x: f64, y: f64, yaw: f64) -> Option<LabelledRiser> {
+        let st = self.stairs.as_ref()?;
+        let (c, s) = (yaw.cos(), yaw.sin());
+        let to_robot = |p: [f64; 2]| {
+            let (dx, dy) = (p[0] - x, p[1] - y);
+            [c * dx + s * dy, -s * dx + c * dy]
+        };
+        let mut ahead: Option<(f64, usize)> = None;
+        let mut behind: Option<(f64, usize)> = None;
+        for (i, r) in st.risers.iter().enumerate() {
+            let (a, b) = st.riser_ends(r.s);
+            if let Some(mid_x) = clip_to_lookahead(to_robot(a), to_robot(b)) {
+                if mid_x >= 0.0 {
+                    if ahead.is_none_or(|(best, _)| mid_x < best) {
+                        ahead = Some((mid_x, i));
+                    }
+                } else if behind.is_none_or(|(best, _)| mid_x > best) {
+                    behind = Some((mid_x, i));
+                }
+            }
+        }
+        let (mid_x_m, index) = ahead.or(behind)?;
+        Some(LabelledRiser {
+            index,
+            count: st.risers.len(),
+            mid_x_m,
+        })
+    }
+
     /// The static geoms that make this world in MuJoCo (the floor plane is the model's own).
     pub fn primitives(&self) -> Vec<Primitive> {
         self.stairs.as_ref().map_or_else(Vec::new, Staircase::primitives)
@@ -475,6 +488,17 @@ impl World {
     pub fn start(&self) -> [f64; 4] {
         [0.0, 0.0, self.ground_height(0.0, 0.0), 0.0]
     }
+}
+
+/// Which riser a ground-truth token describes (see [`World::labelled_riser`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LabelledRiser {
+    /// Index along the staircase axis (0 = the first riser from the start landing).
+    pub index: usize,
+    /// Risers in the staircase.
+    pub count: usize,
+    /// Robot-frame x of the riser's midpoint clipped to the look-ahead box, m (< 0: behind).
+    pub mid_x_m: f64,
 }
 
 /// Clips segment a–b (robot frame) to the look-ahead box; the clipped midpoint's x, if any part is

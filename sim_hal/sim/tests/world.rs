@@ -49,6 +49,26 @@ fn stairs_up_preset_labels() {
 }
 
 #[test]
+fn the_labelled_riser_is_the_one_the_truth_describes() {
+    let w = World::preset("stairs-up").unwrap();
+    // Risers at 1.2, 1.5, 1.8, 2.1 m, ...: from the origin the first, 1.2 m ahead.
+    let r = w.labelled_riser(0.0, 0.0, 0.0).expect("a riser in the box");
+    assert_eq!(r.index, 0);
+    assert!((r.mid_x_m - 1.2).abs() < 1e-9, "{r:?}");
+    // Between the risers at 1.8 and 2.1 m: the next one ahead, 0.15 m away.
+    let r = w.labelled_riser(1.95, 0.0, 0.0).unwrap();
+    assert_eq!(r.index, 3);
+    assert!((r.mid_x_m - 0.15).abs() < 1e-9, "{r:?}");
+    // On the top landing facing back down: the last riser, ahead.
+    let r = w.labelled_riser(3.5, 0.0, PI).unwrap();
+    assert_eq!(r.index, r.count - 1);
+    assert!(r.mid_x_m > 0.0, "{r:?}");
+    // Nothing in view, and the flat preset: none (the truth is flat).
+    assert_eq!(w.labelled_riser(-1.0, 0.0, 0.0), None);
+    assert_eq!(World::preset("flat").unwrap().labelled_riser(0.0, 0.0, 0.0), None);
+}
+
+#[test]
 fn stairs_down_and_flat_presets() {
     let w = World::preset("stairs-down").unwrap();
     assert!(
