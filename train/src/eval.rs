@@ -139,7 +139,8 @@ pub fn bin_by_height(records: &[Record]) -> Vec<Bin> {
 /// box's far edge (1.5 m): where in the box the errors come from.
 pub fn bin_by_riser_ahead(records: &[Record]) -> Vec<Bin> {
     let edges: Vec<f32> = (0..=8).map(|k| -0.5 + 0.25 * k as f32).collect();
-    bin_stairs(records, &edges, |r| r.riser.map(|(_, _, x)| x as f32))
+    // The clipped midpoint lies in the box, [-0.5, 1.5] m: the far edge itself goes in the last bin.
+    bin_stairs(records, &edges, |r| r.riser.map(|(_, _, x)| (x as f32).min(1.499_999)))
 }
 
 /// Renders `set` and scores the CNN and the geometric baseline on every grid.
@@ -291,13 +292,14 @@ mod tests {
             rec(up, [1.0, 0.16, 0.30, 0.0], Some(0.10)), // h off by 1 cm
             rec(up, [1.0, 0.12, 0.34, 0.0], Some(0.20)), // h 3 cm, d 4 cm
             rec(up, [0.0, 0.0, 0.0, 0.0], Some(-0.30)),  // wrong class, behind
-            rec(up, [1.0, 0.0, 0.0, 0.0], Some(1.60)),   // past the box: no bin
+            rec(up, [1.0, 0.0, 0.0, 0.0], Some(1.50)),   // on the box's far edge: last bin
             rec([0.0; 4], [1.0, 0.1, 0.1, 0.0], None),   // flat label: not binned
         ];
         let bins = bin_by_riser_ahead(&records);
         assert_eq!(bins.len(), 8);
         assert_eq!((bins[0].lo, bins[7].hi), (-0.5, 1.5));
-        assert_eq!(bins.iter().map(|b| b.samples).sum::<usize>(), 3);
+        assert_eq!(bins.iter().map(|b| b.samples).sum::<usize>(), 4);
+        assert_eq!(bins[7].samples, 1);
         let near = &bins[2];
         assert_eq!((near.lo, near.hi, near.samples), (0.0, 0.25, 2));
         assert!((near.cnn.mae_h_cm - 2.0).abs() < 1e-4, "{near:?}");

@@ -105,7 +105,8 @@ enum Cmd {
         /// Write the figures (and every sample's truth and estimates) as JSON here.
         #[arg(long)]
         report: Option<PathBuf>,
-        /// Plot of the errors versus true step height (PNG).
+        /// Plot of the errors versus true step height (PNG); a second one, `<stem>_by_riser.png`
+        /// beside it, plots them versus the labelled riser's distance ahead.
         #[arg(long, default_value = "eval_terrain.png")]
         plot: PathBuf,
         #[arg(long, default_value_t = default_jobs())]
@@ -325,6 +326,16 @@ fn main() -> anyhow::Result<()> {
             );
             train::plot::error_vs_height_png(&plot, &r.by_step_height, &title)?;
             println!("plot: {}", plot.display());
+            let riser_plot = plot.with_file_name(format!(
+                "{}_by_riser.png",
+                plot.file_stem().and_then(|s| s.to_str()).unwrap_or("eval_terrain")
+            ));
+            let title = format!(
+                "terrain token errors vs the labelled riser's distance: {} ({} samples)",
+                r.world_set, r.cnn.samples
+            );
+            train::plot::error_vs_riser_png(&riser_plot, &r.by_riser_ahead, &title)?;
+            println!("plot: {}", riser_plot.display());
             if let Some(path) = report {
                 train::eval::write_report(&path, &r)?;
                 println!("report: {}", path.display());

@@ -102,6 +102,24 @@ where
 /// Four panels (MAE h, MAE d, MAE yaw, class accuracy) over true step height, CNN vs baseline,
 /// with the paper's Table II figures as grey lines.
 pub fn error_vs_height_png(path: &Path, bins: &[Bin], title: &str) -> anyhow::Result<()> {
+    error_bins_png(path, bins, title, "true step height (cm)", 100.0, (4.0, 26.0))
+}
+
+/// The same four panels over the labelled riser's distance ahead (m; negative: behind): where in
+/// the look-ahead box the errors come from.
+pub fn error_vs_riser_png(path: &Path, bins: &[Bin], title: &str) -> anyhow::Result<()> {
+    error_bins_png(
+        path,
+        bins,
+        title,
+        "labelled riser ahead of the robot (m)",
+        1.0,
+        (-0.5, 1.5),
+    )
+}
+
+/// Four panels over binned stairs samples; a bin sits at `scale` × its centre on the x axis.
+fn error_bins_png(path: &Path, bins: &[Bin], title: &str, xl: &str, scale: f64, x: (f64, f64)) -> anyhow::Result<()> {
     check_png(path)?;
     let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -110,9 +128,7 @@ pub fn error_vs_height_png(path: &Path, bins: &[Bin], title: &str) -> anyhow::Re
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let areas = root.split_evenly((2, 2));
     let used: Vec<&Bin> = bins.iter().filter(|b| b.samples > 0).collect();
-    let mid = |b: &Bin| 50.0 * (b.lo + b.hi) as f64;
-    let x = (4.0, 26.0);
-    let xl = "true step height (cm)";
+    let mid = |b: &Bin| scale * 0.5 * (b.lo + b.hi) as f64;
     let pick = |f: fn(&crate::eval::BinErr) -> f64| -> [Vec<(f64, f64)>; 2] {
         [
             used.iter().map(|b| (mid(b), f(&b.cnn))).collect(),

@@ -120,9 +120,19 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     }
     assert_eq!(v["cnn"]["samples"], 4);
     assert_eq!(&std::fs::read(&plot).unwrap()[1..4], b"PNG");
+    assert_eq!(&std::fs::read(out.join("eval_by_riser.png")).unwrap()[1..4], b"PNG");
+    // Every stairs sample sits in one riser-distance bin (the box spans -0.5..1.5 m).
+    let stairs = v["cnn"]["stairs_samples"].as_u64().unwrap();
+    let binned: u64 = v["by_riser_ahead"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["samples"].as_u64().unwrap())
+        .sum();
+    assert_eq!(binned, stairs, "{}", v["by_riser_ahead"]);
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(
-        stdout.contains("class accuracy") && stdout.contains("geometric"),
+        stdout.contains("class accuracy") && stdout.contains("geometric") && stdout.contains("riser ahead"),
         "{stdout}"
     );
     std::fs::remove_dir_all(&data).ok();
