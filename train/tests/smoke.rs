@@ -34,6 +34,7 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     .unwrap();
     let ds = Dataset::load_dir(&data).unwrap();
     assert_eq!(ds.len(), 24);
+    bev_coverage_script_reads_the_export(&data);
     let (tr, val) = split_by_world(&ds, 0.2);
     let out = temp("smoke-out");
     std::fs::create_dir_all(&out).unwrap();
@@ -166,4 +167,34 @@ fn eval_terrain_accepts_scenario_files_and_names_bad_ones() {
         String::from_utf8_lossy(&o.stderr)
     );
     std::fs::remove_dir_all(&out).ok();
+}
+
+/// `scripts/bev_coverage.py` on the smoke export: the robot's blind disc reads 0 %, the far ring
+/// does not.
+fn bev_coverage_script_reads_the_export(data: &std::path::Path) {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let py = root.join(".venv/bin/python");
+    if !py.is_file() {
+        let msg =
+            "SKIP: scripts/bev_coverage.py needs the project's Python environment (.venv); run scripts/install.sh";
+        assert!(std::env::var_os("CI").is_none(), "{msg} - and CI must have it");
+        eprintln!("\n!!!!!!!! {msg} !!!!!!!!\n");
+        return;
+    }
+    let o = Command::new(py)
+        .arg(root.join("scripts/bev_coverage.py"))
+        .arg(data)
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}{}", String::from_utf8_lossy(&o.stderr));
+    let share = |row: &str| -> f64 {
+        let line = out
+            .lines()
+            .find(|l| l.trim_start().starts_with(row))
+            .unwrap_or_else(|| panic!("{row} in {out}"));
+        line.split_whitespace().rev().nth(1).unwrap().parse().unwrap()
+    };
+    assert_eq!(share("r 0.2-0.3 m"), 0.0, "{out}");
+    assert!(share("r 1.4-1.5 m") > 10.0, "{out}");
 }
