@@ -5,11 +5,14 @@
 //! 1. **fast** — read: the HAL's newest state and its frame status (in [`run_loop`]);
 //! 2. **fast** — estimate: attitude, base velocity, height and foot contacts from a fresh state;
 //! 3. **fast** — safety: the supervisor judges the frame; operator e-stop / reset;
-//! 4. **perception** (every `control_hz / perception_hz` ticks, phase 0): budgeted and timed; the
-//!    terrain pipeline lands here;
-//! 5. **policy** (every `control_hz / policy_hz` ticks after the policy engaged): observation,
-//!    network, targets (clamped to joint ranges); NaN/Inf latches damping;
-//! 6. **fast** — command: PD targets or damping, written to the HAL (in [`run_loop`]).
+//! 4. **policy** (every `control_hz / policy_hz` ticks after the policy engaged): observation
+//!    (with the newest terrain token), network, targets (clamped to joint ranges); NaN/Inf latches
+//!    damping;
+//! 5. **fast** — command: PD targets or damping, handed to the HAL (`send`);
+//! 6. **perception** (every `control_hz / perception_hz` ticks, phase 0), after the command is
+//!    out: budgeted and timed; the terrain pipeline lands here, and its token reaches the next
+//!    policy step. Its millisecond of work thus never delays a motor command (it used to run
+//!    before the policy, holding the command of every perception tick back by its whole duration).
 //!
 //! Time comes only from the HAL's tick index. Group compute times are measured with a monotonic
 //! clock for the log and the benchmarks, and never feed back into control.
@@ -189,15 +192,18 @@ impl Runtime {
         !was
     }
 
-    /// One control tick (steps 2–6 of the module doc; the caller did the read and does the write).
-    pub fn tick(
+    /// One control tick (steps 2–6 of the module doc; the caller did the read): the command is
+    /// computed into `out` and handed to `send` before the perception group runs. When `send`
+    /// fails, perception is skipped (the caller is about to fail safe) and its error returned.
+    pub fn tick<E>(
         &mut self,
         tick: TickTime,
         frame: FrameStatus,
         state: &LowState,
         operator: OperatorInput,
         out: &mut LowCommand,
-    ) -> TickSummary {
+        send: impl FnOnce(&LowCommand) -> Result<(), E>,
+    ) -> (TickSummary, Result<(), E>) {
         let k = tick.index;
         let t0 = Instant::now();
         let mut s = TickSummary {
@@ -240,38 +246,43 @@ impl Runtime {
         self.controller.advance(k, state);
         let t1 = Instant::now();
 
-        // 4. perception group
+        // 4. policy group (the token of the newest perception step before this tick's)
         let mut t2 = t1;
-        if k.is_multiple_of(self.perception_decimation) {
-            s.perception_step = true;
-            let fresh = std::mem::take(&mut self.lidar_fresh);
-            s.perception = Some(self.perception.step(tick.time_ns, fresh, self.estimator.estimate()));
-            t2 = Instant::now();
-        }
-
-        // 5. policy group
-        let mut t3 = t2;
         if self.controller.policy_due(k) {
             s.policy_step = true;
             let terrain = self.perception.last().token;
             if let Err(reason) = self.controller.policy_step(state, operator.velocity, terrain) {
                 self.latch(k, reason, &mut s);
             }
-            t3 = Instant::now();
+            t2 = Instant::now();
         }
 
-        // 6. command
+        // 5. command, out before perception
         self.controller.write_command(state, out);
+        let t3 = Instant::now();
+        let sent = send(out);
         let t4 = Instant::now();
+
+        // 6. perception group
+        let lidar_fresh = std::mem::take(&mut self.lidar_fresh);
+        if sent.is_ok() && k.is_multiple_of(self.perception_decimation) {
+            s.perception_step = true;
+            s.perception = Some(
+                self.perception
+                    .step(tick.time_ns, lidar_fresh, self.estimator.estimate()),
+            );
+        }
+        let t5 = Instant::now();
 
         s.mode = self.controller.mode();
         s.counters = self.supervisor.counters();
         s.clamped_targets = self.controller.clamped_targets();
         s.estimate = *self.estimator.estimate();
+        // The HAL's own write time (t3..t4) belongs to no group.
         s.timing = TickTiming {
-            fast_ns: ns(t1 - t0) + ns(t4 - t3),
-            perception_ns: if s.perception_step { ns(t2 - t1) } else { 0 },
-            policy_ns: if s.policy_step { ns(t3 - t2) } else { 0 },
+            fast_ns: ns(t1 - t0) + ns(t3 - t2),
+            perception_ns: if s.perception_step { ns(t5 - t4) } else { 0 },
+            policy_ns: if s.policy_step { ns(t2 - t1) } else { 0 },
         };
         let times = [s.timing.fast_ns, s.timing.perception_ns, s.timing.policy_ns];
         let counts = [
@@ -286,7 +297,7 @@ impl Runtime {
             }
         }
         self.stats.add(&s.timing);
-        s
+        (s, sent)
     }
 }
 
@@ -482,10 +493,18 @@ where
         };
         let op = operator.at(tick);
         rt.load_lidar(k, hal);
-        let summary = rt.tick(tick, frame, &state, op, &mut cmd);
         let last = k >= last_tick;
+        // The final tick computes its command but does not send it (a lock-stepped simulator
+        // would step once more).
+        let (summary, sent) = rt.tick(tick, frame, &state, op, &mut cmd, |c| {
+            if last {
+                Ok(())
+            } else {
+                hal.write_command(c)
+            }
+        });
         if !last {
-            if let Err(e) = hal.write_command(&cmd) {
+            if let Err(e) = sent {
                 let kind = hal::Error::kind(&e);
                 return fail(
                     hal,

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use firmware::controller::{Controller, DampingReason, Mode};
 use firmware::operator::OperatorInput;
-use firmware::runtime::Runtime;
+use firmware::runtime::{Runtime, TickSummary};
 use firmware::spec::DeploySpec;
 use firmware::supervisor::FrameStatus;
 use hal::{ErrorKind, LowCommand, LowState, TickTime};
@@ -42,6 +42,18 @@ fn tick(k: u64) -> TickTime {
     }
 }
 
+/// One tick; the command goes nowhere (these tests read it from `cmd`).
+fn step(
+    rt: &mut Runtime,
+    k: u64,
+    f: FrameStatus,
+    st: &LowState,
+    op: OperatorInput,
+    cmd: &mut LowCommand,
+) -> TickSummary {
+    rt.tick(tick(k), f, st, op, cmd, |_| Ok::<(), ()>(())).0
+}
+
 /// Runs healthy ticks `0..until`, then `bad(k)` from `until` on for `n` ticks; returns the first
 /// trip (tick, reason).
 fn trip_after(
@@ -56,12 +68,12 @@ fn trip_after(
         ..Default::default()
     };
     for k in 0..until {
-        let s = rt.tick(tick(k), FrameStatus::Fresh, &healthy(k), op, &mut cmd);
+        let s = step(&mut rt, k, FrameStatus::Fresh, &healthy(k), op, &mut cmd);
         assert!(s.tripped.is_none(), "healthy tick {k} tripped: {:?}", s.tripped);
     }
     for k in until..until + n {
         let (f, st, o) = bad(k);
-        rt.tick(tick(k), f, &st, o, &mut cmd);
+        step(&mut rt, k, f, &st, o, &mut cmd);
     }
     let trip = rt.trip();
     if trip.is_some() {
@@ -206,7 +218,7 @@ fn estop_latches_until_an_explicit_reset() {
             650 => reset,
             _ => OP,
         };
-        let s = rt.tick(tick(k), FrameStatus::Fresh, &healthy(k), op, &mut cmd);
+        let s = step(&mut rt, k, FrameStatus::Fresh, &healthy(k), op, &mut cmd);
         match k {
             600 => assert_eq!(s.tripped, Some(DampingReason::EStop)),
             601..650 => assert!(matches!(s.mode, Mode::Damping(DampingReason::EStop)), "latched at {k}"),

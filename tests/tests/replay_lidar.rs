@@ -232,6 +232,9 @@ struct LidarHal {
     frame: [u8; sensor_io::unitree_hg::LOW_STATE_LEN],
     state: hal::LowState,
     fresh: bool,
+    /// Frames of a staircase ahead whose step height changes from frame to frame (else the floor
+    /// grid of [`synthetic_point`]).
+    stairs: bool,
 }
 
 impl hal::TimeBase for LidarHal {
@@ -286,10 +289,37 @@ impl firmware::runtime::FrameSource for LidarHal {
         // A grid of returns ahead of the sensor, varying per frame (the sensor frame of the
         // upside-down mount does not matter for allocation).
         out.clear(self.k * 2_000_000);
+        if self.stairs {
+            for i in 0..STAIR_POINTS {
+                out.push(stair_point(i, self.k));
+            }
+            return true;
+        }
         for i in 0..synthetic_points(self.k) {
             out.push(synthetic_point(i));
         }
         true
+    }
+}
+
+const STAIR_POINTS: usize = 100 * 80;
+
+/// Stairs up in the robot frame (risers 1.0, 1.3, 1.6 m ahead, 10-18 cm depending on the tick,
+/// 2 m wide), put into the sensor frame of the default upside-down mount for a base 0.75 m up.
+fn stair_point(i: usize, tick: u64) -> hal::LidarPoint {
+    let h = 0.10 + 0.02 * ((tick / 50) % 5) as f64;
+    let (x, y) = (0.8 + 0.01 * (i / 80) as f64, -0.8 + 0.02 * (i % 80) as f64);
+    let z = h * [1.0, 1.3, 1.6].iter().filter(|&&r| x >= r).count() as f64;
+    let m = sensor_io::bev::MountPose::G1_MID360_DEFAULT;
+    let r = sensor_io::bev::rpy_rotation(m.rpy.map(f64::from));
+    let b = [x - m.xyz[0] as f64, y - m.xyz[1] as f64, z - 0.75 - m.xyz[2] as f64];
+    // p_sensor = Rᵀ (p_base − t)
+    let ps: [f64; 3] = std::array::from_fn(|c| (0..3).map(|row| r[row][c] * b[row]).sum());
+    hal::LidarPoint {
+        xyz: ps.map(|v| v as f32),
+        reflectivity: 60,
+        tag: 0,
+        offset_ns: (i as u32) * 10_000,
     }
 }
 
@@ -334,6 +364,7 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
         frame: [0; sensor_io::unitree_hg::LOW_STATE_LEN],
         state: hal::LowState::default(),
         fresh: false,
+        stairs: false,
     };
     let n = 3_000u64;
     let (mut fresh_steps, mut policy_steps) = (0u64, 0u64);
@@ -371,5 +402,72 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
         }
     });
     assert_eq!(logged, fresh_steps);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The perception group runs after the command is out (runtime step 6), so a token reaches the
+/// policy from the next policy step on: a policy step on a perception tick still observes the
+/// previous token. Checked on the values themselves (a new step height's bit pattern is absent
+/// from that tick's observation and present in the next policy step's).
+#[test]
+fn a_new_terrain_token_reaches_the_policy_at_the_next_policy_step() {
+    use firmware::controller::Controller;
+    use firmware::runtime::{run_loop, Runtime};
+
+    let dir = scratch_dir("token-latency");
+    let spec = firmware::spec::DeploySpec::load(&terrain_spec(&dir)).expect("spec loads");
+    let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
+    let schedule = firmware::operator::CommandSchedule::constant([0.0; 3]);
+    let mut operator = schedule.source(2_000_000);
+    let mut hal = LidarHal {
+        k: 0,
+        started: false,
+        frame: [0; sensor_io::unitree_hg::LOW_STATE_LEN],
+        state: hal::LowState::default(),
+        fresh: false,
+        stairs: true,
+    };
+    let mut tokens: Vec<(u64, u32)> = Vec::new();
+    let mut observed: Vec<(u64, Vec<u32>)> = Vec::new();
+    run_loop(&mut hal, &mut rt, &mut operator, 1_500, |v| {
+        let k = v.summary.tick.index;
+        if v.summary.policy_step {
+            let obs = &v.runtime.controller().observation()[TOKEN_OBS];
+            observed.push((k, obs.iter().map(|x| x.to_bits()).collect()));
+        }
+        if let Some(p) = v.summary.perception.filter(|p| p.fresh) {
+            tokens.push((k, p.token.step_height_m.to_bits()));
+        }
+        true
+    });
+    let policy_at = |k: u64| observed.iter().find(|(t, _)| *t == k).map(|(_, o)| o);
+    let next_policy_after = |k: u64| observed.iter().find(|(t, _)| *t > k).map(|(_, o)| o);
+    let mut checked = 0;
+    for w in tokens.windows(2) {
+        let ((_, old), (k, new)) = (w[0], w[1]);
+        let (Some(now), Some(next)) = (policy_at(k), next_policy_after(k)) else {
+            continue;
+        };
+        if old == new {
+            continue;
+        }
+        assert!(
+            now.contains(&old),
+            "tick {k}: the policy should still see the previous token"
+        );
+        assert!(
+            !now.contains(&new),
+            "tick {k}: the policy saw this tick's token before the command went out"
+        );
+        assert!(
+            next.contains(&new),
+            "the policy step after tick {k} should see its token"
+        );
+        checked += 1;
+    }
+    assert!(
+        checked >= 10,
+        "only {checked} token changes on policy ticks: {tokens:?}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
