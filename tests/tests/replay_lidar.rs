@@ -237,6 +237,19 @@ struct LidarHal {
     stairs: bool,
 }
 
+impl LidarHal {
+    fn new(stairs: bool) -> Self {
+        Self {
+            k: 0,
+            started: false,
+            frame: [0; sensor_io::unitree_hg::LOW_STATE_LEN],
+            state: hal::LowState::default(),
+            fresh: false,
+            stairs,
+        }
+    }
+}
+
 impl hal::TimeBase for LidarHal {
     type Error = sensor_io::unitree_hg::DecodeError;
     fn wait_tick(&mut self) -> Result<hal::TickTime, Self::Error> {
@@ -358,14 +371,7 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
     let mut operator = schedule.source(2_000_000);
     let _ = firmware::operator::OperatorSource::at(&mut operator, hal::TickTime::default());
     let mut operator = schedule.source(2_000_000);
-    let mut hal = LidarHal {
-        k: 0,
-        started: false,
-        frame: [0; sensor_io::unitree_hg::LOW_STATE_LEN],
-        state: hal::LowState::default(),
-        fresh: false,
-        stairs: false,
-    };
+    let mut hal = LidarHal::new(false);
     let n = 3_000u64;
     let (mut fresh_steps, mut policy_steps) = (0u64, 0u64);
     let before = counts();
@@ -419,14 +425,7 @@ fn a_new_terrain_token_reaches_the_policy_at_the_next_policy_step() {
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
     let schedule = firmware::operator::CommandSchedule::constant([0.0; 3]);
     let mut operator = schedule.source(2_000_000);
-    let mut hal = LidarHal {
-        k: 0,
-        started: false,
-        frame: [0; sensor_io::unitree_hg::LOW_STATE_LEN],
-        state: hal::LowState::default(),
-        fresh: false,
-        stairs: true,
-    };
+    let mut hal = LidarHal::new(true);
     let mut tokens: Vec<(u64, u32)> = Vec::new();
     let mut observed: Vec<(u64, Vec<u32>)> = Vec::new();
     run_loop(&mut hal, &mut rt, &mut operator, 1_500, |v| {

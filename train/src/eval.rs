@@ -157,18 +157,8 @@ pub fn evaluate(
     let (mut cnn, mut base) = (EvalStats::default(), EvalStats::default());
     let mut records = Vec::new();
     let mut worlds = 0;
-    let mut world: Option<(usize, g1_sim::world::World)> = None;
     render_worlds(set, poses_per_world, cfg, jobs, |wi, seed, s| {
         worlds = worlds.max(wi + 1);
-        if world.as_ref().is_none_or(|w| w.0 != wi) {
-            world = Some((wi, set.get(wi)?.0));
-        }
-        // Where the renderer labelled the sample: the pelvis, the pose's heading.
-        let p = [s.meta.pelvis[0], s.meta.pelvis[1], s.meta.pose.yaw];
-        let riser = world
-            .as_ref()
-            .and_then(|w| w.1.labelled_riser(p[0], p[1], p[2]))
-            .map(|r| (r.index, r.count, r.mid_x_m));
         let heading = s.meta.pose.yaw as f32;
         // A non-finite output (never seen) scores as flat: the firmware would hold its last token.
         let c = net.estimate(&s.bev, heading).unwrap_or(TerrainToken {
@@ -183,9 +173,9 @@ pub fn evaluate(
             truth: token_array(&s.truth),
             cnn: token_array(&c),
             baseline: token_array(&g),
-            pose: p,
-            riser,
-            outdoor: world.as_ref().is_some_and(|w| w.1.spec.outdoor.is_some()),
+            pose: [s.meta.pelvis[0], s.meta.pelvis[1], s.meta.pose.yaw],
+            riser: s.meta.riser.map(|r| (r.index, r.count, r.mid_x_m)),
+            outdoor: s.meta.outdoor,
             walking: s.meta.pose.mode == g1_sim::dataset::Mode::Walking,
         });
         progress();

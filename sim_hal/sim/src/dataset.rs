@@ -55,7 +55,7 @@ use serde::Serialize;
 
 use crate::lidar::{LidarConfig, LidarSim, Return};
 use crate::rng::Rng;
-use crate::world::{RandomRanges, World};
+use crate::world::{LabelledRiser, RandomRanges, World};
 use crate::{ModelChoice, SimConfig, SimError, Simulator};
 
 /// Evaluation worlds are `World::random(EVAL_SEED_BASE + seed + i)`.
@@ -250,6 +250,10 @@ pub struct SampleMeta {
     /// Points in the reassembled frame, and those in the grid.
     pub frame_points: usize,
     pub bev_points: usize,
+    /// The riser the truth describes (none on flat labels).
+    pub riser: Option<LabelledRiser>,
+    /// The world is the outdoor variant (per-step jitter, sloped treads, rounded nosings).
+    pub outdoor: bool,
 }
 
 /// One labelled sample.
@@ -431,7 +435,7 @@ impl WorldRenderer {
         let frame = RobotFrame::new(&self.mount, bev_roll as f32, bev_pitch as f32, bev_height as f32);
         let mut grid = Box::new(BevGrid::zeroed());
         let stats: BevStats = self.bev.build(frame_points, &frame, &SelfFilter::G1_DEFAULT, &mut grid);
-        let truth = self.world.truth(body.pos[0], body.pos[1], pose.yaw);
+        let (truth, riser) = self.world.labelled_truth(body.pos[0], body.pos[1], pose.yaw);
         Sample {
             bev: grid,
             truth,
@@ -445,6 +449,8 @@ impl WorldRenderer {
                 ground,
                 frame_points: frame_points.len(),
                 bev_points: stats.used,
+                riser,
+                outdoor: self.world.spec.outdoor.is_some(),
             },
         }
     }

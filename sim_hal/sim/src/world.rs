@@ -420,11 +420,22 @@ impl World {
 
     /// Ground-truth token for a robot at (x, y) with heading `yaw` (rad).
     pub fn truth(&self, x: f64, y: f64, yaw: f64) -> TerrainToken {
+        self.labelled_truth(x, y, yaw).0
+    }
+
+    /// [`Self::truth`] and the riser it describes ([`Self::labelled_riser`]), from one search.
+    pub fn labelled_truth(&self, x: f64, y: f64, yaw: f64) -> (TerrainToken, Option<LabelledRiser>) {
+        let riser = self.labelled_riser(x, y, yaw);
+        (self.token_of(riser, yaw), riser)
+    }
+
+    /// The token describing `riser` to a robot heading `yaw`; flat when there is none.
+    fn token_of(&self, riser: Option<LabelledRiser>, yaw: f64) -> TerrainToken {
         let flat = TerrainToken {
             yaw_rad: wrap_angle(yaw) as f32,
             ..TerrainToken::FLAT
         };
-        let (Some(st), Some(lr)) = (&self.stairs, self.labelled_riser(x, y, yaw)) else {
+        let (Some(st), Some(lr)) = (&self.stairs, riser) else {
             return flat;
         };
         let r = st.risers[lr.index];
@@ -491,7 +502,7 @@ impl World {
 }
 
 /// Which riser a ground-truth token describes (see [`World::labelled_riser`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct LabelledRiser {
     /// Index along the staircase axis (0 = the first riser from the start landing).
     pub index: usize,
