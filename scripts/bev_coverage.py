@@ -4,7 +4,9 @@
 Reads `g1-dataset export` shards (tensor `bev`: N x 6 x 60 x 60, channel 5 = density) and prints the
 occupied share of cells per 10 cm ring around the robot and along the strip |y| < 0.4 m ahead and
 behind. The torso-mounted, upside-down MID-360 looks at most ~52 deg down, so the ground within about
-0.8 m of the robot is never in a frame: risers there are invisible to a single-frame grid.
+0.8 m of the robot is never in a frame: risers there are invisible to a single-frame grid. Exports
+with the BEV memory (the default) fill that disc from keyframes taken on the approach; compare with
+an export rendered with memory off.
 
     .venv/bin/python scripts/bev_coverage.py DATASET_DIR [--max-shards N]
 """

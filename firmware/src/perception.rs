@@ -6,6 +6,11 @@
 //! was fired in, into the gravity-aligned robot frame of the perception tick. Without that, a
 //! walking robot's sway (a few degrees over a frame) tilts the ground by centimetres at 1.5 m.
 //!
+//! The lidar sees nothing within ~0.8 m of the robot, where the nearest riser usually is, so the
+//! grid also holds a few remembered keyframes taken while the robot walked there
+//! ([`sensor_io::bev_memory`]: placed through the estimator's odometry, filling only cells the
+//! current frame misses; `[perception] bev_memory_keyframes`). Losing the estimate clears it.
+//!
 //! The token comes from the terrain CNN ([`crate::terrain_net`], trained by `g1-train`; the
 //! default) or the geometric estimator (`estimator::terrain`), as `[perception] terrain_estimator`
 //! says; it is checked for plausibility and otherwise replaced by the last plausible one (or flat).
@@ -13,6 +18,7 @@
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
 use hal::{PointFrame, TerrainToken};
 use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter};
+use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::runtime::Estimate;
@@ -30,7 +36,11 @@ pub struct PerceptionSummary {
     /// Start of the frame used, on the HAL's time base, ns.
     pub frame_timestamp_ns: u64,
     pub points: u32,
+    /// The current frame's points (remembered ones are counted in `memory_points`).
     pub bev: BevStats,
+    /// Keyframes in the BEV memory, and the remembered points that went into the grid.
+    pub memory_keyframes: u32,
+    pub memory_points: u32,
     /// Inputs of the robot frame.
     pub roll: f32,
     pub pitch: f32,
@@ -73,6 +83,7 @@ pub struct Perception {
     filter: SelfFilter,
     fallback_height: f32,
     builder: Box<BevBuilder>,
+    memory: BevMemory,
     grid: Box<BevGrid>,
     frame: Box<LidarFrame>,
     geometric: GeometricTerrainEstimator,
@@ -115,6 +126,7 @@ impl Perception {
             filter: spec.self_filter().unwrap_or(SelfFilter::G1_DEFAULT),
             fallback_height: spec.fallback_base_height_m,
             builder: BevBuilder::new_boxed(),
+            memory: BevMemory::new(spec.bev_memory(), LIDAR_FRAME_CAP),
             grid: Box::new(BevGrid::zeroed()),
             frame: sensor_io::livox::boxed_point_frame(),
             geometric: GeometricTerrainEstimator::new(GeometricTerrainConfig::default()),
@@ -186,7 +198,11 @@ impl Perception {
             return self.last;
         }
         let (roll, pitch, height) = robot_frame_inputs(est, self.fallback_height);
-        let bev = self.grid_frame(now_ns, &RobotFrame::new(&self.mount, roll, pitch, height));
+        if !est.valid {
+            // No odometry: remembered frames cannot be placed.
+            self.memory.clear();
+        }
+        let (bev, memory) = self.grid_frame(now_ns, &RobotFrame::new(&self.mount, roll, pitch, height));
         let heading = if est.rpy[2].is_finite() { est.rpy[2] } else { 0.0 };
         let (source, estimate, confidence, geometric) = match self.cnn.as_deref_mut() {
             Some(net) => {
@@ -210,6 +226,8 @@ impl Perception {
             frame_timestamp_ns: self.frame.timestamp_ns,
             points: self.frame.len as u32,
             bev,
+            memory_keyframes: memory.keyframes as u32,
+            memory_points: memory.points_used as u32,
             roll,
             pitch,
             base_height: height,
@@ -235,13 +253,15 @@ fn mat_vec(m: &[[f32; 3]; 3], v: [f32; 3]) -> [f32; 3] {
 
 impl Perception {
     /// Maps the frame's points through the pose of the tick each was fired in into the robot frame
-    /// at `now_ns` (yaw and translation since then included), drops self-hits, and grids them.
-    /// Without pose history (first tick) every point goes through `current`.
-    fn grid_frame(&mut self, now_ns: u64, current: &RobotFrame) -> BevStats {
+    /// at `now_ns` (yaw and translation since then included), drops self-hits, and grids them
+    /// together with the BEV memory's keyframes. Without pose history (first tick) every point
+    /// goes through `current` and the memory is left out.
+    fn grid_frame(&mut self, now_ns: u64, current: &RobotFrame) -> (BevStats, MemoryStats) {
         let Some(now) = self.pose_at(now_ns).copied() else {
-            return self
+            let stats = self
                 .builder
                 .build(self.frame.as_slice(), current, &self.filter, &mut self.grid);
+            return (stats, MemoryStats::default());
         };
         // Heading frame → robot frame at `now`: undo yaw only (roll and pitch stay gravity-aligned).
         let yaw_now = libm::atan2f(now.rot[1][0], now.rot[0][0]);
@@ -281,11 +301,20 @@ impl Perception {
             self.scratch[n] = q;
             n += 1;
         }
-        let mut stats = self.builder.build_robot_points(&self.scratch[..n], &mut self.grid);
+        let odom = OdomPose {
+            pos: now.pos,
+            yaw: yaw_now,
+            height: now.height,
+        };
+        let (mut stats, memory) = self
+            .memory
+            .build(&self.scratch[..n], &odom, &mut self.builder, &mut self.grid);
+        // Describe the current frame only: remembered points all landed in cells.
+        stats.used -= memory.points_used;
         stats.input = self.frame.len;
         stats.self_hits = self_hits;
         stats.non_finite += non_finite;
-        stats
+        (stats, memory)
     }
 
     /// The frame's points in the robot frame of the last step (self-hits removed), for logs.
@@ -326,4 +355,93 @@ pub fn robot_frame_inputs(est: &Estimate, fallback_height: f32) -> (f32, f32, f3
             fallback_height
         },
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Identity mount, no self filter, geometric estimator: robot-frame point = sensor point + base
+    /// height.
+    fn perception() -> Perception {
+        let spec = PerceptionSpec {
+            mount_xyz: [0.0; 3],
+            mount_rpy: [0.0; 3],
+            self_filter: Vec::new(),
+            terrain_estimator: TerrainEstimatorKind::Geometric,
+            ..PerceptionSpec::default()
+        };
+        Perception::new(&spec, std::path::Path::new("."))
+    }
+
+    fn estimate(x: f32, valid: bool) -> Estimate {
+        Estimate {
+            valid,
+            position: [x, 0.0, 0.8],
+            foot_pos: [[x, 0.1, 0.0], [x, -0.1, 0.0]],
+            contact: [true, true],
+            ..Estimate::default()
+        }
+    }
+
+    /// One step at `t` s with a frame holding a 20 cm tread patch at robot-frame x ∈ [x0, x0+0.2].
+    fn step(p: &mut Perception, t: f64, x: f32, valid: bool, x0: f32) -> PerceptionSummary {
+        let now = (t * 1e9) as u64;
+        let est = estimate(x, valid);
+        p.record_pose(now, &est);
+        let f = p.frame_mut();
+        f.timestamp_ns = now;
+        f.len = 0;
+        for i in 0..10 {
+            for j in 0..10 {
+                f.points[f.len] = hal::LidarPoint {
+                    xyz: [x0 + 0.02 * i as f32, -0.1 + 0.02 * j as f32, 0.1 - 0.8],
+                    ..Default::default()
+                };
+                f.len += 1;
+            }
+        }
+        p.step(now, true, &est)
+    }
+
+    fn occupied_between(g: &BevGrid, lo: f32, hi: f32) -> usize {
+        (0..sensor_io::bev::BEV_CELLS)
+            .flat_map(|ix| (0..sensor_io::bev::BEV_CELLS).map(move |iy| (ix, iy)))
+            .filter(|&(ix, iy)| {
+                let x = BevGrid::cell_center(ix, iy).0;
+                g.occupied(ix, iy) && x > lo && x < hi
+            })
+            .count()
+    }
+
+    #[test]
+    fn the_memory_keeps_a_tread_in_view_after_the_robot_walks_onto_it_and_forgets_without_odometry() {
+        let mut p = perception();
+        let s = step(&mut p, 0.1, 0.0, true, 1.0);
+        assert_eq!((s.memory_keyframes, s.memory_points), (0, 0));
+        // 0.6 m further on, the frame shows only a patch 1.2 m ahead; the tread is now 0.4–0.6 m
+        // ahead, in the lidar's blind disc, and comes from the memory.
+        let s = step(&mut p, 0.2, 0.6, true, 1.2);
+        assert_eq!(s.memory_keyframes, 1);
+        assert_eq!(s.memory_points, 100);
+        assert_eq!(s.bev.used, 100, "the current frame's own points");
+        assert!(occupied_between(p.grid(), 0.38, 0.62) >= 16);
+        // The estimate is lost: the memory cannot be placed and is dropped.
+        let s = step(&mut p, 0.3, 0.6, false, 1.2);
+        assert_eq!((s.memory_keyframes, s.memory_points), (0, 0));
+        assert_eq!(occupied_between(p.grid(), 0.38, 0.62), 0);
+    }
+
+    #[test]
+    fn no_memory_keyframes_gives_single_frame_grids() {
+        let spec = PerceptionSpec {
+            bev_memory_keyframes: 0,
+            terrain_estimator: TerrainEstimatorKind::Geometric,
+            ..PerceptionSpec::default()
+        };
+        let mut p = Perception::new(&spec, std::path::Path::new("."));
+        step(&mut p, 0.1, 0.0, true, 1.0);
+        let s = step(&mut p, 0.2, 0.6, true, 1.2);
+        assert_eq!((s.memory_keyframes, s.memory_points), (0, 0));
+    }
 }

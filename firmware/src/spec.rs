@@ -81,6 +81,9 @@ pub struct PerceptionSpec {
     /// relative to the spec; give both or neither. Default: the network built into the firmware.
     pub terrain_network: Option<PathBuf>,
     pub terrain_weights: Option<PathBuf>,
+    /// Remembered lidar keyframes merged into the BEV grid (`sensor_io::bev_memory`; 0: single-frame
+    /// grids). The built-in network was trained with the default, 4.
+    pub bev_memory_keyframes: usize,
 }
 
 /// `[perception] terrain_estimator`.
@@ -107,6 +110,7 @@ impl Default for PerceptionSpec {
             terrain_estimator: TerrainEstimatorKind::Cnn,
             terrain_network: None,
             terrain_weights: None,
+            bev_memory_keyframes: sensor_io::bev_memory::MemoryConfig::DEFAULT.keyframes,
         }
     }
 }
@@ -129,6 +133,13 @@ impl PerceptionSpec {
             })
             .collect();
         sensor_io::bev::SelfFilter::new(&boxes)
+    }
+
+    pub fn bev_memory(&self) -> sensor_io::bev_memory::MemoryConfig {
+        sensor_io::bev_memory::MemoryConfig {
+            keyframes: self.bev_memory_keyframes,
+            ..sensor_io::bev_memory::MemoryConfig::DEFAULT
+        }
     }
 }
 
@@ -594,6 +605,12 @@ impl DeploySpec {
         let pc = &self.perception;
         if let Err(e) = pc.self_filter() {
             return Err(self.invalid("perception.self_filter", e.to_string()));
+        }
+        if pc.bev_memory_keyframes > 16 {
+            return Err(self.invalid(
+                "perception.bev_memory_keyframes",
+                "must be 0 to 16 (each keyframe holds 8192 points and is merged every frame)",
+            ));
         }
         match (&pc.terrain_network, &pc.terrain_weights) {
             (None, None) => {}

@@ -59,6 +59,8 @@ pub struct Record {
     pub outdoor: bool,
     /// The robot was walking (else standing).
     pub walking: bool,
+    /// Keyframes in the BEV memory (0: a single-frame grid).
+    pub keyframes: usize,
 }
 
 /// The report `--report` writes.
@@ -177,6 +179,7 @@ pub fn evaluate(
             riser: s.meta.riser.map(|r| (r.index, r.count, r.mid_x_m)),
             outdoor: s.meta.outdoor,
             walking: s.meta.pose.mode == g1_sim::dataset::Mode::Walking,
+            keyframes: s.meta.keyframes,
         });
         progress();
         Ok(())
@@ -272,6 +275,7 @@ mod tests {
             riser: riser.map(|x| (0, 4, x)),
             outdoor: false,
             walking: false,
+            keyframes: 0,
         }
     }
 

@@ -98,6 +98,9 @@ enum Cmd {
         /// standing, walking or mixed.
         #[arg(long, default_value = "mixed")]
         mode: g1_sim::dataset::ModeChoice,
+        /// Single-frame grids (no BEV memory), for weights trained that way.
+        #[arg(long)]
+        no_memory: bool,
         /// Directory holding terrain_cnn.safetensors + terrain_cnn.toml (default: the weights
         /// built into the firmware).
         #[arg(long)]
@@ -280,6 +283,7 @@ fn main() -> anyhow::Result<()> {
             training_worlds,
             poses_per_world,
             mode,
+            no_memory,
             weights,
             report,
             plot,
@@ -314,6 +318,11 @@ fn main() -> anyhow::Result<()> {
             let mut net = load_net(weights.as_deref())?;
             let cfg = DatasetConfig {
                 mode,
+                memory: if no_memory {
+                    g1_sim::dataset::MemoryConfig::OFF
+                } else {
+                    g1_sim::dataset::MemoryConfig::DEFAULT
+                },
                 ..DatasetConfig::default()
             };
             let pb = bar(set.len() * poses_per_world, quiet, "samples");

@@ -169,8 +169,8 @@ fn eval_terrain_accepts_scenario_files_and_names_bad_ones() {
     std::fs::remove_dir_all(&out).ok();
 }
 
-/// `scripts/bev_coverage.py` on the smoke export: the robot's blind disc reads 0 %, the far ring
-/// does not.
+/// `scripts/bev_coverage.py` on the smoke export: the BEV memory fills the lidar's blind disc ahead
+/// of the robot (a single frame leaves it empty), and the far ring is seen.
 fn bev_coverage_script_reads_the_export(data: &std::path::Path) {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
     let py = root.join(".venv/bin/python");
@@ -195,6 +195,6 @@ fn bev_coverage_script_reads_the_export(data: &std::path::Path) {
             .unwrap_or_else(|| panic!("{row} in {out}"));
         line.split_whitespace().rev().nth(1).unwrap().parse().unwrap()
     };
-    assert_eq!(share("r 0.2-0.3 m"), 0.0, "{out}");
+    assert!(share("x +0.3..+0.4 m") > 30.0, "{out}");
     assert!(share("r 1.4-1.5 m") > 10.0, "{out}");
 }

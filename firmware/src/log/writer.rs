@@ -805,6 +805,8 @@ impl McapSink {
                     outside: s.bev.outside,
                     non_finite: s.bev.non_finite,
                 },
+                memory_keyframes: s.memory_keyframes,
+                memory_points: s.memory_points,
                 base_height_m: s.base_height,
                 roll: s.roll,
                 pitch: s.pitch,
@@ -949,6 +951,9 @@ struct TerrainMsg {
     points: u32,
     frame_timestamp_ns: u64,
     bev: BevStatsMsg,
+    /// BEV memory: keyframes held and remembered points in the grid.
+    memory_keyframes: u32,
+    memory_points: u32,
     base_height_m: f32,
     roll: f32,
     pitch: f32,

@@ -32,6 +32,15 @@
 //! roll and pitch and base height = pelvis z − ground height under the pelvis, each with optional
 //! Gaussian noise (0.01 rad, 0.01 m; on by default) that mimics the state estimator's error.
 //!
+//! Memory ([`sensor_io::bev_memory`], as the firmware grids): before the labelled frame, the
+//! keyframes the firmware's memory would hold are rendered along the robot's approach: a straight
+//! path into the pose, heading ± 23° off its heading, keyframes every `spacing_m` (0.3 m) back from
+//! a random offset in [0, 0.3) m, each a walking frame (speed 0.2–0.8 m/s, heading ± 6°). Their
+//! odometry poses carry leg-odometry drift growing with the distance walked since: σ = 3 mm + 2 %
+//! (x, y), 3 mm + 1 % (z), 0.1° + 0.5°/m (yaw). 15 % of samples hold 0 to 3 keyframes (start-up,
+//! odometry reset), the rest all 4. The grid is the current frame's points plus, in cells it
+//! misses, the newest keyframe's that hit them.
+//!
 //! Every sample is a pure function of (world, world seed, pose index, [`DatasetConfig`]): the lidar
 //! noise, the scan pattern's start (a random frame index) and the pose come from seeds derived from
 //! the world seed and the pose index, so the output does not depend on threads or order.
@@ -50,6 +59,8 @@ use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEsti
 use hal::{wrap_angle, LidarPoint, PointFrame, TerrainClass, TerrainToken};
 use mujoco_rs::prelude::*;
 use sensor_io::bev::{BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_CHANNELS};
+pub use sensor_io::bev_memory::MemoryConfig;
+use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 use sensor_io::livox::{FrameAssembler, PacketWriter};
 use serde::Serialize;
 
@@ -105,6 +116,11 @@ pub struct DatasetConfig {
     pub attitude_noise_rad: f64,
     /// Gaussian noise on the base height the grid is built with, m (1 σ; 0: off).
     pub height_noise_m: f64,
+    /// The firmware's BEV memory ([`MemoryConfig::OFF`]: single-frame grids).
+    pub memory: MemoryConfig,
+    /// Share of samples whose memory is partly filled (0 to keyframes − 1 keyframes: just
+    /// started, or odometry was reset); the rest hold all keyframes.
+    pub memory_cold_fraction: f64,
 }
 
 impl Default for DatasetConfig {
@@ -114,6 +130,8 @@ impl Default for DatasetConfig {
             lidar: LidarConfig::default(),
             attitude_noise_rad: 0.01,
             height_noise_m: 0.01,
+            memory: MemoryConfig::DEFAULT,
+            memory_cold_fraction: 0.15,
         }
     }
 }
@@ -247,9 +265,12 @@ pub struct SampleMeta {
     pub bev_height: f64,
     /// Ground height under the pelvis, m.
     pub ground: f64,
-    /// Points in the reassembled frame, and those in the grid.
+    /// Points in the reassembled frame, and those in the grid (remembered ones included).
     pub frame_points: usize,
     pub bev_points: usize,
+    /// Keyframes in the memory, and the remembered points that went into the grid.
+    pub keyframes: usize,
+    pub memory_points: usize,
     /// The riser the truth describes (none on flat labels).
     pub riser: Option<LabelledRiser>,
     /// The world is the outdoor variant (per-step jitter, sloped treads, rounded nosings).
@@ -287,6 +308,9 @@ pub struct WorldRenderer {
     packet: Vec<u8>,
     assembler: FrameAssembler<FRAME_CAP>,
     bev: Box<BevBuilder>,
+    memory: BevMemory,
+    /// Robot-frame points of the last rendered frame.
+    robot: Vec<[f32; 3]>,
 }
 
 impl WorldRenderer {
@@ -337,6 +361,8 @@ impl WorldRenderer {
             packet: vec![0; writer.max_packet_len()],
             assembler: FrameAssembler::new_boxed(),
             bev: BevBuilder::new_boxed(),
+            memory: BevMemory::new(cfg.memory, FRAME_CAP),
+            robot: Vec::with_capacity(FRAME_CAP),
         })
     }
 
@@ -375,10 +401,11 @@ impl WorldRenderer {
         self.sim.data_mut().forward();
     }
 
-    /// Renders `pose` (see the module documentation); `seed` drives the lidar noise, the scan
-    /// pattern's start and the attitude / height noise.
-    pub fn render(&mut self, pose: &PoseSample, seed: u64) -> Sample {
-        let mut rng = Rng(seed);
+    /// One lidar frame of `pose` (see the module documentation) into `self.robot`: robot-frame
+    /// points, self-hits and non-finite points dropped, levelled with the (noisy) attitude and
+    /// height the estimator would give. `rng` drives the lidar noise, the scan pattern's start and
+    /// the attitude / height noise. The robot is left at the labelled pose.
+    fn render_frame(&mut self, pose: &PoseSample, rng: &mut Rng) -> FrameInfo {
         let lidar_cfg = LidarConfig {
             seed: rng.next_u64(),
             ..self.cfg.lidar
@@ -433,27 +460,140 @@ impl WorldRenderer {
         let bev_pitch = rpy[1] + an * rng.gaussian();
         let bev_height = body.pos[2] - ground + hn * rng.gaussian();
         let frame = RobotFrame::new(&self.mount, bev_roll as f32, bev_pitch as f32, bev_height as f32);
+        // What `BevBuilder::build` does before gridding (the firmware grids via `BevMemory`).
+        self.robot.clear();
+        self.robot.extend(
+            frame_points
+                .iter()
+                .map(|p| frame.apply(p.xyz))
+                .filter(|q| q.iter().all(|v| v.is_finite()) && !SelfFilter::G1_DEFAULT.contains(*q)),
+        );
+        FrameInfo {
+            body,
+            rpy,
+            ground,
+            bev_roll,
+            bev_pitch,
+            bev_height,
+            frame_points: frame_points.len(),
+        }
+    }
+
+    /// The keyframes the firmware's memory would hold when it reaches `pose` (see the module
+    /// documentation), oldest first, each with the odometry error of its pose.
+    fn approach(&self, pose: &PoseSample, rng: &mut Rng) -> Vec<(PoseSample, [f64; 4])> {
+        let mem = self.cfg.memory;
+        let k_max = mem.keyframes;
+        if k_max == 0 {
+            return Vec::new();
+        }
+        let count = if rng.chance(self.cfg.memory_cold_fraction) {
+            rng.int(0, k_max as u64) as usize
+        } else {
+            k_max
+        };
+        let travel = pose.yaw + rng.range(-0.4, 0.4);
+        let (c, s) = (travel.cos(), travel.sin());
+        let spacing = f64::from(mem.spacing_m);
+        let s0 = rng.range(0.0, spacing);
+        let gait_hz = if pose.mode == Mode::Walking {
+            pose.gait_hz
+        } else {
+            rng.range(1.0, 1.6)
+        };
+        let mut out: Vec<(PoseSample, [f64; 4])> = (0..count)
+            .map(|k| {
+                let back = s0 + spacing * k as f64;
+                let kf = PoseSample {
+                    mode: Mode::Walking,
+                    x: pose.x - c * back,
+                    y: pose.y - s * back,
+                    yaw: wrap_angle(pose.yaw + rng.range(-0.1, 0.1)),
+                    phase: rng.range(0.0, 2.0 * PI),
+                    gait_hz,
+                    speed: rng.range(0.2, 0.8),
+                    lean: rng.range(-4.0, 4.0).to_radians(),
+                    sway: rng.range(-3.0, 3.0).to_radians(),
+                };
+                // Leg odometry drifts with the distance walked since.
+                let noise = [
+                    (0.003 + 0.02 * back) * rng.gaussian(),
+                    (0.003 + 0.02 * back) * rng.gaussian(),
+                    (0.003 + 0.01 * back) * rng.gaussian(),
+                    (0.1 + 0.5 * back).to_radians() * rng.gaussian(),
+                ];
+                (kf, noise)
+            })
+            .collect();
+        out.reverse();
+        out
+    }
+
+    /// Renders `pose` (see the module documentation): its approach's keyframes into the memory,
+    /// then the frame itself, gridded with the memory as the firmware does. `seed` drives
+    /// everything random (lidar noise, scan pattern start, estimator error, the approach).
+    pub fn render(&mut self, pose: &PoseSample, seed: u64) -> Sample {
+        let mut rng = Rng(seed);
+        let info = self.render_frame(pose, &mut rng);
+        let current = std::mem::take(&mut self.robot);
+        let now = OdomPose {
+            pos: info.body.pos.map(|v| v as f32),
+            yaw: pose.yaw as f32,
+            height: info.bev_height as f32,
+        };
+        self.memory.clear();
+        let mut mem_rng = Rng(mix(seed, 0x3E30_4B1D));
+        for (kf, noise) in self.approach(pose, &mut mem_rng) {
+            let mut frame_rng = Rng(mem_rng.next_u64());
+            let ki = self.render_frame(&kf, &mut frame_rng);
+            let at = OdomPose {
+                pos: [
+                    (ki.body.pos[0] + noise[0]) as f32,
+                    (ki.body.pos[1] + noise[1]) as f32,
+                    (ki.body.pos[2] + noise[2]) as f32,
+                ],
+                yaw: wrap_angle(kf.yaw + noise[3]) as f32,
+                height: ki.bev_height as f32,
+            };
+            self.memory.remember(&self.robot, &at);
+        }
+        // The keyframes moved the robot: back to the labelled pose (its state is observable).
+        self.set_pose(&info.body);
         let mut grid = Box::new(BevGrid::zeroed());
-        let stats: BevStats = self.bev.build(frame_points, &frame, &SelfFilter::G1_DEFAULT, &mut grid);
-        let (truth, riser) = self.world.labelled_truth(body.pos[0], body.pos[1], pose.yaw);
+        let (stats, mem): (BevStats, MemoryStats) = self.memory.build(&current, &now, &mut self.bev, &mut grid);
+        self.robot = current;
+        let (truth, riser) = self.world.labelled_truth(info.body.pos[0], info.body.pos[1], pose.yaw);
         Sample {
             bev: grid,
             truth,
             meta: SampleMeta {
                 pose: *pose,
-                pelvis: body.pos,
-                rpy,
-                bev_roll,
-                bev_pitch,
-                bev_height,
-                ground,
-                frame_points: frame_points.len(),
+                pelvis: info.body.pos,
+                rpy: info.rpy,
+                bev_roll: info.bev_roll,
+                bev_pitch: info.bev_pitch,
+                bev_height: info.bev_height,
+                ground: info.ground,
+                frame_points: info.frame_points,
                 bev_points: stats.used,
+                keyframes: mem.keyframes,
+                memory_points: mem.points_used,
                 riser,
                 outdoor: self.world.spec.outdoor.is_some(),
             },
         }
     }
+}
+
+/// What [`WorldRenderer::render_frame`] reports besides the points.
+struct FrameInfo {
+    body: BodyPose,
+    rpy: [f64; 3],
+    ground: f64,
+    bev_roll: f64,
+    bev_pitch: f64,
+    bev_height: f64,
+    frame_points: usize,
 }
 
 /// Quaternion (w, x, y, z) of Rz(yaw)·Ry(pitch)·Rx(roll).

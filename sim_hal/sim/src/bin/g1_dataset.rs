@@ -92,6 +92,9 @@ struct Common {
     /// Build the grids with the true attitude and height (no simulated estimator error).
     #[arg(long)]
     no_pose_noise: bool,
+    /// Single-frame grids: no BEV memory (the firmware's `[perception] bev_memory_keyframes = 0`).
+    #[arg(long)]
+    no_memory: bool,
     /// Hide the progress bar.
     #[arg(long)]
     quiet: bool,
@@ -102,6 +105,9 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
         mode,
         ..DatasetConfig::default()
     };
+    if c.no_memory {
+        d.memory = g1_sim::dataset::MemoryConfig::OFF;
+    }
     if c.no_pose_noise {
         d.attitude_noise_rad = 0.0;
         d.height_noise_m = 0.0;
