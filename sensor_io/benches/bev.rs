@@ -203,6 +203,41 @@ fn bench(c: &mut Criterion) {
         us(hash.0) / us(ours.0)
     );
 
+    // The BEV memory: the same frame gridded with 4 keyframes of it taken 0.3 m apart on the
+    // approach (the firmware's default), against the single-frame build from robot points.
+    let robot: Vec<[f32; 3]> = points
+        .iter()
+        .map(|p| f.apply(p.xyz))
+        .filter(|q| !filter.contains(*q))
+        .collect();
+    let mut memory = sensor_io::bev_memory::BevMemory::new(sensor_io::bev_memory::MemoryConfig::DEFAULT, N);
+    let at = |x: f32| sensor_io::bev_memory::OdomPose {
+        pos: [x, 0.0, 0.75],
+        yaw: 0.0,
+        height: 0.75,
+    };
+    for k in 0..4 {
+        memory.remember(&robot, &at(-1.2 + 0.3 * k as f32));
+    }
+    let (_, m) = memory.build(&robot, &at(0.0), &mut builder, &mut grid);
+    let single = timings(300, || {
+        builder.build_robot_points(black_box(&robot), &mut grid);
+    });
+    let merged = timings(300, || {
+        memory.build(black_box(&robot), &at(0.0), &mut builder, &mut grid);
+    });
+    println!(
+        "BEV with memory ({} keyframes, {} remembered points used), fastest / median: {:.1} / {:.1} µs vs \
+         single frame {:.1} / {:.1} µs ({:.2}x by fastest)",
+        m.keyframes,
+        m.points_used,
+        us(merged.0),
+        us(merged.1),
+        us(single.0),
+        us(single.1),
+        us(merged.0) / us(single.0)
+    );
+
     // One frame of packets as the sensor sends it.
     let mut writer = PacketWriter::new();
     let mut buf = vec![0u8; writer.max_packet_len()];
