@@ -9,7 +9,8 @@
 //! The lidar sees nothing within ~0.8 m of the robot, where the nearest riser usually is, so the
 //! grid also holds a few remembered keyframes taken while the robot walked there
 //! ([`sensor_io::bev_memory`]: placed through the estimator's odometry, filling only cells the
-//! current frame misses; `[perception] bev_memory_keyframes`). Losing the estimate clears it.
+//! current frame misses; `[perception] bev_memory_keyframes`, default: what the built-in network
+//! was trained with). Losing the estimate clears it.
 //!
 //! The token comes from the terrain CNN ([`crate::terrain_net`], trained by `g1-train`; the
 //! default) or the geometric estimator (`estimator::terrain`), as `[perception] terrain_estimator`
@@ -369,6 +370,7 @@ mod tests {
             mount_rpy: [0.0; 3],
             self_filter: Vec::new(),
             terrain_estimator: TerrainEstimatorKind::Geometric,
+            bev_memory_keyframes: 4,
             ..PerceptionSpec::default()
         };
         Perception::new(&spec, std::path::Path::new("."))

@@ -82,7 +82,9 @@ pub struct PerceptionSpec {
     pub terrain_network: Option<PathBuf>,
     pub terrain_weights: Option<PathBuf>,
     /// Remembered lidar keyframes merged into the BEV grid (`sensor_io::bev_memory`; 0: single-frame
-    /// grids). The built-in network was trained with the default, 4.
+    /// grids). Default: what the built-in network was trained with
+    /// (`sensor_io::bev_memory::BUILTIN_NETWORK_KEYFRAMES`); a network of your own needs the
+    /// setting it was trained with (`g1-dataset export --memory-keyframes`).
     pub bev_memory_keyframes: usize,
 }
 
@@ -110,7 +112,7 @@ impl Default for PerceptionSpec {
             terrain_estimator: TerrainEstimatorKind::Cnn,
             terrain_network: None,
             terrain_weights: None,
-            bev_memory_keyframes: sensor_io::bev_memory::MemoryConfig::DEFAULT.keyframes,
+            bev_memory_keyframes: sensor_io::bev_memory::BUILTIN_NETWORK_KEYFRAMES,
         }
     }
 }
@@ -136,10 +138,7 @@ impl PerceptionSpec {
     }
 
     pub fn bev_memory(&self) -> sensor_io::bev_memory::MemoryConfig {
-        sensor_io::bev_memory::MemoryConfig {
-            keyframes: self.bev_memory_keyframes,
-            ..sensor_io::bev_memory::MemoryConfig::DEFAULT
-        }
+        sensor_io::bev_memory::MemoryConfig::with_keyframes(self.bev_memory_keyframes)
     }
 }
 

@@ -40,7 +40,8 @@ impl OdomPose {
     }
 }
 
-/// Memory settings. [`MemoryConfig::DEFAULT`] is what the committed terrain network was trained with.
+/// Memory settings: [`MemoryConfig::DEFAULT`] when the memory is on; [`BUILTIN_NETWORK_KEYFRAMES`]
+/// says whether the firmware's built-in terrain network was trained with it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MemoryConfig {
     /// Keyframes kept (0: no memory, single-frame grids).
@@ -68,6 +69,26 @@ impl MemoryConfig {
         keyframes: 0,
         ..Self::DEFAULT
     };
+}
+
+/// Keyframes of the grids the firmware's built-in terrain network was trained on: the default of
+/// `[perception] bev_memory_keyframes`, of `g1-dataset export` and of `g1-train eval-terrain`, so
+/// all three agree with the committed weights. 0: the committed weights are single-frame (trained on
+/// 172 000 single-frame samples); a network trained on memory grids (4) is not yet better — see the
+/// README.
+pub const BUILTIN_NETWORK_KEYFRAMES: usize = 0;
+
+impl MemoryConfig {
+    /// [`MemoryConfig::DEFAULT`] with `keyframes` keyframes.
+    pub const fn with_keyframes(keyframes: usize) -> Self {
+        MemoryConfig {
+            keyframes,
+            ..Self::DEFAULT
+        }
+    }
+
+    /// What the built-in network was trained with.
+    pub const BUILTIN: MemoryConfig = Self::with_keyframes(BUILTIN_NETWORK_KEYFRAMES);
 }
 
 impl Default for MemoryConfig {

@@ -98,9 +98,10 @@ enum Cmd {
         /// standing, walking or mixed.
         #[arg(long, default_value = "mixed")]
         mode: g1_sim::dataset::ModeChoice,
-        /// Single-frame grids (no BEV memory), for weights trained that way.
-        #[arg(long)]
-        no_memory: bool,
+        /// BEV memory keyframes of the grids (0: single-frame); must match what the weights were
+        /// trained with. Default: that of the firmware's built-in network.
+        #[arg(long, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
+        memory_keyframes: usize,
         /// Directory holding terrain_cnn.safetensors + terrain_cnn.toml (default: the weights
         /// built into the firmware).
         #[arg(long)]
@@ -283,7 +284,7 @@ fn main() -> anyhow::Result<()> {
             training_worlds,
             poses_per_world,
             mode,
-            no_memory,
+            memory_keyframes,
             weights,
             report,
             plot,
@@ -318,11 +319,7 @@ fn main() -> anyhow::Result<()> {
             let mut net = load_net(weights.as_deref())?;
             let cfg = DatasetConfig {
                 mode,
-                memory: if no_memory {
-                    g1_sim::dataset::MemoryConfig::OFF
-                } else {
-                    g1_sim::dataset::MemoryConfig::DEFAULT
-                },
+                memory: g1_sim::dataset::MemoryConfig::with_keyframes(memory_keyframes),
                 ..DatasetConfig::default()
             };
             let pb = bar(set.len() * poses_per_world, quiet, "samples");

@@ -27,7 +27,11 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
             shard_size: 16,
             out: data.clone(),
             jobs: 2,
-            dataset: DatasetConfig::default(),
+            // The memory's render path (the firmware's default may be single-frame).
+            dataset: DatasetConfig {
+                memory: g1_sim::dataset::MemoryConfig::DEFAULT,
+                ..DatasetConfig::default()
+            },
         },
         &|| {},
     )

@@ -32,7 +32,8 @@
 //! roll and pitch and base height = pelvis z − ground height under the pelvis, each with optional
 //! Gaussian noise (0.01 rad, 0.01 m; on by default) that mimics the state estimator's error.
 //!
-//! Memory ([`sensor_io::bev_memory`], as the firmware grids): before the labelled frame, the
+//! Memory ([`sensor_io::bev_memory`], as the firmware grids; when [`DatasetConfig::memory`] has
+//! keyframes, e.g. `g1-dataset export --memory-keyframes 4`): before the labelled frame, the
 //! keyframes the firmware's memory would hold are rendered along the robot's approach: a straight
 //! path into the pose, heading ± 23° off its heading, keyframes every `spacing_m` (0.3 m) back from
 //! a random offset in [0, 0.3) m, each a walking frame (speed 0.2–0.8 m/s, heading ± 6°). Their
@@ -116,7 +117,8 @@ pub struct DatasetConfig {
     pub attitude_noise_rad: f64,
     /// Gaussian noise on the base height the grid is built with, m (1 σ; 0: off).
     pub height_noise_m: f64,
-    /// The firmware's BEV memory ([`MemoryConfig::OFF`]: single-frame grids).
+    /// The firmware's BEV memory (default [`MemoryConfig::BUILTIN`], as the firmware's default;
+    /// [`MemoryConfig::OFF`]: single-frame grids).
     pub memory: MemoryConfig,
     /// Share of samples whose memory is partly filled (0 to keyframes − 1 keyframes: just
     /// started, or odometry was reset); the rest hold all keyframes.
@@ -130,7 +132,7 @@ impl Default for DatasetConfig {
             lidar: LidarConfig::default(),
             attitude_noise_rad: 0.01,
             height_noise_m: 0.01,
-            memory: MemoryConfig::DEFAULT,
+            memory: MemoryConfig::BUILTIN,
             memory_cold_fraction: 0.15,
         }
     }

@@ -92,9 +92,10 @@ struct Common {
     /// Build the grids with the true attitude and height (no simulated estimator error).
     #[arg(long)]
     no_pose_noise: bool,
-    /// Single-frame grids: no BEV memory (the firmware's `[perception] bev_memory_keyframes = 0`).
-    #[arg(long)]
-    no_memory: bool,
+    /// BEV memory keyframes (the firmware's `[perception] bev_memory_keyframes`; 0: single-frame
+    /// grids). Default: what the firmware's built-in network was trained with.
+    #[arg(long, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
+    memory_keyframes: usize,
     /// Hide the progress bar.
     #[arg(long)]
     quiet: bool,
@@ -105,9 +106,7 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
         mode,
         ..DatasetConfig::default()
     };
-    if c.no_memory {
-        d.memory = g1_sim::dataset::MemoryConfig::OFF;
-    }
+    d.memory = g1_sim::dataset::MemoryConfig::with_keyframes(c.memory_keyframes);
     if c.no_pose_noise {
         d.attitude_noise_rad = 0.0;
         d.height_noise_m = 0.0;
