@@ -102,6 +102,10 @@ enum Cmd {
         /// trained with. Default: that of the firmware's built-in network.
         #[arg(long, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
         memory_keyframes: usize,
+        /// Scale of the memory keyframes' simulated odometry drift (1: the renderer's model; 0:
+        /// perfect odometry, the upper bound of what the memory gives).
+        #[arg(long, default_value_t = 1.0)]
+        odometry_drift: f64,
         /// Directory holding terrain_cnn.safetensors + terrain_cnn.toml (default: the weights
         /// built into the firmware).
         #[arg(long)]
@@ -285,6 +289,7 @@ fn main() -> anyhow::Result<()> {
             poses_per_world,
             mode,
             memory_keyframes,
+            odometry_drift,
             weights,
             report,
             plot,
@@ -320,6 +325,7 @@ fn main() -> anyhow::Result<()> {
             let cfg = DatasetConfig {
                 mode,
                 memory: g1_sim::dataset::MemoryConfig::with_keyframes(memory_keyframes),
+                odometry_drift,
                 ..DatasetConfig::default()
             };
             let pb = bar(set.len() * poses_per_world, quiet, "samples");

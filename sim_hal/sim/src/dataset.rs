@@ -123,6 +123,9 @@ pub struct DatasetConfig {
     /// Share of samples whose memory is partly filled (0 to keyframes − 1 keyframes: just
     /// started, or odometry was reset); the rest hold all keyframes.
     pub memory_cold_fraction: f64,
+    /// Scale of the keyframes' odometry drift (1: the module documentation's model; 0: perfect
+    /// odometry, the upper bound of what the memory can give).
+    pub odometry_drift: f64,
 }
 
 impl Default for DatasetConfig {
@@ -134,6 +137,7 @@ impl Default for DatasetConfig {
             height_noise_m: 0.01,
             memory: MemoryConfig::BUILTIN,
             memory_cold_fraction: 0.15,
+            odometry_drift: 1.0,
         }
     }
 }
@@ -523,7 +527,8 @@ impl WorldRenderer {
                     (0.003 + 0.02 * back) * rng.gaussian(),
                     (0.003 + 0.01 * back) * rng.gaussian(),
                     (0.1 + 0.5 * back).to_radians() * rng.gaussian(),
-                ];
+                ]
+                .map(|v| v * self.cfg.odometry_drift);
                 (kf, noise)
             })
             .collect();

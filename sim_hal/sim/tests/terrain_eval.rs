@@ -195,3 +195,45 @@ fn dataset_export_reads_back() {
     assert_eq!(k, 9);
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// The memory's render path: a sample holds the keyframes its approach gave it, their points fill
+/// cells the single frame leaves empty, the odometry drift moves them, and memory off reproduces
+/// the single-frame grid exactly.
+#[test]
+fn memory_samples_fill_the_blind_disc_and_drift_moves_them() {
+    common::require_deps();
+    let seed = 7u64;
+    let render = |memory: g1_sim::dataset::MemoryConfig, drift: f64, pose: u64| {
+        let cfg = DatasetConfig {
+            memory,
+            odometry_drift: drift,
+            ..DatasetConfig::default()
+        };
+        let w = World::random(seed, &RandomRanges::default());
+        WorldRenderer::new(w, seed, cfg).unwrap().render_index(pose)
+    };
+    let occupied = |g: &BevGrid| {
+        (0..BEV_CELLS * BEV_CELLS)
+            .filter(|&i| g.data[CH_DENSITY * BEV_CELLS * BEV_CELLS + i] > 0.0)
+            .count()
+    };
+    let on = g1_sim::dataset::MemoryConfig::DEFAULT;
+    let off = g1_sim::dataset::MemoryConfig::OFF;
+    // The first pose (of a few) whose approach holds keyframes.
+    let pose = (0..8u64)
+        .find(|&p| render(on, 1.0, p).meta.keyframes > 0)
+        .expect("85 % of samples hold keyframes");
+    let (with, perfect, single) = (render(on, 1.0, pose), render(on, 0.0, pose), render(off, 1.0, pose));
+    assert_eq!(single.meta.keyframes, 0);
+    assert!(with.meta.memory_points > 0);
+    assert!(
+        occupied(&with.bev) > occupied(&single.bev) + 50,
+        "memory {} vs single {} occupied cells",
+        occupied(&with.bev),
+        occupied(&single.bev)
+    );
+    assert_eq!(with.truth, single.truth);
+    assert!(with.bev.data != perfect.bev.data, "the drift moves remembered points");
+    // Memory off is the single-frame grid, whatever the drift.
+    assert!(render(off, 0.0, pose).bev.data == single.bev.data);
+}
