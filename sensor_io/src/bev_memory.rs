@@ -233,42 +233,53 @@ impl BevMemory {
             ..MemoryStats::default()
         };
         let n_cur = current.len().min(self.merged.len() - self.points.len());
-        self.merged[..n_cur].copy_from_slice(&current[..n_cur]);
-        let mut n = n_cur;
-        if self.len > 0 && pose.is_finite() {
-            self.owner.fill(0);
-            for q in &current[..n_cur] {
-                if let Some((ix, iy)) = BevGrid::cell_of(q[0], q[1]) {
-                    self.owner[ix * BEV_CELLS + iy] = 1;
-                }
-            }
-            let (s, c) = libm::sincosf(pose.yaw);
-            let cap = self.cfg.points_per_keyframe;
-            for age in 0..self.len {
-                let slot = self.slot(age);
-                let tag = 2 + age as u8;
-                for p in &self.points[slot * cap..slot * cap + self.counts[slot]] {
-                    let (dx, dy) = (p[0] - pose.pos[0], p[1] - pose.pos[1]);
-                    let q = [c * dx + s * dy, -s * dx + c * dy, p[2] - pose.pos[2] + pose.height];
-                    let Some((ix, iy)) = BevGrid::cell_of(q[0], q[1]) else {
-                        continue;
-                    };
-                    let o = &mut self.owner[ix * BEV_CELLS + iy];
-                    if *o == 0 || *o == tag {
-                        *o = tag;
-                        self.merged[n] = q;
-                        n += 1;
-                    }
-                }
-            }
+        let stats = if self.len == 0 || !pose.is_finite() {
+            // Nothing to merge (always so with the memory off): grid the frame in place, no copy.
+            builder.build_robot_points(&current[..n_cur], out)
+        } else {
+            let n = self.merge(&current[..n_cur], pose);
             mem.points_used = n - n_cur;
-        }
-        let stats = builder.build_robot_points(&self.merged[..n], out);
+            builder.build_robot_points(&self.merged[..n], out)
+        };
         if self.due(pose) {
             self.remember(current, pose);
             mem.stored = true;
         }
         (stats, mem)
+    }
+
+    /// Copies `current` into the merge buffer followed by the remembered points, mapped into the
+    /// robot frame at `pose`, that land in cells `current` misses (newest keyframe wins per cell);
+    /// returns how many points the buffer holds.
+    fn merge(&mut self, current: &[[f32; 3]], pose: &OdomPose) -> usize {
+        self.merged[..current.len()].copy_from_slice(current);
+        let mut n = current.len();
+        self.owner.fill(0);
+        for q in current {
+            if let Some((ix, iy)) = BevGrid::cell_of(q[0], q[1]) {
+                self.owner[ix * BEV_CELLS + iy] = 1;
+            }
+        }
+        let (s, c) = libm::sincosf(pose.yaw);
+        let cap = self.cfg.points_per_keyframe;
+        for age in 0..self.len {
+            let slot = self.slot(age);
+            let tag = 2 + age as u8;
+            for p in &self.points[slot * cap..slot * cap + self.counts[slot]] {
+                let (dx, dy) = (p[0] - pose.pos[0], p[1] - pose.pos[1]);
+                let q = [c * dx + s * dy, -s * dx + c * dy, p[2] - pose.pos[2] + pose.height];
+                let Some((ix, iy)) = BevGrid::cell_of(q[0], q[1]) else {
+                    continue;
+                };
+                let o = &mut self.owner[ix * BEV_CELLS + iy];
+                if *o == 0 || *o == tag {
+                    *o = tag;
+                    self.merged[n] = q;
+                    n += 1;
+                }
+            }
+        }
+        n
     }
 }
 
