@@ -3,6 +3,14 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
+# A full run writes about 6 GB of build output (target/, the deploy image, the HIL VM); on a fuller
+# disk it stops minutes in with "No space left on device", so say so up front.
+need_gb=6
+free_gb=$(( $(df -Pk "$root" | awk 'NR==2 {print $4}') / 1048576 ))
+if (( free_gb < need_gb )); then
+  echo "[test] WARNING: ${free_gb} GB free on the disk holding $root; a fresh run needs about ${need_gb} GB." >&2
+  echo "[test] Free space first (cargo clean in old checkouts, rm -rf target/) or the build may run out." >&2
+fi
 scripts/install.sh
 start=$(date +%s)
 cargo fmt --all -- --check
@@ -22,4 +30,4 @@ echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64
 hil_start=$(date +%s)
 cargo xtask hil
 echo "[test] HIL suite passed in $(( $(date +%s) - hil_start )) s" >&2
-echo "[test] all tests passed in $(( $(date +%s) - start )) s" >&2
+echo "[test] all tests passed in $(( $(date +%s) - start )) s; target/ holds $(du -sh target | cut -f1)" >&2
