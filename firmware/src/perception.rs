@@ -18,7 +18,7 @@
 //! Everything is allocated in [`Perception::new`]; a step does not allocate.
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
 use hal::{PointFrame, TerrainToken};
-use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter};
+use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter};
 use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 use sim_hal::bridge::LIDAR_FRAME_CAP;
 
@@ -291,16 +291,14 @@ impl Perception {
             ];
             let r = mat_vec(&unyaw, d);
             let q = [r[0], r[1], r[2] + now.height];
-            if !q.iter().all(|v| v.is_finite()) {
-                non_finite += 1;
-                continue;
+            match self.filter.classify(q) {
+                PointClass::NonFinite => non_finite += 1,
+                PointClass::SelfHit => self_hits += 1,
+                PointClass::Terrain => {
+                    self.scratch[n] = q;
+                    n += 1;
+                }
             }
-            if self.filter.contains(q) {
-                self_hits += 1;
-                continue;
-            }
-            self.scratch[n] = q;
-            n += 1;
         }
         let odom = OdomPose {
             pos: now.pos,

@@ -273,6 +273,30 @@ impl SelfFilter {
     pub fn contains(&self, p: [f32; 3]) -> bool {
         self.boxes[..self.count].iter().any(|b| b.contains(p))
     }
+
+    /// Whether a robot-frame point is terrain to grid: the one rule every gridding path (the
+    /// builder, the firmware's motion-compensated frame, the dataset renderer) applies.
+    #[inline]
+    pub fn classify(&self, q: [f32; 3]) -> PointClass {
+        if !(q[0].is_finite() && q[1].is_finite() && q[2].is_finite()) {
+            PointClass::NonFinite
+        } else if self.contains(q) {
+            PointClass::SelfHit
+        } else {
+            PointClass::Terrain
+        }
+    }
+}
+
+/// What [`SelfFilter::classify`] makes of a robot-frame point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PointClass {
+    /// A NaN or infinite coordinate.
+    NonFinite,
+    /// On the robot's own body.
+    SelfHit,
+    /// Goes to the grid.
+    Terrain,
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -342,14 +366,11 @@ impl BevBuilder {
         };
         for p in points {
             let q = frame.apply(p.xyz);
-            if !(q[0].is_finite() && q[1].is_finite() && q[2].is_finite()) {
-                stats.non_finite += 1;
-            } else if filter.contains(q) {
-                stats.self_hits += 1;
-            } else if self.add(q) {
-                stats.used += 1;
-            } else {
-                stats.outside += 1;
+            match filter.classify(q) {
+                PointClass::NonFinite => stats.non_finite += 1,
+                PointClass::SelfHit => stats.self_hits += 1,
+                PointClass::Terrain if self.add(q) => stats.used += 1,
+                PointClass::Terrain => stats.outside += 1,
             }
         }
         self.finish(out);

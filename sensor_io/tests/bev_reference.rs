@@ -330,6 +330,12 @@ fn self_filter_drops_the_robots_body() {
     assert!(filter.contains([0.35, -0.40, 2.5]));
     assert!(!filter.contains([0.36, 0.0, 0.5]));
     assert!(!filter.contains([f32::NAN, 0.0, 0.0]));
+    assert_eq!(filter.classify([0.0, 0.0, 0.5]), PointClass::SelfHit);
+    assert_eq!(filter.classify([0.5, 0.0, 0.1]), PointClass::Terrain);
+    assert_eq!(filter.classify([0.0, f32::INFINITY, 0.1]), PointClass::NonFinite);
+    // A NaN inside the body box is non-finite first, as `BevStats` counts it.
+    assert_eq!(filter.classify([0.0, 0.0, f32::NAN]), PointClass::NonFinite);
+    assert_eq!(SelfFilter::NONE.classify([0.0, 0.0, 0.5]), PointClass::Terrain);
     let frame = RobotFrame::new(&MountPose::IDENTITY, 0.0, 0.0, 0.0);
     let pts: Vec<LidarPoint> = [
         [0.1, 0.1, 0.3],

@@ -59,7 +59,9 @@ use std::sync::mpsc;
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator};
 use hal::{wrap_angle, LidarPoint, PointFrame, TerrainClass, TerrainToken};
 use mujoco_rs::prelude::*;
-use sensor_io::bev::{BevBuilder, BevGrid, BevStats, MountPose, RobotFrame, SelfFilter, BEV_CELLS, BEV_CHANNELS};
+use sensor_io::bev::{
+    BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter, BEV_CELLS, BEV_CHANNELS,
+};
 pub use sensor_io::bev_memory::MemoryConfig;
 use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 use sensor_io::livox::{FrameAssembler, PacketWriter};
@@ -466,13 +468,13 @@ impl WorldRenderer {
         let bev_pitch = rpy[1] + an * rng.gaussian();
         let bev_height = body.pos[2] - ground + hn * rng.gaussian();
         let frame = RobotFrame::new(&self.mount, bev_roll as f32, bev_pitch as f32, bev_height as f32);
-        // What `BevBuilder::build` does before gridding (the firmware grids via `BevMemory`).
+        // The firmware's rule for which points are terrain (it grids them via `BevMemory`).
         self.robot.clear();
         self.robot.extend(
             frame_points
                 .iter()
                 .map(|p| frame.apply(p.xyz))
-                .filter(|q| q.iter().all(|v| v.is_finite()) && !SelfFilter::G1_DEFAULT.contains(*q)),
+                .filter(|&q| SelfFilter::G1_DEFAULT.classify(q) == PointClass::Terrain),
         );
         FrameInfo {
             body,
