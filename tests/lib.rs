@@ -85,12 +85,40 @@ pub fn venv_python(what: &str) -> Option<PathBuf> {
     None
 }
 
-/// A fresh scratch directory under the system temp dir, unique per test.
-pub fn scratch_dir(name: &str) -> PathBuf {
+/// A fresh scratch directory under the system temp dir, unique per test. Removed when the guard
+/// drops, unless the test is failing: then its logs and reports stay for inspection (the path is
+/// printed). Runs used to leave ~12 MB each in /tmp, on a disk CI shares.
+pub fn scratch_dir(name: &str) -> ScratchDir {
     let d = std::env::temp_dir().join(format!("g1-it-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("temp dir");
-    d
+    ScratchDir(d)
+}
+
+/// See [`scratch_dir`]; derefs to its path.
+pub struct ScratchDir(PathBuf);
+
+impl std::ops::Deref for ScratchDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for ScratchDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("test failed: its files are kept in {}", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// Runs the built `g1fw` with `args` from the repository root.
@@ -118,4 +146,30 @@ pub fn perturb_first_weight(bytes: &[u8]) -> Vec<u8> {
     let nv = if v == 0.0 { 1e-3 } else { v * 1.001 };
     out[at..at + 4].copy_from_slice(&nv.to_le_bytes());
     out
+}
+
+#[cfg(test)]
+mod scratch_tests {
+    use super::scratch_dir;
+
+    #[test]
+    fn scratch_dirs_go_away_unless_the_test_fails() {
+        let passed = scratch_dir("scratch-selftest-pass");
+        std::fs::write(passed.join("log.mcap"), b"x").unwrap();
+        let path = passed.to_path_buf();
+        drop(passed);
+        assert!(!path.exists(), "a passing test's scratch dir is removed");
+
+        let failing = scratch_dir("scratch-selftest-fail");
+        std::fs::write(failing.join("log.mcap"), b"x").unwrap();
+        let kept = failing.to_path_buf();
+        // The guard drops while the panic unwinds, as in a failing test.
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+            let _guard = failing;
+            panic!("a failing test");
+        }))
+        .unwrap_err();
+        assert!(kept.join("log.mcap").exists(), "a failing test keeps its files");
+        std::fs::remove_dir_all(kept).unwrap();
+    }
 }

@@ -243,7 +243,8 @@ fn same_inputs_give_the_same_commands_on_the_bus() {
     if shared_dir().is_none() {
         return skip_or_fail("CAN determinism");
     }
-    let log = scratch_dir("can_bus_log").join("det_a.mcap");
+    let dir = scratch_dir("can_bus_log");
+    let log = dir.join("det_a.mcap");
     let a = run_scenario(
         "det_a",
         Scenario {
@@ -387,7 +388,8 @@ fn an_imu_that_stops_ends_the_run_in_damping() {
     if shared_dir().is_none() {
         return skip_or_fail("CAN silent IMU");
     }
-    let log = scratch_dir("can_bus_log").join("imu_off.mcap");
+    let dir = scratch_dir("can_bus_imu_off");
+    let log = dir.join("imu_off.mcap");
     let r = run_scenario(
         "imu_off",
         Scenario {

@@ -75,5 +75,4 @@ fn perturbed_peer_weights_diverge_at_the_first_policy_step() {
     assert!(d.field.starts_with("values["), "{d}");
     // Start-up is 0.6 s (300 ticks): the first policy step is at tick 310.
     assert_eq!(d.tick, 310, "{d}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -68,7 +68,6 @@ fn run(name: &str, faults: &[&str], schedule: Option<&str>) -> Option<Outcome> {
         "{name}: log closed properly: {:?}",
         end.truncated
     );
-    let _ = std::fs::remove_dir_all(&dir);
     Some(Outcome {
         report,
         trips,

@@ -110,7 +110,6 @@ fn kill_9_mid_run_keeps_every_flushed_chunk() {
         assert_eq!(v["contiguous"], true);
         assert!(v["metadata"]["g1fw.run"].as_array().unwrap().len() > 5, "{v}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -165,7 +164,6 @@ fn python_mcap_reads_a_complete_log_like_we_do() {
     let out = g1fw(&["plot", log.to_str().unwrap(), "--out", png.to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -228,5 +226,4 @@ fn a_fresh_log_replays_bit_exact_and_perturbed_weights_diverge() {
         stderr.contains("/policy/") && stderr.contains("values["),
         "names channel and field: {stderr}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -182,7 +182,6 @@ fn a_terrain_policy_replays_bit_exact_from_its_lidar_frames_and_without_them_is_
             && stderr.contains("terrain_token"),
         "{stderr}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -217,7 +216,6 @@ fn a_world_log_without_lidar_frames_still_replays_when_the_policy_ignores_the_to
         notes.contains("/lidar/frame") && notes.contains("not compared"),
         "{notes}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 // ---- The tick path with lidar frames and their logging does not allocate. ----
@@ -408,7 +406,6 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
         }
     });
     assert_eq!(logged, fresh_steps);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The perception group runs after the command is out (runtime step 6), so a token reaches the
@@ -468,5 +465,4 @@ fn a_new_terrain_token_reaches_the_policy_at_the_next_policy_step() {
         checked >= 10,
         "only {checked} token changes on policy ticks: {tokens:?}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
