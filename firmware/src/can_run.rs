@@ -124,7 +124,9 @@ pub fn run_on<B: CanBuses>(
     let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
     let interfaces = layout.interfaces.clone();
     let period_ns = (control_dt * 1e9).round() as u64;
-    let mut hal = CanHal::open(buses, layout, period_ns, opts.startup_timeout)?;
+    // Everything that allocates or locks memory happens before the motors enter motor mode: once
+    // `CanHal::open` has their replies and the IMU's first sample, the first command must follow
+    // at once (under the HIL VM, building these after the handshake held it back ~0.8 s).
     let mut logger = match &opts.log {
         Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
         None => None,
@@ -133,6 +135,7 @@ pub fn run_on<B: CanBuses>(
     let last_tick = opts.duration_s.map_or(u64::MAX, |d| (d / control_dt).round() as u64);
     let mut runtime = Runtime::new(controller);
     runtime.disable_frozen_check();
+    let mut hal = CanHal::open(buses, layout, period_ns, opts.startup_timeout)?;
     let mut operator = opts.schedule.source(period_ns);
     let wall = Instant::now();
     let mut ticks = 0u64;
