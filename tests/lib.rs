@@ -105,12 +105,6 @@ impl std::ops::Deref for ScratchDir {
     }
 }
 
-impl AsRef<Path> for ScratchDir {
-    fn as_ref(&self) -> &Path {
-        &self.0
-    }
-}
-
 impl Drop for ScratchDir {
     fn drop(&mut self) {
         if std::thread::panicking() {

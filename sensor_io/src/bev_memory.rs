@@ -65,10 +65,17 @@ impl MemoryConfig {
         points_per_keyframe: 8192,
     };
     /// Single-frame grids.
-    pub const OFF: MemoryConfig = MemoryConfig {
-        keyframes: 0,
-        ..Self::DEFAULT
-    };
+    pub const OFF: MemoryConfig = Self::with_keyframes(0);
+    /// What the built-in network was trained with.
+    pub const BUILTIN: MemoryConfig = Self::with_keyframes(BUILTIN_NETWORK_KEYFRAMES);
+
+    /// [`MemoryConfig::DEFAULT`] with `keyframes` keyframes.
+    pub const fn with_keyframes(keyframes: usize) -> Self {
+        MemoryConfig {
+            keyframes,
+            ..Self::DEFAULT
+        }
+    }
 }
 
 /// Keyframes of the grids the firmware's built-in terrain network was trained on: the default of
@@ -77,19 +84,6 @@ impl MemoryConfig {
 /// 172 000 single-frame samples); a network trained on memory grids (4) is not yet better — see the
 /// README.
 pub const BUILTIN_NETWORK_KEYFRAMES: usize = 0;
-
-impl MemoryConfig {
-    /// [`MemoryConfig::DEFAULT`] with `keyframes` keyframes.
-    pub const fn with_keyframes(keyframes: usize) -> Self {
-        MemoryConfig {
-            keyframes,
-            ..Self::DEFAULT
-        }
-    }
-
-    /// What the built-in network was trained with.
-    pub const BUILTIN: MemoryConfig = Self::with_keyframes(BUILTIN_NETWORK_KEYFRAMES);
-}
 
 impl Default for MemoryConfig {
     fn default() -> Self {
