@@ -5,7 +5,7 @@
 use hal::{LowCommand, LowState, MotorCommand, TickTime, MOTOR_MODE_ENABLED, NUM_MOTORS};
 
 use crate::nn::{Network, NnError};
-use crate::obs::{ObsInputs, ObservationBuilder};
+use crate::policy_io::PolicyIo;
 use crate::spec::DeploySpec;
 
 #[derive(Debug, thiserror::Error)]
@@ -49,13 +49,9 @@ pub struct Controller {
     spec: DeploySpec,
     /// `None`: hold-only mode (no policy loaded; ramp to the default pose and stay there).
     net: Option<Network>,
-    obs: ObservationBuilder,
-    obs_buf: Vec<f32>,
+    /// Observation and action rules (shared with the trainer).
+    io: PolicyIo,
     action: Vec<f32>,
-    last_action: Vec<f32>,
-    joint_pos_rel: Vec<f32>,
-    joint_vel: Vec<f32>,
-    action_scale: Vec<f32>,
     /// Per slot: driven or held, target pose, gains.
     enabled: [bool; NUM_MOTORS],
     default_q: [f32; NUM_MOTORS],
@@ -66,9 +62,6 @@ pub struct Controller {
     startup_kd: [f32; NUM_MOTORS],
     target_q: [f32; NUM_MOTORS],
     start_q: [f32; NUM_MOTORS],
-    /// Target limits per slot (robot joint range shrunk by the spec's margin).
-    q_min: [f32; NUM_MOTORS],
-    q_max: [f32; NUM_MOTORS],
     /// Policy targets clamped into range, total.
     clamped_targets: u64,
     /// Tick at which the current start-up began (0, or the tick of the last operator reset).
@@ -77,8 +70,6 @@ pub struct Controller {
     engage_tick: u64,
     decimation: u64,
     policy_steps: u64,
-    /// Policy steps since the current start-up (drives the gait phase clock).
-    policy_steps_since_start: u64,
     mode: Mode,
 }
 
@@ -133,24 +124,12 @@ impl Controller {
                 startup_kd[slot] = v[i];
             }
         }
-        let (mut q_min, mut q_max) = ([f32::NEG_INFINITY; NUM_MOTORS], [f32::INFINITY; NUM_MOTORS]);
-        let margin = spec.safety.joint_range_margin_rad;
-        for s in 0..NUM_MOTORS {
-            if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[s] {
-                (q_min[s], q_max[s]) = (lo + margin, hi - margin);
-            }
-        }
         let hz = spec.rates.control_hz as f64;
         let ramp_ticks = (spec.startup.ramp_s * hz).round() as u64;
         let engage_tick = ramp_ticks + (spec.startup.hold_s * hz).round() as u64;
         Ok(Self {
-            obs: ObservationBuilder::new(&spec),
-            obs_buf: vec![0.0; spec.observation_dim()],
+            io: PolicyIo::new(&spec),
             action: vec![0.0; n],
-            last_action: vec![0.0; n],
-            joint_pos_rel: vec![0.0; n],
-            joint_vel: vec![0.0; n],
-            action_scale: p.action_scale.expand(n).expect("validated by DeploySpec"),
             decimation: spec.decimation() as u64,
             enabled,
             default_q,
@@ -160,14 +139,11 @@ impl Controller {
             startup_kd,
             target_q: default_q,
             start_q: default_q,
-            q_min,
-            q_max,
             clamped_targets: 0,
             start_tick: 0,
             ramp_ticks,
             engage_tick,
             policy_steps: 0,
-            policy_steps_since_start: 0,
             mode: Mode::Startup,
             net,
             spec,
@@ -213,11 +189,11 @@ impl Controller {
     }
     /// The observation of the newest policy step.
     pub fn observation(&self) -> &[f32] {
-        &self.obs_buf
+        self.io.observation()
     }
     /// The raw policy output of the newest policy step.
     pub fn last_action(&self) -> &[f32] {
-        &self.last_action
+        self.io.last_action()
     }
     /// sha256 of the weights file, or "none" in hold-only mode.
     pub fn weights_sha256(&self) -> String {
@@ -242,9 +218,7 @@ impl Controller {
             self.start_q[s] = state.motors[s].q;
         }
         self.target_q = self.start_q;
-        self.last_action.iter_mut().for_each(|a| *a = 0.0);
-        self.policy_steps_since_start = 0;
-        self.obs.reset();
+        self.io.reset();
         if let Some(net) = self.net.as_mut() {
             net.reset();
         }
@@ -307,55 +281,16 @@ impl Controller {
         command: [f32; 3],
         terrain: hal::TerrainToken,
     ) -> Result<(), DampingReason> {
-        let p = &self.spec.policy;
-        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
-            self.joint_pos_rel[i] = state.motors[slot].q - p.default_pose[i];
-            self.joint_vel[i] = state.motors[slot].dq;
-        }
-        let mut cmd = command;
-        if let Some(lo) = self.spec.commands.min {
-            (0..3).for_each(|i| cmd[i] = cmd[i].max(lo[i]));
-        }
-        if let Some(hi) = self.spec.commands.max {
-            (0..3).for_each(|i| cmd[i] = cmd[i].min(hi[i]));
-        }
-        let phase = match &self.spec.phase {
-            Some(ph) => {
-                let t = ph.first_step_time_s + self.policy_steps_since_start as f64 / self.spec.rates.policy_hz as f64;
-                (t.rem_euclid(ph.period_s) / ph.period_s) as f32
-            }
-            None => 0.0,
-        };
-        let inputs = ObsInputs {
-            gyro: state.imu.gyroscope,
-            quat: state.imu.quaternion,
-            command: cmd,
-            joint_pos_rel: &self.joint_pos_rel,
-            joint_vel: &self.joint_vel,
-            last_action: &self.last_action,
-            phase,
-            terrain,
-        };
-        self.obs.build(&inputs, &mut self.obs_buf);
+        let obs = self.io.observe(state, command, terrain);
         self.policy_steps += 1;
-        self.policy_steps_since_start += 1;
-        if self.obs_buf.iter().any(|v| !v.is_finite()) {
+        if obs.iter().any(|v| !v.is_finite()) {
             return Err(DampingReason::NonFiniteObservation);
         }
         let Some(net) = self.net.as_mut() else { return Ok(()) };
-        if net.step(&self.obs_buf, &mut self.action).is_err() || self.action.iter().any(|a| !a.is_finite()) {
+        if net.step(obs, &mut self.action).is_err() || self.action.iter().any(|a| !a.is_finite()) {
             return Err(DampingReason::NonFiniteAction);
         }
-        if let Some(c) = p.action_clip {
-            self.action.iter_mut().for_each(|a| *a = a.clamp(-c, c));
-        }
-        self.last_action.copy_from_slice(&self.action);
-        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
-            let q = p.default_pose[i] + self.action_scale[i] * self.action[i];
-            let clamped = q.clamp(self.q_min[slot], self.q_max[slot]);
-            self.clamped_targets += (clamped != q) as u64;
-            self.target_q[slot] = clamped;
-        }
+        self.clamped_targets += self.io.apply_action(&self.action, &mut self.target_q);
         Ok(())
     }
 

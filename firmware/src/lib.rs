@@ -3,6 +3,7 @@
 //! - [`spec`]: the deploy spec (one TOML per policy), validated at load.
 //! - [`obs`]: observation builder (terms, scales, clips, history layouts).
 //! - [`nn`]: fixed-buffer network executor (Linear, ELU/ReLU/Tanh, stateful LSTM) over safetensors.
+//! - [`policy_io`]: state → observation and action → PD targets, shared by the controller and the trainer.
 //! - [`controller`]: start-up ramp, policy at its rate, PD targets, latched damping.
 //! - [`supervisor`]: safety checks on every frame; the reasons for latched damping.
 //! - [`runtime`]: the tick with its rate groups in a fixed order, and the loop over any HAL.
@@ -24,6 +25,7 @@ pub mod obs;
 pub mod operator;
 pub mod perception;
 pub mod plot;
+pub mod policy_io;
 pub mod replay;
 pub mod robot;
 pub mod rt;

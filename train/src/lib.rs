@@ -14,3 +14,4 @@ pub mod export;
 pub mod fit;
 pub mod model;
 pub mod plot;
+pub mod ppo;

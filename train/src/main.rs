@@ -122,6 +122,76 @@ enum Cmd {
         #[arg(long)]
         quiet: bool,
     },
+    /// Train the stair policy with PPO on in-process MuJoCo environments (README "Stair policy").
+    ///
+    /// Observations, action rules and the actor's executor are the firmware's own, built from
+    /// --spec. Writes into --out: checkpoint.safetensors + state.json (re-running the same
+    /// command resumes), history.json and curves.png (learning curves), g1_stairs_lstm.safetensors
+    /// (the actor as g1fw loads it; `g1-train ppo-export` puts it beside the spec).
+    Ppo {
+        /// The deploy spec to train (its observation, gains, rates and network layout).
+        #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml")]
+        spec: PathBuf,
+        /// g1-12dof (default), g1-29dof (upper body held by the spec's [[held]] groups) or an MJCF.
+        #[arg(long, default_value = "g1-12dof")]
+        model: g1_sim::ModelChoice,
+        #[arg(long)]
+        out: PathBuf,
+        /// Parallel environments.
+        #[arg(long, default_value_t = 64)]
+        envs: usize,
+        /// Worker threads stepping environments (default: every core).
+        #[arg(long, default_value_t = default_jobs())]
+        threads: usize,
+        /// Total PPO iterations (a resumed run continues up to this count).
+        #[arg(long, default_value_t = 1000)]
+        iterations: usize,
+        /// Policy steps per environment and iteration.
+        #[arg(long, default_value_t = 24)]
+        steps: usize,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Warm start: an LSTM-64 actor in the peer walker's safetensors layout (its input is
+        /// widened with zero columns for the token), e.g.
+        /// ../shared/peer_policy/unitree_g1_lstm/policy.safetensors. Ignored when resuming.
+        #[arg(long)]
+        init_actor: Option<PathBuf>,
+        /// Initial action noise standard deviation (actions are in units of action_scale).
+        #[arg(long, default_value_t = 0.3)]
+        init_std: f64,
+        /// Iterations that train only the critic (after a warm start).
+        #[arg(long, default_value_t = 10)]
+        critic_warmup: usize,
+        /// Starting learning rate (adaptive KL from there).
+        #[arg(long, default_value_t = 1e-4)]
+        lr: f64,
+        #[arg(long, default_value_t = 0.005)]
+        entropy_coef: f64,
+        /// Episode length, s.
+        #[arg(long, default_value_t = 12.0)]
+        episode_s: f64,
+        /// Highest curriculum level environments start at (0: 5 cm steps … 10: 26 cm).
+        #[arg(long, default_value_t = 2)]
+        max_init_level: usize,
+        /// No observation/token noise, latency or pushes (tests).
+        #[arg(long)]
+        no_randomization: bool,
+        /// Checkpoint at least this often, s.
+        #[arg(long, default_value_t = 120.0)]
+        checkpoint_every: f64,
+        /// Stop (after a checkpoint) once this run has spent this many seconds.
+        #[arg(long, default_value_t = f64::INFINITY)]
+        max_wall: f64,
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Write a PPO checkpoint's actor as the weights file its deploy spec names.
+    PpoExport {
+        #[arg(long)]
+        checkpoint: PathBuf,
+        #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml")]
+        spec: PathBuf,
+    },
 }
 
 fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terrain_net::TerrainNet> {
@@ -159,6 +229,76 @@ fn main() -> anyhow::Result<()> {
     keep_freed_tensors_in_the_heap();
     let cli = Cli::parse();
     match cli.cmd {
+        Cmd::Ppo {
+            spec,
+            model,
+            out,
+            envs,
+            threads,
+            iterations,
+            steps,
+            seed,
+            init_actor,
+            init_std,
+            critic_warmup,
+            lr,
+            entropy_coef,
+            episode_s,
+            max_init_level,
+            no_randomization,
+            checkpoint_every,
+            max_wall,
+            quiet,
+        } => {
+            tracing_subscriber::fmt().with_writer(std::io::stderr).init();
+            let cfg = train::ppo::runner::RunConfig {
+                spec,
+                model,
+                out: out.clone(),
+                envs,
+                threads,
+                iterations,
+                seed,
+                init_actor,
+                init_std,
+                critic_warmup,
+                episode_s,
+                ppo: train::ppo::algo::PpoConfig {
+                    steps,
+                    lr,
+                    entropy_coef,
+                    ..Default::default()
+                },
+                random: if no_randomization {
+                    train::ppo::env::Randomization::NONE
+                } else {
+                    train::ppo::env::Randomization::DEFAULT
+                },
+                max_init_level,
+                checkpoint_every_s: checkpoint_every,
+                quiet,
+                max_wall_s: max_wall,
+            };
+            let history = train::ppo::runner::train(&cfg)?;
+            if let Some(l) = history.last() {
+                println!(
+                    "iteration {}: {} env steps in {:.0} s ({:.0} steps/s, learner {:.0} % of wall time); \
+                     reward/step {:+.3}, level {:.2}; curves in {}",
+                    l.iteration,
+                    l.env_steps,
+                    l.wall_s,
+                    l.env_steps_per_s,
+                    100.0 * l.learner_share,
+                    l.mean_reward_per_step,
+                    l.mean_level,
+                    out.join(train::ppo::runner::CURVES).display()
+                );
+            }
+        }
+        Cmd::PpoExport { checkpoint, spec } => {
+            let path = train::ppo::runner::export(&checkpoint, &spec)?;
+            println!("wrote {}", path.display());
+        }
         Cmd::Fit {
             data,
             out,

@@ -223,3 +223,58 @@ pub fn training_png(path: &Path, log: &[EpochLog]) -> anyhow::Result<()> {
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }
+
+/// PPO learning curves against env steps (millions): return, success, level, falls.
+pub fn ppo_curves_png(path: &Path, log: &[crate::ppo::runner::IterLog]) -> anyhow::Result<()> {
+    check_png(path)?;
+    let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let areas = root.split_evenly((2, 2));
+    let xmax = log.last().map_or(1.0, |l| l.env_steps as f64 / 1e6).max(1e-3);
+    let x = (0.0, xmax);
+    let series = |f: &dyn Fn(&crate::ppo::runner::IterLog) -> Option<f64>| -> Vec<(f64, f64)> {
+        log.iter().filter_map(|l| f(l).map(|v| (l.env_steps as f64 / 1e6, v))).collect()
+    };
+    let xl = "env steps (M)";
+    panel(
+        &areas[0],
+        "mean reward per policy step",
+        xl,
+        x,
+        &[("reward/step", CNN, series(&|l| Some(l.mean_reward_per_step)))],
+        None,
+        false,
+    )?;
+    panel(
+        &areas[1],
+        "stair episodes: success / falls (%)",
+        xl,
+        x,
+        &[
+            ("success", CNN, series(&|l| l.success_rate.map(|v| 100.0 * v))),
+            ("falls (all)", BASE, series(&|l| l.fall_rate.map(|v| 100.0 * v))),
+        ],
+        None,
+        false,
+    )?;
+    panel(
+        &areas[2],
+        "mean terrain level (0: 5 cm … 10: 26 cm)",
+        xl,
+        x,
+        &[("level", CNN, series(&|l| Some(l.mean_level)))],
+        None,
+        false,
+    )?;
+    panel(
+        &areas[3],
+        "episode return",
+        xl,
+        x,
+        &[("return", CNN, series(&|l| l.mean_episode_return))],
+        None,
+        false,
+    )?;
+    root.present().with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}

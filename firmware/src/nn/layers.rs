@@ -106,6 +106,17 @@ impl Layer {
         }
     }
 
+    /// Recurrent state of this layer (`h` then `c` of an LSTM; empty for stateless layers).
+    pub(crate) fn state_parts(&mut self) -> Option<(&mut [f32], &mut [f32])> {
+        match self {
+            Layer::Lstm(l) => {
+                let input = l.input;
+                Some((&mut l.xh[input..], &mut l.c))
+            }
+            _ => None,
+        }
+    }
+
     /// Restores recurrent state to its initial value; no-op for stateless layers.
     pub(crate) fn reset(&mut self) {
         if let Layer::Lstm(l) = self {

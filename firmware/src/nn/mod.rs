@@ -244,6 +244,38 @@ impl Network {
         }
     }
 
+    /// Length of the recurrent state: `h` and `c` of every LSTM layer, in layer order.
+    pub fn state_len(&mut self) -> usize {
+        self.layers
+            .iter_mut()
+            .filter_map(Layer::state_parts)
+            .map(|(h, c)| h.len() + c.len())
+            .sum()
+    }
+
+    /// Copies the recurrent state into `out` (length [`Network::state_len`]): per LSTM layer `h`
+    /// then `c`. The PPO trainer stores it at the start of each rollout to replay the sequence.
+    pub fn read_state(&mut self, out: &mut [f32]) {
+        let mut at = 0;
+        for (h, c) in self.layers.iter_mut().filter_map(Layer::state_parts) {
+            out[at..at + h.len()].copy_from_slice(h);
+            at += h.len();
+            out[at..at + c.len()].copy_from_slice(c);
+            at += c.len();
+        }
+    }
+
+    /// Sets the recurrent state from `state` (the layout of [`Network::read_state`]).
+    pub fn write_state(&mut self, state: &[f32]) {
+        let mut at = 0;
+        for (h, c) in self.layers.iter_mut().filter_map(Layer::state_parts) {
+            h.copy_from_slice(&state[at..at + h.len()]);
+            at += h.len();
+            c.copy_from_slice(&state[at..at + c.len()]);
+            at += c.len();
+        }
+    }
+
     /// Runs one step: `output = net(input)`, advancing recurrent state.
     ///
     /// Allocates nothing. Fails only if a slice length differs from

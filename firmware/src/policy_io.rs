@@ -1,0 +1,147 @@
+//! The policy's two interfaces with the robot, defined once: state → observation, and action → PD
+//! targets. The controller runs them on the robot and in `g1fw sim`; the PPO trainer (`g1-train
+//! ppo`) runs the very same code on its simulated states, so trainer and firmware observe and act
+//! identically by construction (`train/tests/` checks it on recorded states).
+//!
+//! Fixed allocation: every buffer is sized in [`PolicyIo::new`]; the per-step calls allocate nothing.
+use hal::{LowState, TerrainToken, NUM_MOTORS};
+
+use crate::obs::{ObsInputs, ObservationBuilder};
+use crate::spec::DeploySpec;
+
+pub struct PolicyIo {
+    obs: ObservationBuilder,
+    obs_buf: Vec<f32>,
+    last_action: Vec<f32>,
+    joint_pos_rel: Vec<f32>,
+    joint_vel: Vec<f32>,
+    action_scale: Vec<f32>,
+    default_pose: Vec<f32>,
+    joint_ids_map: Vec<usize>,
+    cmd_min: Option<[f32; 3]>,
+    cmd_max: Option<[f32; 3]>,
+    /// Gait clock: (first step time, period) in seconds, if the spec has one.
+    phase: Option<(f64, f64)>,
+    policy_hz: f64,
+    action_clip: Option<f32>,
+    /// Target limits per slot (robot joint range shrunk by the spec's margin).
+    q_min: [f32; NUM_MOTORS],
+    q_max: [f32; NUM_MOTORS],
+    /// Policy steps since the last [`PolicyIo::reset`] (drives the gait phase clock).
+    steps_since_reset: u64,
+}
+
+impl PolicyIo {
+    pub fn new(spec: &DeploySpec) -> Self {
+        let n = spec.num_joints();
+        let p = &spec.policy;
+        let (mut q_min, mut q_max) = ([f32::NEG_INFINITY; NUM_MOTORS], [f32::INFINITY; NUM_MOTORS]);
+        let margin = spec.safety.joint_range_margin_rad;
+        for s in 0..NUM_MOTORS {
+            if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[s] {
+                (q_min[s], q_max[s]) = (lo + margin, hi - margin);
+            }
+        }
+        Self {
+            obs: ObservationBuilder::new(spec),
+            obs_buf: vec![0.0; spec.observation_dim()],
+            last_action: vec![0.0; n],
+            joint_pos_rel: vec![0.0; n],
+            joint_vel: vec![0.0; n],
+            action_scale: p.action_scale.expand(n).expect("validated by DeploySpec"),
+            default_pose: p.default_pose.clone(),
+            joint_ids_map: p.joint_ids_map.clone(),
+            cmd_min: spec.commands.min,
+            cmd_max: spec.commands.max,
+            phase: spec.phase.as_ref().map(|ph| (ph.first_step_time_s, ph.period_s)),
+            policy_hz: spec.rates.policy_hz as f64,
+            action_clip: p.action_clip,
+            q_min,
+            q_max,
+            steps_since_reset: 0,
+        }
+    }
+
+    /// A fresh episode: no history, last action zero, gait clock at its start.
+    pub fn reset(&mut self) {
+        self.last_action.iter_mut().for_each(|a| *a = 0.0);
+        self.steps_since_reset = 0;
+        self.obs.reset();
+    }
+
+    pub fn dim(&self) -> usize {
+        self.obs_buf.len()
+    }
+
+    /// The operator command clamped to the spec's `[commands]` limits.
+    pub fn clamp_command(&self, command: [f32; 3]) -> [f32; 3] {
+        let mut cmd = command;
+        if let Some(lo) = self.cmd_min {
+            (0..3).for_each(|i| cmd[i] = cmd[i].max(lo[i]));
+        }
+        if let Some(hi) = self.cmd_max {
+            (0..3).for_each(|i| cmd[i] = cmd[i].min(hi[i]));
+        }
+        cmd
+    }
+
+    /// Builds this policy step's observation from the robot's state, the operator command and
+    /// the terrain token, and advances the gait clock. Returns the observation (length
+    /// [`PolicyIo::dim`]); it may hold NaN if the state did (the caller decides what that means).
+    pub fn observe(&mut self, state: &LowState, command: [f32; 3], terrain: TerrainToken) -> &[f32] {
+        for (i, &slot) in self.joint_ids_map.iter().enumerate() {
+            self.joint_pos_rel[i] = state.motors[slot].q - self.default_pose[i];
+            self.joint_vel[i] = state.motors[slot].dq;
+        }
+        let phase = match self.phase {
+            Some((first, period)) => {
+                let t = first + self.steps_since_reset as f64 / self.policy_hz;
+                (t.rem_euclid(period) / period) as f32
+            }
+            None => 0.0,
+        };
+        let inputs = ObsInputs {
+            gyro: state.imu.gyroscope,
+            quat: state.imu.quaternion,
+            command: self.clamp_command(command),
+            joint_pos_rel: &self.joint_pos_rel,
+            joint_vel: &self.joint_vel,
+            last_action: &self.last_action,
+            phase,
+            terrain,
+        };
+        self.obs.build(&inputs, &mut self.obs_buf);
+        self.steps_since_reset += 1;
+        &self.obs_buf
+    }
+
+    /// The newest observation.
+    pub fn observation(&self) -> &[f32] {
+        &self.obs_buf
+    }
+
+    /// The newest (clipped) action, as the next observation's `last_action` will see it.
+    pub fn last_action(&self) -> &[f32] {
+        &self.last_action
+    }
+
+    /// Turns a raw network output into PD position targets: clip (spec `action_clip`), remember
+    /// as the last action, `q = default + scale · action`, clamped to the joint range. Writes the
+    /// policy's slots of `target_q` and returns how many targets were clamped.
+    pub fn apply_action(&mut self, action: &[f32], target_q: &mut [f32; NUM_MOTORS]) -> u64 {
+        for (a, &raw) in self.last_action.iter_mut().zip(action) {
+            *a = match self.action_clip {
+                Some(c) => raw.clamp(-c, c),
+                None => raw,
+            };
+        }
+        let mut clamped = 0;
+        for (i, &slot) in self.joint_ids_map.iter().enumerate() {
+            let q = self.default_pose[i] + self.action_scale[i] * self.last_action[i];
+            let c = q.clamp(self.q_min[slot], self.q_max[slot]);
+            clamped += (c != q) as u64;
+            target_q[slot] = c;
+        }
+        clamped
+    }
+}

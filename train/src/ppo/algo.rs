@@ -1,0 +1,367 @@
+//! PPO as rsl_rl does it (the runner legged_gym, IsaacLab and mjlab use), readable top to bottom:
+//! rollouts of `steps` per environment, GAE, then `epochs` passes over `minibatches` of whole
+//! environment sequences (the actor is recurrent: each sequence is replayed from the LSTM state it
+//! started from, resetting where an episode started), with the clipped surrogate, clipped value
+//! loss, entropy bonus, gradient-norm clipping and the adaptive-KL learning rate.
+use candle_core::{Device, Tensor, Var};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use g1_sim::rng::Rng;
+
+use super::policy::{ActorCritic, HIDDEN};
+
+#[derive(Clone, Copy, Debug)]
+pub struct PpoConfig {
+    pub steps: usize,
+    pub epochs: usize,
+    pub minibatches: usize,
+    pub clip: f64,
+    pub value_coef: f64,
+    pub entropy_coef: f64,
+    pub gamma: f64,
+    pub lambda: f64,
+    pub max_grad_norm: f64,
+    pub desired_kl: f64,
+    pub lr: f64,
+}
+
+impl Default for PpoConfig {
+    /// rsl_rl's defaults, except the learning rate: 1e-4 to start a fine-tune (adaptive from there).
+    fn default() -> Self {
+        Self {
+            steps: 24,
+            epochs: 5,
+            minibatches: 4,
+            clip: 0.2,
+            value_coef: 1.0,
+            entropy_coef: 0.005,
+            gamma: 0.99,
+            lambda: 0.95,
+            max_grad_norm: 1.0,
+            desired_kl: 0.01,
+            lr: 1e-4,
+        }
+    }
+}
+
+/// One environment's rollout: `steps` rows of everything PPO needs.
+pub struct EnvRollout {
+    pub obs: Vec<f32>,
+    pub critic_obs: Vec<f32>,
+    pub actions: Vec<f32>,
+    pub means: Vec<f32>,
+    pub logp: Vec<f32>,
+    pub rewards: Vec<f32>,
+    pub terminated: Vec<bool>,
+    pub truncated: Vec<bool>,
+    /// 0 where an episode starts at this step (the LSTM state is reset before it).
+    pub masks: Vec<f32>,
+    /// Critic observation of the final state of an episode truncated at this step.
+    pub final_critic_obs: Vec<f32>,
+    /// Critic observation after the last step (bootstrap).
+    pub next_critic_obs: Vec<f32>,
+    /// LSTM h then c before step 0.
+    pub state0: Vec<f32>,
+    // Filled by the learner.
+    pub values: Vec<f32>,
+    pub advantages: Vec<f32>,
+    pub returns: Vec<f32>,
+}
+
+impl EnvRollout {
+    pub fn new(steps: usize, obs: usize, critic: usize, act: usize) -> Self {
+        Self {
+            obs: vec![0.0; steps * obs],
+            critic_obs: vec![0.0; steps * critic],
+            actions: vec![0.0; steps * act],
+            means: vec![0.0; steps * act],
+            logp: vec![0.0; steps],
+            rewards: vec![0.0; steps],
+            terminated: vec![false; steps],
+            truncated: vec![false; steps],
+            masks: vec![1.0; steps],
+            final_critic_obs: vec![0.0; steps * critic],
+            next_critic_obs: vec![0.0; critic],
+            state0: vec![0.0; 2 * HIDDEN],
+            values: vec![0.0; steps],
+            advantages: vec![0.0; steps],
+            returns: vec![0.0; steps],
+        }
+    }
+}
+
+/// log N(a; mean, exp(log_std)) summed over dimensions.
+pub fn gaussian_logp(a: &[f32], mean: &[f32], log_std: &[f32]) -> f32 {
+    let mut s = 0.0f64;
+    for ((&a, &m), &ls) in a.iter().zip(mean).zip(log_std) {
+        let z = (a - m) as f64 / (ls as f64).exp();
+        s += -0.5 * z * z - ls as f64 - 0.5 * (2.0 * std::f64::consts::PI).ln();
+    }
+    s as f32
+}
+
+/// Running mean and variance of the critic's inputs (Welford), applied before the critic.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct Normalizer {
+    pub count: f64,
+    pub mean: Vec<f64>,
+    pub m2: Vec<f64>,
+}
+
+impl Normalizer {
+    pub fn new(dim: usize) -> Self {
+        Self {
+            count: 0.0,
+            mean: vec![0.0; dim],
+            m2: vec![0.0; dim],
+        }
+    }
+
+    pub fn update(&mut self, rows: &[f32]) {
+        let d = self.mean.len();
+        for row in rows.chunks_exact(d) {
+            self.count += 1.0;
+            for (i, &x) in row.iter().enumerate() {
+                let delta = x as f64 - self.mean[i];
+                self.mean[i] += delta / self.count;
+                self.m2[i] += delta * (x as f64 - self.mean[i]);
+            }
+        }
+    }
+
+    pub fn apply(&self, rows: &[f32]) -> Vec<f32> {
+        let d = self.mean.len();
+        let std: Vec<f64> = self
+            .m2
+            .iter()
+            .map(|m| (m / self.count.max(1.0) + 1e-8).sqrt())
+            .collect();
+        rows.chunks_exact(d)
+            .flat_map(|row| {
+                row.iter()
+                    .enumerate()
+                    .map(|(i, &x)| ((x as f64 - self.mean[i]) / std[i]).clamp(-5.0, 5.0) as f32)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+}
+
+/// Values for every row of `rows` (critic inputs, un-normalised).
+pub fn values(ac: &ActorCritic, norm: &Normalizer, rows: &[f32]) -> candle_core::Result<Vec<f32>> {
+    let n = rows.len() / ac.critic_dim;
+    if n == 0 {
+        return Ok(Vec::new());
+    }
+    let x = Tensor::from_vec(norm.apply(rows), (n, ac.critic_dim), &Device::Cpu)?;
+    ac.value(&x)?.to_vec1()
+}
+
+/// Fills `values`, `advantages` and `returns` of every rollout (GAE; time-outs and successes
+/// bootstrap from the value of their final state).
+pub fn compute_gae(ac: &ActorCritic, norm: &Normalizer, rolls: &mut [EnvRollout], cfg: &PpoConfig) -> candle_core::Result<()> {
+    let t = cfg.steps;
+    for r in rolls.iter_mut() {
+        r.values = values(ac, norm, &r.critic_obs)?;
+        let next_v = values(ac, norm, &r.next_critic_obs)?[0];
+        let final_v = values(ac, norm, &r.final_critic_obs)?;
+        let mut gae = 0.0f64;
+        for s in (0..t).rev() {
+            let mut rew = r.rewards[s] as f64;
+            if r.truncated[s] {
+                rew += cfg.gamma * final_v[s] as f64;
+            }
+            let done = r.terminated[s] || r.truncated[s];
+            let nonterminal = if done { 0.0 } else { 1.0 };
+            let nv = if s + 1 < t { r.values[s + 1] } else { next_v } as f64;
+            let delta = rew + cfg.gamma * nv * nonterminal - r.values[s] as f64;
+            gae = delta + cfg.gamma * cfg.lambda * nonterminal * gae;
+            r.advantages[s] = gae as f32;
+            r.returns[s] = (gae + r.values[s] as f64) as f32;
+        }
+    }
+    Ok(())
+}
+
+/// What one update did.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct UpdateStats {
+    pub surrogate: f64,
+    pub value_loss: f64,
+    pub entropy: f64,
+    pub kl: f64,
+    pub lr: f64,
+    pub mean_std: f64,
+}
+
+pub struct Learner {
+    pub cfg: PpoConfig,
+    opt: AdamW,
+    critic_opt: AdamW,
+    vars: Vec<Var>,
+    pub lr: f64,
+    rng: Rng,
+}
+
+fn adam(vars: Vec<Var>, lr: f64) -> candle_core::Result<AdamW> {
+    AdamW::new(
+        vars,
+        ParamsAdamW {
+            lr,
+            weight_decay: 0.0,
+            ..ParamsAdamW::default()
+        },
+    )
+}
+
+impl Learner {
+    pub fn new(ac: &ActorCritic, cfg: PpoConfig, seed: u64) -> candle_core::Result<Self> {
+        Ok(Self {
+            opt: adam(ac.all_vars(), cfg.lr)?,
+            critic_opt: adam(ac.critic_vars(), 1e-3)?,
+            vars: ac.all_vars(),
+            lr: cfg.lr,
+            cfg,
+            rng: Rng(seed ^ 0x11EA_12E2),
+        })
+    }
+
+    /// One PPO update over the rollouts. With `critic_only`, the actor is left as it is (the
+    /// critic's warm-up after a warm start: a random critic's advantages would wreck a good actor).
+    pub fn update(
+        &mut self,
+        ac: &ActorCritic,
+        norm: &Normalizer,
+        rolls: &[EnvRollout],
+        critic_only: bool,
+    ) -> candle_core::Result<UpdateStats> {
+        let cfg = self.cfg;
+        let (t, o, c, a) = (cfg.steps, ac.obs_dim, ac.critic_dim, ac.act_dim);
+        let dev = Device::Cpu;
+        let e = rolls.len();
+        let mb = e.div_ceil(cfg.minibatches).max(1);
+        let mut stats = UpdateStats::default();
+        let mut n = 0.0f64;
+        for _ in 0..cfg.epochs {
+            let mut order: Vec<usize> = (0..e).collect();
+            for i in (1..e).rev() {
+                let j = self.rng.int(0, i as u64) as usize;
+                order.swap(i, j);
+            }
+            for chunk in order.chunks(mb) {
+                let b = chunk.len();
+                // Time-major [T, B, ·] tensors of this minibatch.
+                let gather = |f: &dyn Fn(&EnvRollout) -> &[f32], w: usize| -> Vec<f32> {
+                    let mut v = Vec::with_capacity(t * b * w);
+                    for s in 0..t {
+                        for &k in chunk {
+                            v.extend_from_slice(&f(&rolls[k])[s * w..(s + 1) * w]);
+                        }
+                    }
+                    v
+                };
+                let obs = Tensor::from_vec(gather(&|r| &r.obs, o), (t, b, o), &dev)?;
+                let act = Tensor::from_vec(gather(&|r| &r.actions, a), (t, b, a), &dev)?;
+                let old_mean = gather(&|r| &r.means, a);
+                let masks = Tensor::from_vec(gather(&|r| &r.masks, 1), (t, b, 1), &dev)?;
+                let old_logp = Tensor::from_vec(gather(&|r| &r.logp, 1), (t, b), &dev)?;
+                let mut adv = gather(&|r| &r.advantages, 1);
+                let mean_adv = adv.iter().map(|&x| x as f64).sum::<f64>() / adv.len() as f64;
+                let std_adv = (adv.iter().map(|&x| (x as f64 - mean_adv).powi(2)).sum::<f64>() / adv.len() as f64)
+                    .sqrt()
+                    .max(1e-8);
+                adv.iter_mut().for_each(|x| *x = ((*x as f64 - mean_adv) / std_adv) as f32);
+                let adv = Tensor::from_vec(adv, (t, b), &dev)?;
+                let ret = Tensor::from_vec(gather(&|r| &r.returns, 1), t * b, &dev)?;
+                let old_v = Tensor::from_vec(gather(&|r| &r.values, 1), t * b, &dev)?;
+                let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c)), (t * b, c), &dev)?;
+                let mut h0 = Vec::with_capacity(b * HIDDEN);
+                let mut c0 = Vec::with_capacity(b * HIDDEN);
+                for &k in chunk {
+                    h0.extend_from_slice(&rolls[k].state0[..HIDDEN]);
+                    c0.extend_from_slice(&rolls[k].state0[HIDDEN..]);
+                }
+                let h0 = Tensor::from_vec(h0, (b, HIDDEN), &dev)?;
+                let c0 = Tensor::from_vec(c0, (b, HIDDEN), &dev)?;
+
+                // Value loss (clipped around the rollout's values).
+                let v = ac.value(&cobs)?;
+                let v_clip = (&old_v + (&v - &old_v)?.clamp(-cfg.clip, cfg.clip)?)?;
+                let vl = (&v - &ret)?.sqr()?.maximum(&(&v_clip - &ret)?.sqr()?)?.mean_all()?;
+                if critic_only {
+                    let grads = vl.backward()?;
+                    self.critic_opt.step(&grads)?;
+                    stats.value_loss += vl.to_scalar::<f32>()? as f64;
+                    n += 1.0;
+                    continue;
+                }
+
+                let mean = ac.actor_sequence(&obs, &h0, &c0, &masks)?;
+                let log_std = ac.log_std();
+                // KL(old || new) on this minibatch (before the step) drives the learning rate.
+                let new_mean: Vec<f32> = mean.flatten_all()?.to_vec1()?;
+                let ls: Vec<f32> = log_std.to_vec1()?;
+                let old_ls = &ls; // σ changes little within one update; rsl_rl uses the stored σ
+                let mut kl = 0.0f64;
+                for (row_new, row_old) in new_mean.chunks_exact(a).zip(old_mean.chunks_exact(a)) {
+                    for j in 0..a {
+                        let (sn, so) = ((ls[j] as f64).exp(), (old_ls[j] as f64).exp());
+                        kl += (sn / so).ln() + (so * so + (row_old[j] - row_new[j]).powi(2) as f64) / (2.0 * sn * sn) - 0.5;
+                    }
+                }
+                kl /= (t * b) as f64;
+                if kl > 2.0 * cfg.desired_kl {
+                    self.lr = (self.lr / 1.5).max(1e-5);
+                } else if kl < 0.5 * cfg.desired_kl && kl > 0.0 {
+                    self.lr = (self.lr * 1.5).min(1e-2);
+                }
+                self.opt.set_learning_rate(self.lr);
+
+                let inv_std = log_std.neg()?.exp()?;
+                let z = (&act - &mean)?.broadcast_mul(&inv_std)?;
+                let logp = ((z.sqr()? * -0.5)?.broadcast_sub(&log_std)? - 0.5 * (2.0 * std::f64::consts::PI).ln())?.sum(2)?;
+                let ratio = (&logp - &old_logp)?.exp()?;
+                let s1 = (&ratio * &adv)?;
+                let s2 = (ratio.clamp(1.0 - cfg.clip, 1.0 + cfg.clip)? * &adv)?;
+                let surrogate = s1.minimum(&s2)?.mean_all()?.neg()?;
+                let entropy = (log_std.sum_all()? + a as f64 * 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln())?;
+                let loss = ((&surrogate + (&vl * cfg.value_coef)?)? - (&entropy * cfg.entropy_coef)?)?;
+                let mut grads = loss.backward()?;
+                clip_grad_norm(&mut grads, &self.vars, cfg.max_grad_norm)?;
+                self.opt.step(&grads)?;
+
+                stats.surrogate += surrogate.to_scalar::<f32>()? as f64;
+                stats.value_loss += vl.to_scalar::<f32>()? as f64;
+                stats.entropy += entropy.to_scalar::<f32>()? as f64;
+                stats.kl += kl;
+                n += 1.0;
+            }
+        }
+        for v in [&mut stats.surrogate, &mut stats.value_loss, &mut stats.entropy, &mut stats.kl] {
+            *v /= n.max(1.0);
+        }
+        stats.lr = self.lr;
+        let ls: Vec<f32> = ac.log_std().to_vec1()?;
+        stats.mean_std = ls.iter().map(|&x| (x as f64).exp()).sum::<f64>() / ls.len() as f64;
+        Ok(stats)
+    }
+}
+
+fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[Var], max: f64) -> candle_core::Result<()> {
+    let mut sq = 0.0f64;
+    for v in vars {
+        if let Some(g) = grads.get(v.as_tensor()) {
+            sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
+        }
+    }
+    let norm = sq.sqrt();
+    if norm > max {
+        let k = max / (norm + 1e-6);
+        for v in vars {
+            if let Some(g) = grads.get(v.as_tensor()) {
+                let scaled = (g * k)?;
+                grads.insert(v.as_tensor(), scaled);
+            }
+        }
+    }
+    Ok(())
+}

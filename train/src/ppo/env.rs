@@ -1,0 +1,713 @@
+//! One training environment: the G1 in MuJoCo (`g1_sim::Simulator`, in process) on a stair world,
+//! observed and commanded through the firmware's own `PolicyIo` built from the deploy spec, with the
+//! actor run by the firmware's own executor (`firmware::nn::Network`).
+//!
+//! Per policy step (50 Hz): the simulator's `LowState` (plus observation noise) → `PolicyIo::observe`
+//! with the operator command (`firmware::operator`-style heading hold) and the privileged terrain
+//! token (`World::truth`, paper stage 1, refreshed at the perception rate of 10 Hz with noise shaped
+//! like the CNN's errors) → actor → `PolicyIo::apply_action` (clip, scale, joint-range clamp) → PD
+//! targets with the spec's gains → 4 physics steps of 5 ms, the new command arriving after a random
+//! latency of 0–4 of them. Rewards are in [`super::reward`].
+//!
+//! Determinism: an environment draws everything from its own seeded generator, so a rollout is the
+//! same for the same seed whatever the thread count.
+use std::sync::Arc;
+
+use firmware::nn::Network;
+use firmware::policy_io::PolicyIo;
+use firmware::spec::DeploySpec;
+use g1_sim::rng::Rng;
+use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
+use g1_sim::{ModelChoice, SimConfig, Simulator};
+use hal::{LowCommand, LowState, TerrainClass, TerrainToken, MOTOR_MODE_ENABLED, NUM_MOTORS};
+use mujoco_rs::mujoco_c::_mjtObjBase;
+
+use super::reward::{self, Terms, WEIGHTS};
+
+pub const PHYSICS_DT: f64 = 0.005;
+pub const DECIMATION: usize = 4;
+pub const POLICY_DT: f64 = PHYSICS_DT * DECIMATION as f64;
+/// Policy steps between terrain-token refreshes (perception at 10 Hz).
+pub const TOKEN_PERIOD: u32 = 5;
+/// Curriculum levels: step height `0.05 + 0.021·level` m, 0.05 … 0.26 m.
+pub const LEVELS: usize = 11;
+/// Privileged critic inputs beyond the actor's observation: body velocity (3), base height above
+/// the ground (1), true token (4), foot contacts (2), terrain heights along the heading (11), foot
+/// clearances (2).
+pub const CRITIC_EXTRA: usize = 23;
+/// Terrain samples for the critic: along the heading from −0.3 m to 1.2 m.
+const HEIGHT_SAMPLES: usize = 11;
+/// Success: the base this far past the last riser, m (on the end landing).
+pub const LANDING_MARGIN: f64 = 0.5;
+
+pub fn level_height(level: usize) -> f64 {
+    0.05 + 0.021 * level as f64
+}
+
+/// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Column {
+    Flat,
+    Up,
+    Down,
+    OutdoorUp,
+    OutdoorDown,
+}
+
+impl Column {
+    /// Share of environments per column.
+    const MIX: [(Column, f64); 5] = [
+        (Column::Flat, 0.15),
+        (Column::Up, 0.3),
+        (Column::Down, 0.3),
+        (Column::OutdoorUp, 0.125),
+        (Column::OutdoorDown, 0.125),
+    ];
+
+    fn draw(rng: &mut Rng) -> Column {
+        let mut u = rng.uniform();
+        for (c, p) in Self::MIX {
+            if u < p {
+                return c;
+            }
+            u -= p;
+        }
+        Column::Flat
+    }
+}
+
+/// What an environment randomises (all on by default; tests turn them off).
+#[derive(Clone, Copy, Debug)]
+pub struct Randomization {
+    /// Uniform observation noise: gyro (rad/s), joint position (rad), joint velocity (rad/s).
+    pub obs_noise: [f32; 3],
+    /// Token noise like the CNN's measured errors: h σ (m), d σ (m), yaw σ (rad), class flips
+    /// when the labelled riser sits near the look-ahead box's far edge (probability).
+    pub token_noise: [f64; 4],
+    /// Action latency drawn per episode, physics steps (0 … this).
+    pub max_latency_steps: usize,
+    /// Random pushes: velocity change (m/s) every 4–8 s.
+    pub push_mps: f64,
+}
+
+impl Randomization {
+    pub const DEFAULT: Self = Self {
+        obs_noise: [0.2, 0.01, 1.5],
+        token_noise: [0.01, 0.02, 0.045, 0.3],
+        max_latency_steps: DECIMATION,
+        push_mps: 0.5,
+    };
+    pub const NONE: Self = Self {
+        obs_noise: [0.0; 3],
+        token_noise: [0.0; 4],
+        max_latency_steps: 0,
+        push_mps: 0.0,
+    };
+}
+
+#[derive(Clone, Debug)]
+pub struct EnvConfig {
+    pub model: ModelChoice,
+    pub spec: Arc<DeploySpec>,
+    pub episode_s: f64,
+    pub random: Randomization,
+    /// Commanded forward speed range, m/s.
+    pub vx: (f64, f64),
+    /// Highest curriculum level a new environment starts at.
+    pub max_init_level: usize,
+}
+
+/// Result of one step.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepOut {
+    pub reward: f32,
+    /// The episode ended by a fall or trip (no bootstrap).
+    pub terminated: bool,
+    /// The episode ended by time-out or success (bootstrap from the value of the final state).
+    pub truncated: bool,
+}
+
+/// Statistics of a finished episode.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct EpisodeEnd {
+    pub column: Option<Column>,
+    pub level: usize,
+    pub success: bool,
+    pub fell: bool,
+    pub ret: f64,
+    pub steps: usize,
+}
+
+pub struct StairEnv {
+    cfg: EnvConfig,
+    sim: Simulator,
+    io: PolicyIo,
+    pub net: Network,
+    rng: Rng,
+    world: World,
+    pub column: Column,
+    pub level: usize,
+    vx_cmd: f32,
+    heading: f64,
+    token: TerrainToken,
+    token_phase: u32,
+    latency: usize,
+    kp: [f32; NUM_MOTORS],
+    kd: [f32; NUM_MOTORS],
+    enabled: [bool; NUM_MOTORS],
+    default_q: [f32; NUM_MOTORS],
+    target_q: [f32; NUM_MOTORS],
+    cmd_now: LowCommand,
+    cmd_prev: LowCommand,
+    state: LowState,
+    slots: Vec<usize>,
+    prev_action: Vec<f32>,
+    prev_dq: Vec<f32>,
+    air_time: [f64; 2],
+    contact_time: [f64; 2],
+    prev_foot: [[f64; 3]; 2],
+    foot_body: [usize; 2],
+    sole_offset: f64,
+    step: usize,
+    max_steps: usize,
+    next_push: usize,
+    progress: f64,
+    fell: bool,
+    ret: f64,
+    pub last_end: Option<EpisodeEnd>,
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI) - std::f64::consts::PI
+}
+
+/// Forward speed with heading hold: the operator command `g1fw eval` sends too
+/// (`wz = clamp(0.5 · wrap(target − yaw), ±0.5)`).
+pub fn heading_command(vx: f32, target_yaw: f64, yaw: f64) -> [f32; 3] {
+    [vx, 0.0, (0.5 * wrap(target_yaw - yaw)).clamp(-0.5, 0.5) as f32]
+}
+
+fn yaw_of(q: [f64; 4]) -> f64 {
+    let [w, x, y, z] = q;
+    (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
+}
+
+impl StairEnv {
+    /// An environment running the actor `weights` (safetensors in the spec's network layout).
+    pub fn new(cfg: EnvConfig, seed: u64, weights: &[u8]) -> anyhow::Result<Self> {
+        let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5747_5254);
+        let world = World::preset("flat").expect("preset");
+        let sim = Self::load_sim(&cfg, &world, seed)?;
+        let spec = &cfg.spec;
+        let io = PolicyIo::new(spec);
+        let net = Network::from_safetensors_bytes(&spec.policy.network, weights)?;
+        let mut kp = [0.0; NUM_MOTORS];
+        let mut kd = [0.0; NUM_MOTORS];
+        let mut enabled = [false; NUM_MOTORS];
+        let mut default_q = [0.0; NUM_MOTORS];
+        let present = sim.motor_slots_present();
+        for (i, &slot) in spec.policy.joint_ids_map.iter().enumerate() {
+            (kp[slot], kd[slot], default_q[slot]) = (spec.policy.kp[i], spec.policy.kd[i], spec.policy.default_pose[i]);
+            enabled[slot] = present & (1 << slot) != 0;
+        }
+        let m = sim.data().model();
+        let body = |n: &str| {
+            m.name_to_id(_mjtObjBase::mjOBJ_BODY.into(), n)
+                .ok_or_else(|| anyhow::anyhow!("model has no body {n}"))
+        };
+        let foot_body = [body("left_ankle_roll_link")?, body("right_ankle_roll_link")?];
+        let n = spec.num_joints();
+        let level = rng.int(0, cfg.max_init_level as u64) as usize;
+        let mut env = Self {
+            max_steps: (cfg.episode_s / POLICY_DT).round() as usize,
+            io,
+            net,
+            world,
+            column: Column::draw(&mut rng),
+            level,
+            vx_cmd: 0.0,
+            heading: 0.0,
+            token: TerrainToken::FLAT,
+            token_phase: 0,
+            latency: 0,
+            kp,
+            kd,
+            enabled,
+            default_q,
+            target_q: default_q,
+            cmd_now: LowCommand::default(),
+            cmd_prev: LowCommand::default(),
+            state: LowState::default(),
+            slots: spec.policy.joint_ids_map.clone(),
+            prev_action: vec![0.0; n],
+            prev_dq: vec![0.0; n],
+            air_time: [0.0; 2],
+            contact_time: [0.0; 2],
+            prev_foot: [[0.0; 3]; 2],
+            foot_body,
+            sole_offset: 0.0,
+            step: 0,
+            next_push: 0,
+            progress: f64::NEG_INFINITY,
+            fell: false,
+            ret: 0.0,
+            last_end: None,
+            rng,
+            sim,
+            cfg,
+        };
+        env.reset()?;
+        Ok(env)
+    }
+
+    fn load_sim(cfg: &EnvConfig, world: &World, seed: u64) -> anyhow::Result<Simulator> {
+        let sc = SimConfig {
+            physics_dt: PHYSICS_DT,
+            control_dt: PHYSICS_DT,
+            seed,
+            imu_noise: None,
+        };
+        Ok(Simulator::load_in(cfg.model.clone(), sc, Some(world))?)
+    }
+
+    /// Draws the next world from the curriculum.
+    fn draw_world(&mut self) -> World {
+        let r = &mut self.rng;
+        let (kind, outdoor) = match self.column {
+            Column::Flat => return World::preset("flat").expect("preset"),
+            Column::Up => (TerrainKind::StairsUp, false),
+            Column::Down => (TerrainKind::StairsDown, false),
+            Column::OutdoorUp => (TerrainKind::StairsUp, true),
+            Column::OutdoorDown => (TerrainKind::StairsDown, true),
+        };
+        let start_distance = r.range(0.6, 2.0);
+        let width = r.range(1.2, 2.5);
+        let spec = TerrainSpec {
+            kind,
+            step_height: (level_height(self.level) + r.range(-0.01, 0.01)).clamp(0.04, 0.27),
+            step_depth: r.range(0.22, 0.40),
+            steps: r.int(3, 8) as usize,
+            width,
+            yaw_deg: r.range(-30.0, 30.0),
+            start_distance,
+            lateral_offset: r.range(-0.15, 0.15) * width,
+            landing_before: start_distance + r.range(1.0, 2.0),
+            landing_after: r.range(1.5, 3.0),
+            outdoor: outdoor.then(|| Outdoor {
+                height_jitter: 0.1,
+                depth_jitter: 0.1,
+                tread_slope_deg: r.range(0.0, 3.0),
+                nosing_radius: r.range(0.0, 0.03),
+                seed: r.next_u64(),
+            }),
+        };
+        World::build("train", spec).unwrap_or_else(|_| World::preset("flat").expect("preset"))
+    }
+
+    /// Ends the current episode's bookkeeping (curriculum) and starts a new one.
+    pub fn reset(&mut self) -> anyhow::Result<()> {
+        if self.step > 0 {
+            let success = self.succeeded();
+            self.last_end = Some(EpisodeEnd {
+                column: Some(self.column),
+                level: self.level,
+                success,
+                fell: self.fell,
+                ret: self.ret,
+                steps: self.step,
+            });
+            if self.column != Column::Flat {
+                let last = self.last_riser_s();
+                if success {
+                    self.level += 1;
+                    if self.level >= LEVELS {
+                        self.level = self.rng.int(0, LEVELS as u64 - 1) as usize;
+                    }
+                } else if self.progress < 0.5 * last {
+                    self.level = self.level.saturating_sub(1);
+                }
+            }
+            self.column = Column::draw(&mut self.rng);
+        }
+        self.world = self.draw_world();
+        let seed = self.rng.next_u64();
+        self.sim = Self::load_sim(&self.cfg, &self.world, seed)?;
+        self.io.reset();
+        self.net.reset();
+        let r = self.cfg.random;
+        self.latency = self.rng.int(0, r.max_latency_steps as u64) as usize;
+        self.token_phase = self.rng.int(0, TOKEN_PERIOD as u64 - 1) as u32;
+        self.vx_cmd = if self.rng.chance(0.05) {
+            0.0
+        } else {
+            self.rng.range(self.cfg.vx.0, self.cfg.vx.1) as f32
+        };
+        self.heading = self.world.stairs.as_ref().map_or(0.0, |s| s.yaw) + 0.05 * self.rng.gaussian();
+        self.step = 0;
+        self.fell = false;
+        self.ret = 0.0;
+        self.progress = f64::NEG_INFINITY;
+        self.next_push = self.push_interval();
+        self.prev_action.iter_mut().for_each(|a| *a = 0.0);
+        self.air_time = [0.0; 2];
+        self.contact_time = [0.0; 2];
+        // Stand in the default pose (what g1fw's start-up ramp ends in), then let it settle.
+        let qpos_adr = self.slot_qpos_adr();
+        {
+            let d = self.sim.data_mut();
+            let qpos = d.qpos_mut();
+            for (slot, adr) in qpos_adr {
+                qpos[adr] = self.default_q[slot] as f64 + 0.02 * (self.rng.uniform() - 0.5);
+            }
+            d.forward();
+        }
+        self.target_q = self.default_q;
+        self.cmd_now = self.command(&self.target_q.clone());
+        self.cmd_prev = self.cmd_now;
+        for _ in 0..10 * DECIMATION {
+            self.sim.apply_command(&self.cmd_now)?;
+            self.sim.step_control_tick();
+        }
+        self.sim.low_state(&mut self.state);
+        for (i, &slot) in self.slots.iter().enumerate() {
+            self.prev_dq[i] = self.state.motors[slot].dq as f64 as f32;
+        }
+        let feet = self.feet();
+        self.prev_foot = feet;
+        self.sole_offset = 0.5 * (0..2).map(|f| feet[f][2] - self.ground(feet[f][0], feet[f][1])).sum::<f64>();
+        self.refresh_token(true);
+        Ok(())
+    }
+
+    fn push_interval(&mut self) -> usize {
+        (self.rng.range(4.0, 8.0) / POLICY_DT) as usize
+    }
+
+    fn slot_qpos_adr(&self) -> Vec<(usize, usize)> {
+        let m = self.sim.data().model();
+        self.slots
+            .iter()
+            .filter(|&&s| self.enabled[s])
+            .filter_map(|&s| {
+                let name = format!("{}_joint", hal::G1_MOTOR_NAMES[s]);
+                m.name_to_id(_mjtObjBase::mjOBJ_JOINT.into(), &name)
+                    .map(|j| (s, m.jnt_qposadr()[j] as usize))
+            })
+            .collect()
+    }
+
+    fn command(&self, target: &[f32; NUM_MOTORS]) -> LowCommand {
+        let mut cmd = LowCommand {
+            mode_machine: self.sim.mode_machine(),
+            ..LowCommand::default()
+        };
+        for s in 0..NUM_MOTORS {
+            if self.enabled[s] {
+                let m = &mut cmd.motors[s];
+                m.mode = MOTOR_MODE_ENABLED;
+                m.q = target[s];
+                m.kp = self.kp[s];
+                m.kd = self.kd[s];
+            }
+        }
+        cmd
+    }
+
+    fn feet(&self) -> [[f64; 3]; 2] {
+        let x = self.sim.data().xpos();
+        [x[self.foot_body[0]], x[self.foot_body[1]]]
+    }
+
+    fn ground(&self, x: f64, y: f64) -> f64 {
+        self.world.ground_height(x, y)
+    }
+
+    fn last_riser_s(&self) -> f64 {
+        self.world
+            .stairs
+            .as_ref()
+            .and_then(|s| s.risers.last().map(|r| r.s))
+            .unwrap_or(0.0)
+    }
+
+    fn axis_s(&self, x: f64, y: f64) -> f64 {
+        self.world.stairs.as_ref().map_or(x, |s| s.to_axis(x, y).0)
+    }
+
+    fn succeeded(&self) -> bool {
+        self.world.stairs.is_some() && self.progress >= self.last_riser_s() + LANDING_MARGIN
+    }
+
+    fn refresh_token(&mut self, force: bool) {
+        if !force && !(self.step as u32 + self.token_phase).is_multiple_of(TOKEN_PERIOD) {
+            return;
+        }
+        let t = self.sim.truth();
+        let yaw = yaw_of(t.base_quat);
+        let (mut z, riser) = self.world.labelled_truth(t.base_pos[0], t.base_pos[1], yaw);
+        let n = self.cfg.random.token_noise;
+        if z.class != TerrainClass::Flat {
+            z.step_height_m += (n[0] * self.rng.gaussian()) as f32;
+            z.step_depth_m += (n[1] * self.rng.gaussian()) as f32;
+            z.yaw_rad += (n[2] * self.rng.gaussian()) as f32;
+            // The CNN's class errors sit at the far edge of the look-ahead box.
+            let near_edge = riser.is_some_and(|r| r.mid_x_m > world_edge() - 0.25);
+            if near_edge && self.rng.chance(n[3]) {
+                z = TerrainToken {
+                    class: TerrainClass::Flat,
+                    step_height_m: 0.0,
+                    step_depth_m: 0.0,
+                    ..z
+                };
+            }
+        }
+        self.token = z;
+    }
+
+    fn noisy_state(&mut self) -> LowState {
+        let mut s = self.state;
+        let [g, q, dq] = self.cfg.random.obs_noise;
+        if g > 0.0 {
+            for v in &mut s.imu.gyroscope {
+                *v += g * (2.0 * self.rng.uniform() as f32 - 1.0);
+            }
+            for &slot in &self.slots {
+                s.motors[slot].q += q * (2.0 * self.rng.uniform() as f32 - 1.0);
+                s.motors[slot].dq += dq * (2.0 * self.rng.uniform() as f32 - 1.0);
+            }
+        }
+        s
+    }
+
+    /// The operator's command now (heading hold toward the staircase axis).
+    pub fn operator_command(&self) -> [f32; 3] {
+        let q = self.state.imu.quaternion.map(|v| v as f64);
+        heading_command(self.vx_cmd, self.heading, yaw_of(q))
+    }
+
+    /// The actor's observation of the current state, built by the firmware's `PolicyIo`.
+    pub fn observe(&mut self) -> &[f32] {
+        let s = self.noisy_state();
+        let cmd = self.operator_command();
+        self.io.observe(&s, cmd, self.token)
+    }
+
+    /// Builds the observation and runs the actor's mean on it (the firmware's executor).
+    pub fn observe_and_act(&mut self, mean: &mut [f32]) -> anyhow::Result<&[f32]> {
+        let s = self.noisy_state();
+        let cmd = self.operator_command();
+        let obs = self.io.observe(&s, cmd, self.token);
+        self.net.step(obs, mean)?;
+        Ok(obs)
+    }
+
+    /// The newest observation without building a new one (the critic's bootstrap input after an
+    /// episode's last step; one policy step old, which the critic tolerates).
+    pub fn observe_peek(&self) -> Vec<f32> {
+        self.io.observation().to_vec()
+    }
+
+    /// New actor weights; the LSTM state carries over.
+    pub fn set_weights(&mut self, weights: &[u8]) -> anyhow::Result<()> {
+        let mut state = vec![0.0; self.net.state_len()];
+        self.net.read_state(&mut state);
+        self.net = Network::from_safetensors_bytes(&self.cfg.spec.policy.network, weights)?;
+        self.net.write_state(&state);
+        Ok(())
+    }
+
+    /// Privileged critic inputs (appended after the actor's observation).
+    pub fn critic_extra(&self, out: &mut [f32]) {
+        let t = self.sim.truth();
+        let yaw = yaw_of(t.base_quat);
+        let ground = self.ground(t.base_pos[0], t.base_pos[1]);
+        let z = self.world.truth(t.base_pos[0], t.base_pos[1], yaw);
+        let mut k = 0;
+        let mut put = |v: f64| {
+            out[k] = v as f32;
+            k += 1;
+        };
+        for v in t.base_lin_vel_body {
+            put(2.0 * v);
+        }
+        put(t.base_pos[2] - ground - 0.75);
+        put(z.class.index() as f64);
+        put(5.0 * z.step_height_m as f64);
+        put(2.5 * z.step_depth_m as f64);
+        put(z.yaw_rad as f64);
+        put(t.foot_contact[0] as u8 as f64);
+        put(t.foot_contact[1] as u8 as f64);
+        let (c, s) = (yaw.cos(), yaw.sin());
+        for i in 0..HEIGHT_SAMPLES {
+            let d = -0.3 + 0.15 * i as f64;
+            put(5.0 * (self.ground(t.base_pos[0] + c * d, t.base_pos[1] + s * d) - ground));
+        }
+        let feet = self.feet();
+        for f in feet {
+            put(5.0 * (f[2] - self.sole_offset - self.ground(f[0], f[1])));
+        }
+        debug_assert_eq!(k, CRITIC_EXTRA);
+    }
+
+    /// Applies `action` (raw network output) and advances one policy step.
+    pub fn step(&mut self, action: &[f32]) -> anyhow::Result<StepOut> {
+        self.io.apply_action(action, &mut self.target_q);
+        self.cmd_prev = self.cmd_now;
+        self.cmd_now = self.command(&self.target_q.clone());
+        for k in 0..DECIMATION {
+            let c = if k < self.latency { self.cmd_prev } else { self.cmd_now };
+            self.sim.apply_command(&c)?;
+            self.sim.step_control_tick();
+        }
+        self.step += 1;
+        if self.cfg.random.push_mps > 0.0 && self.step == self.next_push {
+            let p = self.cfg.random.push_mps;
+            let (dx, dy) = (self.rng.range(-p, p), self.rng.range(-p, p));
+            let v = self.sim.data_mut().qvel_mut();
+            v[0] += dx;
+            v[1] += dy;
+            self.next_push += self.push_interval();
+        }
+        self.sim.low_state(&mut self.state);
+        let (terms, terminated) = self.rewards(action);
+        let reward = terms.total(&WEIGHTS, POLICY_DT);
+        self.ret += reward;
+        let n = self.prev_action.len();
+        self.prev_action.copy_from_slice(&action[..n]);
+        self.refresh_token(false);
+        let truncated = !terminated && (self.step >= self.max_steps || self.succeeded());
+        self.fell |= terminated;
+        Ok(StepOut {
+            reward: reward as f32,
+            terminated,
+            truncated,
+        })
+    }
+
+    fn rewards(&mut self, action: &[f32]) -> (Terms, bool) {
+        let t = self.sim.truth();
+        let yaw = yaw_of(t.base_quat);
+        let (c, s) = (yaw.cos(), yaw.sin());
+        let v = t.base_lin_vel_world;
+        let (vx, vy) = (c * v[0] + s * v[1], -s * v[0] + c * v[1]);
+        let cmd = self.operator_command().map(|x| x as f64);
+        let w = t.base_ang_vel_body;
+        let g = estimator::projected_gravity(t.base_quat.map(|x| x as f32));
+        let mut r = Terms {
+            track_lin_vel_xy: (-((cmd[0] - vx).powi(2) + (cmd[1] - vy).powi(2)) / reward::TRACKING_STD.powi(2)).exp(),
+            track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / reward::TRACKING_STD.powi(2)).exp(),
+            flat_orientation: (g[0] as f64).powi(2) + (g[1] as f64).powi(2),
+            ang_vel_xy: w[0] * w[0] + w[1] * w[1],
+            ..Terms::default()
+        };
+        let mut max_speed: f64 = 0.0;
+        for (i, &slot) in self.slots.iter().enumerate() {
+            let m = &self.state.motors[slot];
+            let dq = m.dq as f64;
+            max_speed = max_speed.max(dq.abs());
+            r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
+            r.torques += self.sim.applied_torque(slot).powi(2);
+            r.joint_acc += ((dq - self.prev_dq[i] as f64) / POLICY_DT).powi(2);
+            self.prev_dq[i] = m.dq;
+            let name = hal::G1_MOTOR_NAMES[slot];
+            let dev = (m.q - self.default_q[slot]).abs() as f64;
+            if name.ends_with("hip_yaw") || name.ends_with("hip_roll") {
+                r.joint_deviation += dev;
+            }
+            if name.contains("ankle") {
+                if let Some((lo, hi)) = firmware::robot::G1_JOINT_RANGE[slot] {
+                    let (mid, half) = (0.5 * (lo + hi) as f64, 0.45 * (hi - lo) as f64);
+                    r.ankle_limits += ((m.q as f64 - mid).abs() - half).max(0.0);
+                }
+            }
+        }
+        // Feet.
+        let feet = self.feet();
+        let mut single = 0;
+        let mut in_mode = [0.0; 2];
+        for f in 0..2 {
+            let vel = [
+                (feet[f][0] - self.prev_foot[f][0]) / POLICY_DT,
+                (feet[f][1] - self.prev_foot[f][1]) / POLICY_DT,
+            ];
+            let speed = vel[0].hypot(vel[1]);
+            if t.foot_contact[f] {
+                r.feet_slide += speed;
+                self.contact_time[f] += POLICY_DT;
+                self.air_time[f] = 0.0;
+                single += 1;
+                in_mode[f] = self.contact_time[f];
+            } else {
+                self.air_time[f] += POLICY_DT;
+                self.contact_time[f] = 0.0;
+                in_mode[f] = self.air_time[f];
+                let (ux, uy) = if speed > 1e-3 { (vel[0] / speed, vel[1] / speed) } else { (c, s) };
+                let la = reward::CLEARANCE_LOOKAHEAD;
+                let terrain = self
+                    .ground(feet[f][0], feet[f][1])
+                    .max(self.ground(feet[f][0] + ux * la, feet[f][1] + uy * la));
+                let clearance = feet[f][2] - self.sole_offset - terrain;
+                r.foot_clearance += (clearance - reward::CLEARANCE_TARGET).powi(2) * speed;
+            }
+        }
+        if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {
+            let f = if t.foot_contact[0] { 0 } else { 1 };
+            r.feet_air_time = in_mode[f].min(reward::AIR_TIME_THRESHOLD);
+        }
+        self.prev_foot = feet;
+        // Contacts against the terrain: risers under the feet, anything else.
+        let d = self.sim.data();
+        let m = d.model();
+        let (gb, root) = (m.geom_bodyid(), m.body_rootid());
+        for con in d.contact() {
+            let (g1, g2) = (con.geom[0], con.geom[1]);
+            if g1 < 0 || g2 < 0 || con.dist > 0.0 {
+                continue;
+            }
+            let (b1, b2) = (gb[g1 as usize] as usize, gb[g2 as usize] as usize);
+            let (robot, other) = if root[b1] != 0 { (b1, b2) } else { (b2, b1) };
+            if root[other] != 0 || root[robot] == 0 {
+                continue;
+            }
+            if self.foot_body.contains(&robot) {
+                if con.frame[2].abs() < 0.5 {
+                    r.stumble += 1.0;
+                }
+            } else {
+                r.body_contact += 1.0;
+            }
+        }
+        // Progress along the staircase, for success and the curriculum.
+        self.progress = self.progress.max(self.axis_s(t.base_pos[0], t.base_pos[1]));
+        let tilt = (1.0 - 2.0 * (t.base_quat[1].powi(2) + t.base_quat[2].powi(2))).clamp(-1.0, 1.0).acos();
+        let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
+        let terminated =
+            tilt > reward::TILT_LIMIT_RAD || max_speed > reward::JOINT_SPEED_LIMIT || height < reward::MIN_BASE_HEIGHT;
+        if terminated {
+            r.termination = 1.0;
+        }
+        (r, terminated)
+    }
+
+    /// Whether the episode's world is a staircase and the robot has reached its end landing.
+    pub fn success(&self) -> bool {
+        self.succeeded()
+    }
+
+    pub fn world(&self) -> &World {
+        &self.world
+    }
+
+    /// The current (noise-free) LowState, for parity tests.
+    pub fn low_state(&self) -> &LowState {
+        &self.state
+    }
+
+    pub fn token(&self) -> TerrainToken {
+        self.token
+    }
+}
+
+fn world_edge() -> f64 {
+    g1_sim::world::LOOKAHEAD_X.1
+}

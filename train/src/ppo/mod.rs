@@ -1,0 +1,13 @@
+//! The stair-climbing policy: PPO on vectorised in-process MuJoCo environments of the G1, with the
+//! firmware's own observation, action and network code (`g1-train ppo`).
+//!
+//! - [`env`]: one environment (simulator, world, curriculum, randomisation, privileged token).
+//! - [`reward`]: every reward term and weight.
+//! - [`policy`]: the actor (LSTM, the peer walker's shape) and critic in candle; export.
+//! - [`algo`]: rollout storage, GAE and the PPO update.
+//! - [`runner`]: the loop, worker threads, checkpoints, curves.
+pub mod algo;
+pub mod env;
+pub mod policy;
+pub mod reward;
+pub mod runner;

@@ -1,0 +1,135 @@
+//! Every reward term of the stair policy and its weight, in one place.
+//!
+//! IsaacLab's rough-terrain G1 velocity reward (the paper's choice; `velocity_env_cfg.py` +
+//! `config/g1/rough_env_cfg.py`), plus two terms stairs need (mjlab's terrain-relative foot
+//! clearance and legged_gym's stumble penalty) and one for shins/knees hitting a riser. As in
+//! IsaacLab's reward manager, each term is `weight · value · dt` with dt = 0.02 s (one policy step),
+//! so the sum over a 20 s episode is comparable across step rates.
+//!
+//! | term | value (per policy step) | weight |
+//! |---|---|---|
+//! | `track_lin_vel_xy` | exp(−‖v_cmd,xy − v_xy‖² / 0.5²), v in the yaw frame | +1.0 |
+//! | `track_ang_vel_z` | exp(−(ω_cmd,z − ω_z)² / 0.5²) | +2.0 |
+//! | `feet_air_time` | biped: min(time in the current mode of the single stance foot, 0.4 s), if ‖cmd‖ > 0.1 | +0.25 |
+//! | `feet_slide` | Σ feet in contact ‖v_foot,xy‖ | −0.1 |
+//! | `flat_orientation` | ‖g_xy‖² (projected gravity) | −1.0 |
+//! | `ang_vel_xy` | ‖ω_xy‖² | −0.05 |
+//! | `action_rate` | ‖a_t − a_{t−1}‖² | −0.005 |
+//! | `torques` | Σ τ² (legs) | −1.5e-7 |
+//! | `joint_acc` | Σ q̈² (finite difference over the policy step) | −1.25e-7 |
+//! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
+//! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
+//! | `foot_clearance` | Σ swing feet (clearance − 0.10 m)² · ‖v_foot,xy‖; clearance from the highest terrain under and 0.12 m ahead of the foot | −2.0 |
+//! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
+//! | `body_contact` | any robot geom other than a foot touching the terrain | −1.0 |
+//! | `termination` | 1 on a fall or safety trip (not on time-out or success) | −200 |
+//!
+//! Terminations mirror what stops the robot in `g1fw`: tilt past the supervisor's 1 rad, any leg
+//! joint faster than its 10 rad/s guard, or the base within 0.4 m of the ground under it (fallen).
+
+/// Term weights (see the module table).
+#[derive(Clone, Copy, Debug)]
+pub struct Weights {
+    pub track_lin_vel_xy: f64,
+    pub track_ang_vel_z: f64,
+    pub feet_air_time: f64,
+    pub feet_slide: f64,
+    pub flat_orientation: f64,
+    pub ang_vel_xy: f64,
+    pub action_rate: f64,
+    pub torques: f64,
+    pub joint_acc: f64,
+    pub joint_deviation: f64,
+    pub ankle_limits: f64,
+    pub foot_clearance: f64,
+    pub stumble: f64,
+    pub body_contact: f64,
+    pub termination: f64,
+}
+
+pub const WEIGHTS: Weights = Weights {
+    track_lin_vel_xy: 1.0,
+    track_ang_vel_z: 2.0,
+    feet_air_time: 0.25,
+    feet_slide: -0.1,
+    flat_orientation: -1.0,
+    ang_vel_xy: -0.05,
+    action_rate: -0.005,
+    torques: -1.5e-7,
+    joint_acc: -1.25e-7,
+    joint_deviation: -0.1,
+    ankle_limits: -1.0,
+    foot_clearance: -2.0,
+    stumble: -1.0,
+    body_contact: -1.0,
+    termination: -200.0,
+};
+
+/// Tracking kernels' standard deviation (m/s, rad/s).
+pub const TRACKING_STD: f64 = 0.5;
+/// Air-time threshold, s.
+pub const AIR_TIME_THRESHOLD: f64 = 0.4;
+/// Target swing-foot clearance above the terrain, m (sole; mjlab's 0.1).
+pub const CLEARANCE_TARGET: f64 = 0.10;
+/// How far ahead of the swing foot the terrain counts for clearance, m.
+pub const CLEARANCE_LOOKAHEAD: f64 = 0.12;
+/// Termination limits.
+pub const TILT_LIMIT_RAD: f64 = 1.0;
+pub const JOINT_SPEED_LIMIT: f64 = 10.0;
+pub const MIN_BASE_HEIGHT: f64 = 0.4;
+
+/// Raw term values of one step (before weights and dt); `Terms::total` applies them.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Terms {
+    pub track_lin_vel_xy: f64,
+    pub track_ang_vel_z: f64,
+    pub feet_air_time: f64,
+    pub feet_slide: f64,
+    pub flat_orientation: f64,
+    pub ang_vel_xy: f64,
+    pub action_rate: f64,
+    pub torques: f64,
+    pub joint_acc: f64,
+    pub joint_deviation: f64,
+    pub ankle_limits: f64,
+    pub foot_clearance: f64,
+    pub stumble: f64,
+    pub body_contact: f64,
+    pub termination: f64,
+}
+
+impl Terms {
+    pub fn total(&self, w: &Weights, dt: f64) -> f64 {
+        dt * (w.track_lin_vel_xy * self.track_lin_vel_xy
+            + w.track_ang_vel_z * self.track_ang_vel_z
+            + w.feet_air_time * self.feet_air_time
+            + w.feet_slide * self.feet_slide
+            + w.flat_orientation * self.flat_orientation
+            + w.ang_vel_xy * self.ang_vel_xy
+            + w.action_rate * self.action_rate
+            + w.torques * self.torques
+            + w.joint_acc * self.joint_acc
+            + w.joint_deviation * self.joint_deviation
+            + w.ankle_limits * self.ankle_limits
+            + w.foot_clearance * self.foot_clearance
+            + w.stumble * self.stumble
+            + w.body_contact * self.body_contact
+            + w.termination * self.termination)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn total_is_weighted_sum_times_dt() {
+        let t = Terms {
+            track_lin_vel_xy: 1.0,
+            termination: 1.0,
+            ..Terms::default()
+        };
+        assert!((t.total(&WEIGHTS, 0.02) - 0.02 * (1.0 - 200.0)).abs() < 1e-12);
+        assert_eq!(Terms::default().total(&WEIGHTS, 0.02), 0.0);
+    }
+}

@@ -1,0 +1,313 @@
+//! `g1-train ppo`: the training loop (rollouts on worker threads, the update on the main thread),
+//! checkpoints that resume, learning curves (JSON + PNG) and the export `g1fw` runs.
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use firmware::spec::DeploySpec;
+use g1_sim::rng::Rng;
+use g1_sim::ModelChoice;
+use serde::{Deserialize, Serialize};
+
+use super::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
+use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
+use super::policy::ActorCritic;
+
+pub const CHECKPOINT: &str = "checkpoint.safetensors";
+pub const STATE: &str = "state.json";
+pub const HISTORY: &str = "history.json";
+pub const CURVES: &str = "curves.png";
+
+#[derive(Clone, Debug)]
+pub struct RunConfig {
+    pub spec: PathBuf,
+    pub model: ModelChoice,
+    pub out: PathBuf,
+    pub envs: usize,
+    pub threads: usize,
+    pub iterations: usize,
+    pub seed: u64,
+    /// Warm start: an actor in the peer's layout (its input widened with zero columns).
+    pub init_actor: Option<PathBuf>,
+    pub init_std: f64,
+    pub critic_warmup: usize,
+    pub episode_s: f64,
+    pub ppo: PpoConfig,
+    pub random: Randomization,
+    pub max_init_level: usize,
+    pub checkpoint_every_s: f64,
+    pub quiet: bool,
+    /// Stop after this many seconds of wall time (checkpointing first).
+    pub max_wall_s: f64,
+}
+
+/// One iteration's figures (history.json, curves.png).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct IterLog {
+    pub iteration: usize,
+    pub env_steps: u64,
+    pub wall_s: f64,
+    pub mean_reward_per_step: f64,
+    pub episodes: usize,
+    pub mean_episode_return: Option<f64>,
+    pub success_rate: Option<f64>,
+    pub fall_rate: Option<f64>,
+    pub mean_level: f64,
+    pub env_steps_per_s: f64,
+    pub learner_share: f64,
+    pub update: UpdateStats,
+}
+
+/// What resumes a run (beside the weights in checkpoint.safetensors).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunState {
+    pub iteration: usize,
+    pub env_steps: u64,
+    pub wall_s: f64,
+    pub lr: f64,
+    pub normalizer: Normalizer,
+    pub levels: Vec<usize>,
+    /// Where the run started from (the recipe).
+    pub started_from: String,
+}
+
+struct Slot {
+    env: StairEnv,
+    roll: EnvRollout,
+    rng: Rng,
+    ends: Vec<super::env::EpisodeEnd>,
+}
+
+/// Runs `steps` policy steps on every slot of `slots` (one worker's share).
+fn rollout(slots: &mut [Slot], log_std: &[f32], steps: usize, obs_dim: usize, critic_dim: usize) -> anyhow::Result<()> {
+    let a = log_std.len();
+    let mut mean = vec![0.0f32; a];
+    let mut act = vec![0.0f32; a];
+    for slot in slots {
+        let Slot { env, roll, rng, ends } = slot;
+        env.net.read_state(&mut roll.state0);
+        for s in 0..steps {
+            let obs = env.observe_and_act(&mut mean)?;
+            roll.obs[s * obs_dim..(s + 1) * obs_dim].copy_from_slice(obs);
+            let cobs = &mut roll.critic_obs[s * critic_dim..(s + 1) * critic_dim];
+            cobs[..obs_dim].copy_from_slice(obs);
+            env.critic_extra(&mut cobs[obs_dim..]);
+            for j in 0..a {
+                act[j] = mean[j] + (log_std[j] as f64).exp() as f32 * rng.gaussian() as f32;
+            }
+            roll.means[s * a..(s + 1) * a].copy_from_slice(&mean);
+            roll.actions[s * a..(s + 1) * a].copy_from_slice(&act);
+            roll.logp[s] = gaussian_logp(&act, &mean, log_std);
+            let out = env.step(&act)?;
+            roll.rewards[s] = out.reward;
+            roll.terminated[s] = out.terminated;
+            roll.truncated[s] = out.truncated;
+            roll.masks[s] = if s > 0 && (roll.terminated[s - 1] || roll.truncated[s - 1]) { 0.0 } else { 1.0 };
+            if out.truncated {
+                let f = &mut roll.final_critic_obs[s * critic_dim..(s + 1) * critic_dim];
+                let o = env.observe_peek();
+                f[..obs_dim].copy_from_slice(&o);
+                env.critic_extra(&mut f[obs_dim..]);
+            }
+            if out.terminated || out.truncated {
+                env.reset()?;
+                if let Some(e) = env.last_end {
+                    ends.push(e);
+                }
+            }
+        }
+        let o = env.observe_peek();
+        roll.next_critic_obs[..obs_dim].copy_from_slice(&o);
+        env.critic_extra(&mut roll.next_critic_obs[obs_dim..]);
+    }
+    Ok(())
+}
+
+pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
+    std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
+    let spec = DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
+    let obs_dim = spec.observation_dim();
+    let act_dim = spec.num_joints();
+    let critic_dim = obs_dim + CRITIC_EXTRA;
+    let mut ac = ActorCritic::new(obs_dim, critic_dim, act_dim, cfg.init_std, cfg.seed)?;
+    let ckpt = cfg.out.join(CHECKPOINT);
+    let state_path = cfg.out.join(STATE);
+    let mut history: Vec<IterLog> = Vec::new();
+    let mut state = if ckpt.exists() && state_path.exists() {
+        ac.load(&ckpt)?;
+        let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
+        if let Ok(h) = std::fs::read_to_string(cfg.out.join(HISTORY)) {
+            history = serde_json::from_str(&h).unwrap_or_default();
+        }
+        tracing::info!("resuming {} at iteration {} ({} env steps)", cfg.out.display(), st.iteration, st.env_steps);
+        st
+    } else {
+        let started_from = match &cfg.init_actor {
+            Some(p) => {
+                ac.load_actor_widened(p)?;
+                format!("actor warm-started from {} (input widened by the token at zero weight)", p.display())
+            }
+            None => "random initialisation".to_string(),
+        };
+        RunState {
+            iteration: 0,
+            env_steps: 0,
+            wall_s: 0.0,
+            lr: cfg.ppo.lr,
+            normalizer: Normalizer::new(critic_dim),
+            levels: Vec::new(),
+            started_from,
+        }
+    };
+    let weights = ac.actor_safetensors()?;
+    let env_cfg = EnvConfig {
+        model: cfg.model.clone(),
+        spec: Arc::new(spec),
+        episode_s: cfg.episode_s,
+        random: cfg.random,
+        vx: (0.3, 0.8),
+        max_init_level: cfg.max_init_level,
+    };
+    let bar = g1_sim::progress::bar(cfg.envs, cfg.quiet, "creating environments");
+    let mut slots = Vec::with_capacity(cfg.envs);
+    for i in 0..cfg.envs {
+        let seed = cfg.seed.wrapping_mul(1_000_003).wrapping_add(i as u64 + state.iteration as u64 * 7919);
+        let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
+        if let Some(&l) = state.levels.get(i) {
+            env.level = l.min(LEVELS - 1);
+        }
+        slots.push(Slot {
+            env,
+            roll: EnvRollout::new(cfg.ppo.steps, obs_dim, critic_dim, act_dim),
+            rng: Rng(seed ^ 0xAC7_10A5),
+            ends: Vec::new(),
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed ^ state.iteration as u64)?;
+    learner.lr = state.lr;
+
+    let start = Instant::now();
+    let wall0 = state.wall_s;
+    let mut last_ckpt = Instant::now();
+    let bar = g1_sim::progress::bar(cfg.iterations, cfg.quiet, "PPO");
+    bar.set_position(state.iteration.min(cfg.iterations) as u64);
+    let threads = cfg.threads.max(1);
+    while state.iteration < cfg.iterations {
+        let t0 = Instant::now();
+        let log_std: Vec<f32> = ac.log_std().to_vec1()?;
+        let per = slots.len().div_ceil(threads);
+        let results: Vec<anyhow::Result<()>> = std::thread::scope(|s| {
+            let handles: Vec<_> = slots
+                .chunks_mut(per)
+                .map(|chunk| {
+                    let ls = &log_std;
+                    s.spawn(move || rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim))
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().expect("rollout worker panicked")).collect()
+        });
+        for r in results {
+            r?;
+        }
+        let t_roll = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        let mut rolls: Vec<EnvRollout> = slots
+            .iter_mut()
+            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0)))
+            .collect();
+        for r in &rolls {
+            state.normalizer.update(&r.critic_obs);
+        }
+        compute_gae(&ac, &state.normalizer, &mut rolls, &cfg.ppo)?;
+        let critic_only = state.iteration < cfg.critic_warmup;
+        let stats = learner.update(&ac, &state.normalizer, &rolls, critic_only)?;
+        let weights = ac.actor_safetensors()?;
+        for s in slots.iter_mut() {
+            s.env.set_weights(&weights)?;
+        }
+        let t_learn = t1.elapsed().as_secs_f64();
+
+        let steps = (cfg.ppo.steps * slots.len()) as u64;
+        state.env_steps += steps;
+        state.iteration += 1;
+        state.lr = learner.lr;
+        let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
+        let stair_ends: Vec<_> = ends.iter().filter(|e| e.column != Some(super::env::Column::Flat)).collect();
+        let mean_reward = rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>()
+            / (steps as f64).max(1.0);
+        let log = IterLog {
+            iteration: state.iteration,
+            env_steps: state.env_steps,
+            wall_s: wall0 + start.elapsed().as_secs_f64(),
+            mean_reward_per_step: mean_reward,
+            episodes: ends.len(),
+            mean_episode_return: (!ends.is_empty()).then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
+            success_rate: (!stair_ends.is_empty())
+                .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
+            fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
+            mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
+            env_steps_per_s: steps as f64 / (t_roll + t_learn),
+            learner_share: t_learn / (t_roll + t_learn),
+            update: stats,
+        };
+        bar.set_message(format!(
+            "{:.0} steps/s  reward/step {:+.3}  return {}  level {:.2}  success {}  falls {}",
+            log.env_steps_per_s,
+            log.mean_reward_per_step,
+            log.mean_episode_return.map_or("-".into(), |v| format!("{v:.2}")),
+            log.mean_level,
+            log.success_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+            log.fall_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+        ));
+        bar.inc(1);
+        if cfg.quiet {
+            tracing::info!(?log, "iteration");
+        }
+        history.push(log);
+        for (s, r) in slots.iter_mut().zip(rolls) {
+            s.roll = r;
+        }
+        let out_of_time = wall0 + start.elapsed().as_secs_f64() - state.wall_s > cfg.max_wall_s;
+        state.wall_s = wall0 + start.elapsed().as_secs_f64();
+        if last_ckpt.elapsed().as_secs_f64() > cfg.checkpoint_every_s
+            || state.iteration == cfg.iterations
+            || out_of_time
+        {
+            state.levels = slots.iter().map(|s| s.env.level).collect();
+            save(&ac, &state, &history, &cfg.out)?;
+            last_ckpt = Instant::now();
+        }
+        if out_of_time {
+            tracing::warn!("wall-time limit reached; checkpoint written, resume with the same command");
+            break;
+        }
+    }
+    bar.finish();
+    Ok(history)
+}
+
+fn save(ac: &ActorCritic, state: &RunState, history: &[IterLog], out: &Path) -> anyhow::Result<()> {
+    // Write then rename, so a run killed mid-write keeps the previous checkpoint.
+    let tmp = out.join(format!("{CHECKPOINT}.tmp"));
+    ac.save(&tmp)?;
+    std::fs::rename(&tmp, out.join(CHECKPOINT))?;
+    std::fs::write(out.join(STATE), serde_json::to_string_pretty(state)?)?;
+    std::fs::write(out.join(HISTORY), serde_json::to_string(history)?)?;
+    std::fs::write(out.join("g1_stairs_lstm.safetensors"), ac.actor_safetensors()?)?;
+    crate::plot::ppo_curves_png(&out.join(CURVES), history)?;
+    Ok(())
+}
+
+/// Writes the actor of `checkpoint` as the weights file of `spec` (what `g1fw` loads).
+pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
+    let spec = DeploySpec::load(spec_path)?;
+    let obs = spec.observation_dim();
+    let mut ac = ActorCritic::new(obs, obs + CRITIC_EXTRA, spec.num_joints(), 1.0, 0)?;
+    ac.load(checkpoint)?;
+    let path = spec.weights_path();
+    std::fs::write(&path, ac.actor_safetensors()?)?;
+    Ok(path)
+}
