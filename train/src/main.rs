@@ -275,6 +275,7 @@ fn main() -> anyhow::Result<()> {
                     train::ppo::env::Randomization::DEFAULT
                 },
                 max_init_level,
+                only: None,
                 checkpoint_every_s: checkpoint_every,
                 quiet,
                 max_wall_s: max_wall,

@@ -233,7 +233,9 @@ pub fn ppo_curves_png(path: &Path, log: &[crate::ppo::runner::IterLog]) -> anyho
     let xmax = log.last().map_or(1.0, |l| l.env_steps as f64 / 1e6).max(1e-3);
     let x = (0.0, xmax);
     let series = |f: &dyn Fn(&crate::ppo::runner::IterLog) -> Option<f64>| -> Vec<(f64, f64)> {
-        log.iter().filter_map(|l| f(l).map(|v| (l.env_steps as f64 / 1e6, v))).collect()
+        log.iter()
+            .filter_map(|l| f(l).map(|v| (l.env_steps as f64 / 1e6, v)))
+            .collect()
     };
     let xl = "env steps (M)";
     panel(

@@ -158,7 +158,12 @@ pub fn values(ac: &ActorCritic, norm: &Normalizer, rows: &[f32]) -> candle_core:
 
 /// Fills `values`, `advantages` and `returns` of every rollout (GAE; time-outs and successes
 /// bootstrap from the value of their final state).
-pub fn compute_gae(ac: &ActorCritic, norm: &Normalizer, rolls: &mut [EnvRollout], cfg: &PpoConfig) -> candle_core::Result<()> {
+pub fn compute_gae(
+    ac: &ActorCritic,
+    norm: &Normalizer,
+    rolls: &mut [EnvRollout],
+    cfg: &PpoConfig,
+) -> candle_core::Result<()> {
     let t = cfg.steps;
     for r in rolls.iter_mut() {
         r.values = values(ac, norm, &r.critic_obs)?;
@@ -269,7 +274,8 @@ impl Learner {
                 let std_adv = (adv.iter().map(|&x| (x as f64 - mean_adv).powi(2)).sum::<f64>() / adv.len() as f64)
                     .sqrt()
                     .max(1e-8);
-                adv.iter_mut().for_each(|x| *x = ((*x as f64 - mean_adv) / std_adv) as f32);
+                adv.iter_mut()
+                    .for_each(|x| *x = ((*x as f64 - mean_adv) / std_adv) as f32);
                 let adv = Tensor::from_vec(adv, (t, b), &dev)?;
                 let ret = Tensor::from_vec(gather(&|r| &r.returns, 1), t * b, &dev)?;
                 let old_v = Tensor::from_vec(gather(&|r| &r.values, 1), t * b, &dev)?;
@@ -305,7 +311,8 @@ impl Learner {
                 for (row_new, row_old) in new_mean.chunks_exact(a).zip(old_mean.chunks_exact(a)) {
                     for j in 0..a {
                         let (sn, so) = ((ls[j] as f64).exp(), (old_ls[j] as f64).exp());
-                        kl += (sn / so).ln() + (so * so + (row_old[j] - row_new[j]).powi(2) as f64) / (2.0 * sn * sn) - 0.5;
+                        kl += (sn / so).ln() + (so * so + (row_old[j] - row_new[j]).powi(2) as f64) / (2.0 * sn * sn)
+                            - 0.5;
                     }
                 }
                 kl /= (t * b) as f64;
@@ -318,12 +325,14 @@ impl Learner {
 
                 let inv_std = log_std.neg()?.exp()?;
                 let z = (&act - &mean)?.broadcast_mul(&inv_std)?;
-                let logp = ((z.sqr()? * -0.5)?.broadcast_sub(&log_std)? - 0.5 * (2.0 * std::f64::consts::PI).ln())?.sum(2)?;
+                let logp =
+                    ((z.sqr()? * -0.5)?.broadcast_sub(&log_std)? - 0.5 * (2.0 * std::f64::consts::PI).ln())?.sum(2)?;
                 let ratio = (&logp - &old_logp)?.exp()?;
                 let s1 = (&ratio * &adv)?;
                 let s2 = (ratio.clamp(1.0 - cfg.clip, 1.0 + cfg.clip)? * &adv)?;
                 let surrogate = s1.minimum(&s2)?.mean_all()?.neg()?;
-                let entropy = (log_std.sum_all()? + a as f64 * 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln())?;
+                let entropy =
+                    (log_std.sum_all()? + a as f64 * 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln())?;
                 let loss = ((&surrogate + (&vl * cfg.value_coef)?)? - (&entropy * cfg.entropy_coef)?)?;
                 let mut grads = loss.backward()?;
                 clip_grad_norm(&mut grads, &self.vars, cfg.max_grad_norm)?;
@@ -336,7 +345,12 @@ impl Learner {
                 n += 1.0;
             }
         }
-        for v in [&mut stats.surrogate, &mut stats.value_loss, &mut stats.entropy, &mut stats.kl] {
+        for v in [
+            &mut stats.surrogate,
+            &mut stats.value_loss,
+            &mut stats.entropy,
+            &mut stats.kl,
+        ] {
             *v /= n.max(1.0);
         }
         stats.lr = self.lr;

@@ -64,7 +64,10 @@ impl Column {
         (Column::OutdoorDown, 0.125),
     ];
 
-    fn draw(rng: &mut Rng) -> Column {
+    fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
+        if let Some(c) = only {
+            return c;
+        }
         let mut u = rng.uniform();
         for (c, p) in Self::MIX {
             if u < p {
@@ -115,6 +118,8 @@ pub struct EnvConfig {
     pub vx: (f64, f64),
     /// Highest curriculum level a new environment starts at.
     pub max_init_level: usize,
+    /// Train on this terrain column only (default: the curriculum's mix).
+    pub only: Option<Column>,
 }
 
 /// Result of one step.
@@ -223,7 +228,7 @@ impl StairEnv {
             io,
             net,
             world,
-            column: Column::draw(&mut rng),
+            column: Column::draw(&mut rng, cfg.only),
             level,
             vx_cmd: 0.0,
             heading: 0.0,
@@ -327,7 +332,7 @@ impl StairEnv {
                     self.level = self.level.saturating_sub(1);
                 }
             }
-            self.column = Column::draw(&mut self.rng);
+            self.column = Column::draw(&mut self.rng, self.cfg.only);
         }
         self.world = self.draw_world();
         let seed = self.rng.next_u64();
@@ -374,7 +379,10 @@ impl StairEnv {
         }
         let feet = self.feet();
         self.prev_foot = feet;
-        self.sole_offset = 0.5 * (0..2).map(|f| feet[f][2] - self.ground(feet[f][0], feet[f][1])).sum::<f64>();
+        self.sole_offset = 0.5
+            * (0..2)
+                .map(|f| feet[f][2] - self.ground(feet[f][0], feet[f][1]))
+                .sum::<f64>();
         self.refresh_token(true);
         Ok(())
     }
@@ -641,7 +649,11 @@ impl StairEnv {
                 self.air_time[f] += POLICY_DT;
                 self.contact_time[f] = 0.0;
                 in_mode[f] = self.air_time[f];
-                let (ux, uy) = if speed > 1e-3 { (vel[0] / speed, vel[1] / speed) } else { (c, s) };
+                let (ux, uy) = if speed > 1e-3 {
+                    (vel[0] / speed, vel[1] / speed)
+                } else {
+                    (c, s)
+                };
                 let la = reward::CLEARANCE_LOOKAHEAD;
                 let terrain = self
                     .ground(feet[f][0], feet[f][1])
@@ -679,7 +691,9 @@ impl StairEnv {
         }
         // Progress along the staircase, for success and the curriculum.
         self.progress = self.progress.max(self.axis_s(t.base_pos[0], t.base_pos[1]));
-        let tilt = (1.0 - 2.0 * (t.base_quat[1].powi(2) + t.base_quat[2].powi(2))).clamp(-1.0, 1.0).acos();
+        let tilt = (1.0 - 2.0 * (t.base_quat[1].powi(2) + t.base_quat[2].powi(2)))
+            .clamp(-1.0, 1.0)
+            .acos();
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
         let terminated =
             tilt > reward::TILT_LIMIT_RAD || max_speed > reward::JOINT_SPEED_LIMIT || height < reward::MIN_BASE_HEIGHT;
@@ -701,6 +715,21 @@ impl StairEnv {
     /// The current (noise-free) LowState, for parity tests.
     pub fn low_state(&self) -> &LowState {
         &self.state
+    }
+
+    /// Base pose and world, for test messages.
+    pub fn debug_summary(&self) -> String {
+        let t = self.sim.truth();
+        format!(
+            "world {:?} column {:?} level {} base {:?} progress {:.2} fell {} last speeds {:?}",
+            self.world.spec.kind,
+            self.column,
+            self.level,
+            t.base_pos,
+            self.progress,
+            self.fell,
+            self.slots.iter().map(|&s| self.state.motors[s].dq).collect::<Vec<_>>()
+        )
     }
 
     pub fn token(&self) -> TerrainToken {

@@ -69,12 +69,20 @@ impl ActorCritic {
             Ok(())
         };
         for (name, shape) in actor_shapes(obs_dim, act_dim) {
-            let fan_in = if name.starts_with("memory") { HIDDEN } else { *shape.last().unwrap() };
+            let fan_in = if name.starts_with("memory") {
+                HIDDEN
+            } else {
+                *shape.last().unwrap()
+            };
             uniform(name, shape, 1.0 / (fan_in as f64).sqrt())?;
         }
         let mut fan_in = critic_dim;
         for (i, &w) in CRITIC_HIDDEN.iter().chain(&[1]).enumerate() {
-            uniform(&format!("critic.{i}.weight"), vec![w, fan_in], 1.0 / (fan_in as f64).sqrt())?;
+            uniform(
+                &format!("critic.{i}.weight"),
+                vec![w, fan_in],
+                1.0 / (fan_in as f64).sqrt(),
+            )?;
             vars.get(w, &format!("critic.{i}.bias"), Init::Const(0.0), DType::F32, &dev)?;
             fan_in = w;
         }
@@ -95,7 +103,10 @@ impl ActorCritic {
         let mut loaded = 0;
         for (name, shape) in actor_shapes(self.obs_dim, self.act_dim) {
             let Some(t) = src.get(name) else {
-                anyhow::bail!("{}: no tensor {name}; is it an LSTM-64 actor like the peer's?", path.display())
+                anyhow::bail!(
+                    "{}: no tensor {name}; is it an LSTM-64 actor like the peer's?",
+                    path.display()
+                )
             };
             let t = t.to_dtype(DType::F32)?;
             let t = if name == "memory.weight_ih_l0" && t.dim(1)? < self.obs_dim {
@@ -190,7 +201,12 @@ impl ActorCritic {
             .collect::<anyhow::Result<_>>()?;
         let views: Vec<(String, safetensors::tensor::TensorView)> = data
             .iter()
-            .map(|(n, b, s)| Ok((n.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?)))
+            .map(|(n, b, s)| {
+                Ok((
+                    n.clone(),
+                    safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?,
+                ))
+            })
             .collect::<anyhow::Result<_>>()?;
         Ok(safetensors::serialize(views, &None)?)
     }

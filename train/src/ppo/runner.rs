@@ -36,6 +36,8 @@ pub struct RunConfig {
     pub ppo: PpoConfig,
     pub random: Randomization,
     pub max_init_level: usize,
+    /// Train on one terrain column only (default: the curriculum's mix).
+    pub only: Option<super::env::Column>,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -103,7 +105,11 @@ fn rollout(slots: &mut [Slot], log_std: &[f32], steps: usize, obs_dim: usize, cr
             roll.rewards[s] = out.reward;
             roll.terminated[s] = out.terminated;
             roll.truncated[s] = out.truncated;
-            roll.masks[s] = if s > 0 && (roll.terminated[s - 1] || roll.truncated[s - 1]) { 0.0 } else { 1.0 };
+            roll.masks[s] = if s > 0 && (roll.terminated[s - 1] || roll.truncated[s - 1]) {
+                0.0
+            } else {
+                1.0
+            };
             if out.truncated {
                 let f = &mut roll.final_critic_obs[s * critic_dim..(s + 1) * critic_dim];
                 let o = env.observe_peek();
@@ -126,7 +132,8 @@ fn rollout(slots: &mut [Slot], log_std: &[f32], steps: usize, obs_dim: usize, cr
 
 pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
-    let spec = DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
+    let spec =
+        DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
     let obs_dim = spec.observation_dim();
     let act_dim = spec.num_joints();
     let critic_dim = obs_dim + CRITIC_EXTRA;
@@ -140,13 +147,21 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         if let Ok(h) = std::fs::read_to_string(cfg.out.join(HISTORY)) {
             history = serde_json::from_str(&h).unwrap_or_default();
         }
-        tracing::info!("resuming {} at iteration {} ({} env steps)", cfg.out.display(), st.iteration, st.env_steps);
+        tracing::info!(
+            "resuming {} at iteration {} ({} env steps)",
+            cfg.out.display(),
+            st.iteration,
+            st.env_steps
+        );
         st
     } else {
         let started_from = match &cfg.init_actor {
             Some(p) => {
                 ac.load_actor_widened(p)?;
-                format!("actor warm-started from {} (input widened by the token at zero weight)", p.display())
+                format!(
+                    "actor warm-started from {} (input widened by the token at zero weight)",
+                    p.display()
+                )
             }
             None => "random initialisation".to_string(),
         };
@@ -168,11 +183,15 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         random: cfg.random,
         vx: (0.3, 0.8),
         max_init_level: cfg.max_init_level,
+        only: cfg.only,
     };
     let bar = g1_sim::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);
     for i in 0..cfg.envs {
-        let seed = cfg.seed.wrapping_mul(1_000_003).wrapping_add(i as u64 + state.iteration as u64 * 7919);
+        let seed = cfg
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(i as u64 + state.iteration as u64 * 7919);
         let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
         if let Some(&l) = state.levels.get(i) {
             env.level = l.min(LEVELS - 1);
@@ -207,7 +226,10 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
                     s.spawn(move || rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim))
                 })
                 .collect();
-            handles.into_iter().map(|h| h.join().expect("rollout worker panicked")).collect()
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("rollout worker panicked"))
+                .collect()
         });
         for r in results {
             r?;
@@ -235,16 +257,20 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         state.iteration += 1;
         state.lr = learner.lr;
         let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
-        let stair_ends: Vec<_> = ends.iter().filter(|e| e.column != Some(super::env::Column::Flat)).collect();
-        let mean_reward = rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>()
-            / (steps as f64).max(1.0);
+        let stair_ends: Vec<_> = ends
+            .iter()
+            .filter(|e| e.column != Some(super::env::Column::Flat))
+            .collect();
+        let mean_reward =
+            rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>() / (steps as f64).max(1.0);
         let log = IterLog {
             iteration: state.iteration,
             env_steps: state.env_steps,
             wall_s: wall0 + start.elapsed().as_secs_f64(),
             mean_reward_per_step: mean_reward,
             episodes: ends.len(),
-            mean_episode_return: (!ends.is_empty()).then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
+            mean_episode_return: (!ends.is_empty())
+                .then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
             success_rate: (!stair_ends.is_empty())
                 .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
             fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),

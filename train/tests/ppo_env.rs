@@ -1,0 +1,153 @@
+//! The PPO environment against the firmware: the warm start walks in it, and trainer and firmware
+//! build identical observations and actions for the same states (parity by construction, checked).
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use firmware::controller::Controller;
+use firmware::spec::DeploySpec;
+use train::ppo::env::{Column, EnvConfig, Randomization, StairEnv};
+use train::ppo::policy::ActorCritic;
+
+fn root() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+}
+
+fn peer_weights() -> Option<PathBuf> {
+    let p = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!(
+            "SKIPPED: {} is missing (../shared must sit beside the checkout; CI has it)",
+            p.display()
+        );
+        None
+    }
+}
+
+fn stair_spec() -> DeploySpec {
+    DeploySpec::load(&root().join("specs/stairs/g1_stairs_lstm.toml")).expect("stair spec")
+}
+
+/// The peer walker widened by the token at zero weight, as `g1-train ppo --init-actor` starts.
+fn warm_start(spec: &DeploySpec, peer: &std::path::Path) -> (ActorCritic, Vec<u8>) {
+    let obs = spec.observation_dim();
+    let ac = ActorCritic::new(obs, obs + train::ppo::env::CRITIC_EXTRA, spec.num_joints(), 0.3, 0).unwrap();
+    ac.load_actor_widened(peer).unwrap();
+    let w = ac.actor_safetensors().unwrap();
+    (ac, w)
+}
+
+fn env(spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
+    let cfg = EnvConfig {
+        model: g1_sim::ModelChoice::G1_12Dof,
+        spec: Arc::new(spec),
+        episode_s: 10.0,
+        random: Randomization::NONE,
+        vx: (0.5, 0.5),
+        max_init_level: 0,
+        only: Some(only),
+    };
+    StairEnv::new(cfg, seed, weights).unwrap()
+}
+
+#[test]
+fn warm_started_actor_walks_in_the_training_environment() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let mut e = env(spec, &w, 1, Column::Flat);
+    let mut mean = vec![0.0; 12];
+    let mut steps = 0;
+    for _ in 0..400 {
+        e.observe_and_act(&mut mean).unwrap();
+        let out = e.step(&mean.clone()).unwrap();
+        steps += 1;
+        if out.terminated || out.truncated {
+            break;
+        }
+    }
+    let end = e.debug_summary();
+    eprintln!("{steps} steps: {end}");
+    assert_eq!(steps, 400, "the warm start fell or ended early: {end}");
+}
+
+/// Trainer and firmware observe identically: the environment's observation of each state equals,
+/// bit for bit, the one the firmware's `Controller` builds from the same `LowState`, command and
+/// terrain token (both run `firmware::policy_io`; this checks nothing else slipped in between).
+#[test]
+fn trainer_and_firmware_build_identical_observations() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let mut e = env(spec.clone(), &w, 3, Column::Up);
+    // The firmware's controller runs the same weights from a file, as g1fw would.
+    let dir = std::env::temp_dir().join(format!("g1_ppo_parity_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut fw_spec = spec.clone();
+    fw_spec.policy.weights = dir.join("actor.safetensors");
+    std::fs::write(&fw_spec.policy.weights, &w).unwrap();
+    let mut ctl = Controller::new(fw_spec).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    let mut mean = vec![0.0; 12];
+    let mut stairs_tokens = 0;
+    for step in 0..150 {
+        let (state, cmd, token) = (*e.low_state(), e.operator_command(), e.token());
+        stairs_tokens += (token.class != hal::TerrainClass::Flat) as usize;
+        let obs = e.observe_and_act(&mut mean).unwrap().to_vec();
+        ctl.policy_step(&state, cmd, token).unwrap();
+        assert_eq!(obs, ctl.observation(), "observation differs at step {step}");
+        assert_eq!(mean, ctl.last_action(), "action differs at step {step}");
+        let out = e.step(&mean.clone()).unwrap();
+        if out.terminated || out.truncated {
+            break;
+        }
+    }
+    assert!(
+        stairs_tokens > 0,
+        "the staircase never showed in the token: the test checks nothing"
+    );
+}
+
+/// The PPO update replays rollouts through candle; its actor must match the firmware's executor
+/// (which produced the rollout's actions) across a sequence, including an LSTM reset mid-way.
+#[test]
+fn candle_actor_matches_the_firmware_executor() {
+    use candle_core::{Device, Tensor};
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (ac, w) = warm_start(&spec, &peer);
+    let mut e = env(spec.clone(), &w, 5, Column::Flat);
+    let (t, o) = (40, spec.observation_dim());
+    let mut obs = Vec::new();
+    let mut means = Vec::new();
+    let mut masks = vec![1.0f32; t];
+    let mut mean = vec![0.0; 12];
+    for s in 0..t {
+        if s == 25 {
+            e.net.reset();
+            masks[s] = 0.0;
+        }
+        obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
+        means.extend_from_slice(&mean);
+        e.step(&mean.clone()).unwrap();
+    }
+    let dev = Device::Cpu;
+    let zeros = Tensor::zeros((1, 64), candle_core::DType::F32, &dev).unwrap();
+    let got = ac
+        .actor_sequence(
+            &Tensor::from_vec(obs, (t, 1, o), &dev).unwrap(),
+            &zeros,
+            &zeros,
+            &Tensor::from_vec(masks, (t, 1, 1), &dev).unwrap(),
+        )
+        .unwrap();
+    let got: Vec<f32> = got.flatten_all().unwrap().to_vec1().unwrap();
+    let worst = got
+        .iter()
+        .zip(&means)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    eprintln!("candle vs firmware executor over {t} steps: max |Δ| = {worst:.2e}");
+    assert!(worst < 1e-4, "actor mismatch {worst}");
+}
