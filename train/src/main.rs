@@ -176,6 +176,10 @@ enum Cmd {
         /// No observation/token noise, latency or pushes (tests).
         #[arg(long)]
         no_randomization: bool,
+        /// Train on one terrain column only (default: the curriculum's mix of flat 15 %, stairs
+        /// up 30 %, down 30 %, irregular outdoor up and down 12.5 % each).
+        #[arg(long, value_enum)]
+        only: Option<train::ppo::env::Column>,
         /// Checkpoint at least this often, s.
         #[arg(long, default_value_t = 120.0)]
         checkpoint_every: f64,
@@ -246,6 +250,7 @@ fn main() -> anyhow::Result<()> {
             episode_s,
             max_init_level,
             no_randomization,
+            only,
             checkpoint_every,
             max_wall,
             quiet,
@@ -275,7 +280,7 @@ fn main() -> anyhow::Result<()> {
                     train::ppo::env::Randomization::DEFAULT
                 },
                 max_init_level,
-                only: None,
+                only,
                 checkpoint_every_s: checkpoint_every,
                 quiet,
                 max_wall_s: max_wall,

@@ -40,12 +40,23 @@ const HEIGHT_SAMPLES: usize = 11;
 /// Success: the base this far past the last riser, m (on the end landing).
 pub const LANDING_MARGIN: f64 = 0.5;
 
+/// The simulator settings of training: 5 ms physics steps, one per `step_control_tick` (the
+/// environment applies the command per physics step to model the action latency).
+pub fn sim_config(seed: u64) -> SimConfig {
+    SimConfig {
+        physics_dt: PHYSICS_DT,
+        control_dt: PHYSICS_DT,
+        seed,
+        imu_noise: None,
+    }
+}
+
 pub fn level_height(level: usize) -> f64 {
     0.05 + 0.021 * level as f64
 }
 
 /// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
 pub enum Column {
     Flat,
     Up,
@@ -266,13 +277,7 @@ impl StairEnv {
     }
 
     fn load_sim(cfg: &EnvConfig, world: &World, seed: u64) -> anyhow::Result<Simulator> {
-        let sc = SimConfig {
-            physics_dt: PHYSICS_DT,
-            control_dt: PHYSICS_DT,
-            seed,
-            imu_noise: None,
-        };
-        Ok(Simulator::load_in(cfg.model.clone(), sc, Some(world))?)
+        Ok(Simulator::load_in(cfg.model.clone(), sim_config(seed), Some(world))?)
     }
 
     /// Draws the next world from the curriculum.
