@@ -147,6 +147,8 @@ pub struct StepOut {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct EpisodeEnd {
     pub column: Option<Column>,
+    /// Why it fell: 0 tilt, 1 joint speed, 2 base height (meaningful when `fell`).
+    pub cause: usize,
     pub level: usize,
     pub success: bool,
     pub fell: bool,
@@ -189,6 +191,7 @@ pub struct StairEnv {
     next_push: usize,
     progress: f64,
     fell: bool,
+    cause: usize,
     ret: f64,
     pub last_end: Option<EpisodeEnd>,
 }
@@ -266,6 +269,7 @@ impl StairEnv {
             next_push: 0,
             progress: f64::NEG_INFINITY,
             fell: false,
+            cause: 0,
             ret: 0.0,
             last_end: None,
             rng,
@@ -323,6 +327,7 @@ impl StairEnv {
                 level: self.level,
                 success,
                 fell: self.fell,
+                cause: self.cause,
                 ret: self.ret,
                 steps: self.step,
             });
@@ -618,6 +623,7 @@ impl StairEnv {
             let m = &self.state.motors[slot];
             let dq = m.dq as f64;
             max_speed = max_speed.max(dq.abs());
+            r.joint_speed += (dq.abs() - reward::JOINT_SPEED_SOFT).max(0.0).powi(2);
             r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
             r.torques += self.sim.applied_torque(slot).powi(2);
             r.joint_acc += ((dq - self.prev_dq[i] as f64) / POLICY_DT).powi(2);
@@ -700,10 +706,15 @@ impl StairEnv {
             .clamp(-1.0, 1.0)
             .acos();
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
-        let terminated =
-            tilt > reward::TILT_LIMIT_RAD || max_speed > reward::JOINT_SPEED_LIMIT || height < reward::MIN_BASE_HEIGHT;
+        let causes = [
+            tilt > reward::TILT_LIMIT_RAD,
+            max_speed > reward::JOINT_SPEED_LIMIT,
+            height < reward::MIN_BASE_HEIGHT,
+        ];
+        let terminated = causes.iter().any(|&c| c);
         if terminated {
             r.termination = 1.0;
+            self.cause = causes.iter().position(|&c| c).unwrap_or(0);
         }
         (r, terminated)
     }

@@ -18,6 +18,7 @@
 //! | `torques` | Σ τ² (legs) | −1.5e-7 |
 //! | `joint_acc` | Σ q̈² (finite difference over the policy step) | −1.25e-7 |
 //! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
+//! | `joint_speed` | Σ max(\|q̇\| − 7 rad/s, 0)²: a soft wall before g1fw's 10 rad/s guard trips | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet (clearance − 0.10 m)² · ‖v_foot,xy‖; clearance from the highest terrain under and 0.12 m ahead of the foot | −2.0 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
@@ -40,6 +41,7 @@ pub struct Weights {
     pub torques: f64,
     pub joint_acc: f64,
     pub joint_deviation: f64,
+    pub joint_speed: f64,
     pub ankle_limits: f64,
     pub foot_clearance: f64,
     pub stumble: f64,
@@ -58,6 +60,7 @@ pub const WEIGHTS: Weights = Weights {
     torques: -1.5e-7,
     joint_acc: -1.25e-7,
     joint_deviation: -0.1,
+    joint_speed: -1.0,
     ankle_limits: -1.0,
     foot_clearance: -2.0,
     stumble: -1.0,
@@ -76,6 +79,8 @@ pub const CLEARANCE_LOOKAHEAD: f64 = 0.12;
 /// Termination limits.
 pub const TILT_LIMIT_RAD: f64 = 1.0;
 pub const JOINT_SPEED_LIMIT: f64 = 10.0;
+/// Where the soft joint-speed penalty starts, rad/s.
+pub const JOINT_SPEED_SOFT: f64 = 7.0;
 pub const MIN_BASE_HEIGHT: f64 = 0.4;
 
 /// Raw term values of one step (before weights and dt); `Terms::total` applies them.
@@ -91,6 +96,7 @@ pub struct Terms {
     pub torques: f64,
     pub joint_acc: f64,
     pub joint_deviation: f64,
+    pub joint_speed: f64,
     pub ankle_limits: f64,
     pub foot_clearance: f64,
     pub stumble: f64,
@@ -110,6 +116,7 @@ impl Terms {
             + w.torques * self.torques
             + w.joint_acc * self.joint_acc
             + w.joint_deviation * self.joint_deviation
+            + w.joint_speed * self.joint_speed
             + w.ankle_limits * self.ankle_limits
             + w.foot_clearance * self.foot_clearance
             + w.stumble * self.stumble

@@ -55,6 +55,9 @@ pub struct IterLog {
     pub mean_episode_return: Option<f64>,
     pub success_rate: Option<f64>,
     pub fall_rate: Option<f64>,
+    /// Falls by cause: tilt, joint speed guard, base height.
+    #[serde(default)]
+    pub fall_causes: [usize; 3],
     pub mean_level: f64,
     pub env_steps_per_s: f64,
     pub learner_share: f64,
@@ -274,6 +277,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             success_rate: (!stair_ends.is_empty())
                 .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
             fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
+            fall_causes: [0, 1, 2].map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count()),
             mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
             env_steps_per_s: steps as f64 / (t_roll + t_learn),
             learner_share: t_learn / (t_roll + t_learn),
