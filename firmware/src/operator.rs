@@ -284,7 +284,10 @@ mod tests {
         assert_eq!(heading_command(0.5, 0.0, 0.0), [0.5, 0.0, 0.0]);
         // 0.4 rad to the left of the robot: turn left at K · 0.4.
         let c = heading_command(0.5, 0.4, 0.0);
-        assert!(c[0] == 0.5 && c[1] == 0.0 && (c[2] - HEADING_K * 0.4).abs() < 1e-6, "{c:?}");
+        assert!(
+            c[0] == 0.5 && c[1] == 0.0 && (c[2] - HEADING_K * 0.4).abs() < 1e-6,
+            "{c:?}"
+        );
         assert!((heading_command(0.3, 0.0, 0.4)[2] + HEADING_K * 0.4).abs() < 1e-6);
         // Large errors saturate.
         assert_eq!(heading_command(0.5, 3.0, 0.0)[2], HEADING_WZ_MAX);
