@@ -565,7 +565,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
                 ));
             }
         }
-        !(opts.stop_on_fall && agg.fell_at.is_some()) && !landed
+        !(landed || opts.stop_on_fall && agg.fell_at.is_some())
     });
     if let Some(pb) = progress {
         pb.finish_and_clear();
