@@ -13,7 +13,31 @@
 //! Times must increase. A command holds until the next line; `estop`/`reset` act on one tick.
 use std::path::{Path, PathBuf};
 
-use hal::TickTime;
+use hal::{LowState, TickTime};
+
+/// Gain of the heading correction: yaw rate per radian of heading error (legged_gym's heading
+/// command uses 0.5 · wrap(target − yaw)).
+pub const HEADING_K: f32 = 0.5;
+/// Largest yaw rate the heading correction commands, rad/s (inside every spec's command range we
+/// ship; the peer walker tracks 0.5 rad/s).
+pub const HEADING_WZ_MAX: f32 = 0.5;
+
+/// Forward velocity with heading correction: `[vx, 0, clamp(K · wrap(target_yaw − yaw), ±WZ_MAX)]`
+/// ([`HEADING_K`], [`HEADING_WZ_MAX`]). `target_yaw` and `yaw` in rad in the same frame; the
+/// firmware passes the yaw of the IMU quaternion it reads ([`imu_yaw`]), never ground truth.
+/// The one definition: `g1fw sim --heading`, `g1fw eval` and the PPO trainer call it.
+pub fn heading_command(vx: f32, target_yaw: f32, yaw: f32) -> [f32; 3] {
+    let err = hal::wrap_angle((target_yaw - yaw) as f64) as f32;
+    let wz = (HEADING_K * err).clamp(-HEADING_WZ_MAX, HEADING_WZ_MAX);
+    // NaN in (a bad IMU) → NaN out: the supervisor latches damping on a non-finite command.
+    [vx, 0.0, if err.is_nan() { f32::NAN } else { wz }]
+}
+
+/// Yaw (rad) of the IMU's quaternion (w, x, y, z) as the firmware reads it.
+pub fn imu_yaw(state: &LowState) -> f32 {
+    let [w, x, y, z] = state.imu.quaternion;
+    libm::atan2f(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+}
 
 /// What the operator asks for on one tick.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -27,6 +51,32 @@ pub struct OperatorInput {
 /// A source of operator input, asked once per tick.
 pub trait OperatorSource {
     fn at(&mut self, tick: TickTime) -> OperatorInput;
+    /// [`OperatorSource::at`] with the tick's newest state (what `run_loop` calls), for operators
+    /// that close a loop on the robot's own sensors (the heading command).
+    fn at_state(&mut self, tick: TickTime, _state: &LowState) -> OperatorInput {
+        self.at(tick)
+    }
+}
+
+/// A schedule's commands with the heading correction applied every tick: the schedule's vx (its vy
+/// and wz are replaced) and [`heading_command`] towards `target_yaw` from the IMU's yaw. Estop and
+/// reset pass through. The result is recorded as `/operator/command`, so replay repeats it exactly.
+pub struct HeadingSource<S> {
+    pub inner: S,
+    /// Target heading, rad, in the IMU's yaw frame (the world frame in simulation: the robot starts
+    /// at yaw 0).
+    pub target_yaw: f32,
+}
+
+impl<S: OperatorSource> OperatorSource for HeadingSource<S> {
+    fn at(&mut self, tick: TickTime) -> OperatorInput {
+        self.inner.at(tick)
+    }
+    fn at_state(&mut self, tick: TickTime, state: &LowState) -> OperatorInput {
+        let mut op = self.inner.at_state(tick, state);
+        op.velocity = heading_command(op.velocity[0], self.target_yaw, imu_yaw(state));
+        op
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -226,6 +276,43 @@ mod tests {
         assert!(src.at(tick(1002)).reset);
         assert!(!src.at(tick(1003)).reset);
         assert_eq!(s.velocity_at(1.5), [0.5, 0.0, 0.1]);
+    }
+
+    #[test]
+    fn heading_command_turns_towards_the_target_and_saturates() {
+        use std::f32::consts::PI;
+        assert_eq!(heading_command(0.5, 0.0, 0.0), [0.5, 0.0, 0.0]);
+        // 0.4 rad to the left of the robot: turn left at K · 0.4.
+        let c = heading_command(0.5, 0.4, 0.0);
+        assert!(
+            c[0] == 0.5 && c[1] == 0.0 && (c[2] - HEADING_K * 0.4).abs() < 1e-6,
+            "{c:?}"
+        );
+        assert!((heading_command(0.3, 0.0, 0.4)[2] + HEADING_K * 0.4).abs() < 1e-6);
+        // Large errors saturate.
+        assert_eq!(heading_command(0.5, 3.0, 0.0)[2], HEADING_WZ_MAX);
+        assert_eq!(heading_command(0.5, -3.0, 0.0)[2], -HEADING_WZ_MAX);
+        // Wrapping: from yaw 3.0 to target −3.0 is +0.28 rad (left), not −6 rad.
+        let c = heading_command(0.5, -3.0, 3.0)[2];
+        assert!((c - HEADING_K * (2.0 * PI - 6.0)).abs() < 1e-5, "{c}");
+        assert!(heading_command(0.5, 0.0, f32::NAN)[2].is_nan());
+    }
+
+    #[test]
+    fn heading_source_uses_the_imu_yaw_and_keeps_estop() {
+        let s = CommandSchedule::parse("0 0.4 0.2 0.3\n0.01 estop\n", Path::new("x")).unwrap();
+        let mut h = HeadingSource {
+            inner: s.source(2_000_000),
+            target_yaw: 0.2,
+        };
+        let mut st = LowState::default();
+        // Yaw 0.6 rad about z.
+        st.imu.quaternion = [libm::cosf(0.3), 0.0, 0.0, libm::sinf(0.3)];
+        assert!((imu_yaw(&st) - 0.6).abs() < 1e-6);
+        let op = h.at_state(tick(0), &st);
+        assert!(op.velocity[0] == 0.4 && op.velocity[1] == 0.0, "{op:?}");
+        assert!((op.velocity[2] + HEADING_K * 0.4).abs() < 1e-6, "{op:?}");
+        assert!(h.at_state(tick(5), &st).estop);
     }
 
     #[test]

@@ -26,6 +26,75 @@ use crate::runtime::Estimate;
 use crate::spec::{PerceptionSpec, TerrainEstimatorKind};
 use crate::terrain_net::TerrainNet;
 
+/// Where the policy's terrain token comes from (`g1fw sim|eval --terrain-source`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TerrainSource {
+    /// The perception group's token from the terrain CNN.
+    Cnn,
+    /// The perception group's token from the geometric estimator.
+    Geometric,
+    /// **Evaluation ablation**: the simulator's privileged ground-truth token (`Truth.terrain`) of
+    /// each tick goes to the policy. Simulation only, logged as such; replay refuses such logs.
+    Truth,
+    /// The policy runs blind: the token stays flat (class flat, h = d = 0, yaw 0). Perception still
+    /// runs and is logged and reported.
+    None,
+}
+
+impl TerrainSource {
+    pub const NAMES: [&'static str; 4] = ["cnn", "geometric", "truth", "none"];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            TerrainSource::Cnn => "cnn",
+            TerrainSource::Geometric => "geometric",
+            TerrainSource::Truth => "truth",
+            TerrainSource::None => "none",
+        }
+    }
+
+    /// The perception estimator this source selects (`None` keeps the spec's).
+    pub fn estimator(self) -> Option<TerrainEstimatorKind> {
+        match self {
+            TerrainSource::Cnn => Some(TerrainEstimatorKind::Cnn),
+            TerrainSource::Geometric => Some(TerrainEstimatorKind::Geometric),
+            _ => None,
+        }
+    }
+
+    /// The source a spec selects by itself (its `[perception] terrain_estimator`).
+    pub fn of_spec(spec: &PerceptionSpec) -> Self {
+        match spec.terrain_estimator {
+            TerrainEstimatorKind::Cnn => TerrainSource::Cnn,
+            TerrainEstimatorKind::Geometric => TerrainSource::Geometric,
+        }
+    }
+}
+
+impl std::str::FromStr for TerrainSource {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "cnn" => TerrainSource::Cnn,
+            "geometric" => TerrainSource::Geometric,
+            "truth" => TerrainSource::Truth,
+            "none" => TerrainSource::None,
+            _ => {
+                return Err(format!(
+                    "unknown terrain source '{s}': expected one of {}",
+                    Self::NAMES.join(", ")
+                ))
+            }
+        })
+    }
+}
+
+impl std::fmt::Display for TerrainSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// The lidar frame buffer the HAL fills.
 pub type LidarFrame = PointFrame<LIDAR_FRAME_CAP>;
 

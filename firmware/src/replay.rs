@@ -25,7 +25,7 @@ use crate::controller::Controller;
 use crate::log::channels as ch;
 use crate::log::reader::LogFile;
 use crate::operator::{OperatorInput, OperatorSource};
-use crate::perception::{LidarFrame, PerceptionSummary};
+use crate::perception::{LidarFrame, PerceptionSummary, TerrainSource};
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
 use crate::spec::{DeploySpec, ObsKind};
 use crate::supervisor::FrameStatus;
@@ -41,6 +41,8 @@ pub mod key {
     pub const HOLD_S: &str = "hold_s";
     /// "false" when the run judged no joint as frozen (quantized HALs: CAN).
     pub const FROZEN_CHECK: &str = "frozen_check";
+    /// `cnn`, `geometric`, `truth` or `none` (`g1fw sim --terrain-source`); absent in older logs.
+    pub const TERRAIN_SOURCE: &str = "terrain_source";
 }
 
 #[derive(Clone, Debug, Default)]
@@ -536,6 +538,22 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         spec.startup.ramp_s = r.parse().context("metadata ramp_s")?;
         spec.startup.hold_s = h.parse().context("metadata hold_s")?;
     }
+    let terrain_source = match meta.get(key::TERRAIN_SOURCE) {
+        None => None,
+        Some(v) => Some(
+            v.parse::<TerrainSource>()
+                .map_err(|e| anyhow::anyhow!("the log's metadata terrain_source: {e}"))?,
+        ),
+    };
+    if terrain_source == Some(TerrainSource::Truth) {
+        bail!(
+            "{} was recorded with --terrain-source truth (the evaluation ablation that feeds the              simulator's ground-truth token to the policy); replay has no simulator, so it cannot              re-run it. Record with --terrain-source cnn|geometric|none to get a replayable log",
+            log_path.display()
+        );
+    }
+    if let Some(k) = terrain_source.and_then(TerrainSource::estimator) {
+        spec.perception.terrain_estimator = k;
+    }
     let hold_only = meta.get(key::HOLD_ONLY).is_some_and(|v| v == "true");
     let controller = if hold_only {
         Controller::hold_only(spec)
@@ -575,6 +593,9 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     }
     let load_seconds = wall.elapsed().as_secs_f64();
     let mut rt = Runtime::new(controller);
+    if let Some(src) = terrain_source {
+        rt.set_terrain_source(src);
+    }
     if meta.get(key::FROZEN_CHECK).is_some_and(|v| v == "false") {
         rt.disable_frozen_check();
     }

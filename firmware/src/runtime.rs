@@ -14,6 +14,10 @@
 //!    policy step. Its millisecond of work thus never delays a motor command (it used to run
 //!    before the policy, holding the command of every perception tick back by its whole duration).
 //!
+//! The policy's terrain token is the perception group's newest, unless the run selected another
+//! [`TerrainSource`] (`none`: flat; `truth`: the simulator's ground truth of the tick, an evaluation
+//! ablation and the only place ground truth reaches control).
+//!
 //! Time comes only from the HAL's tick index. Group compute times are measured with a monotonic
 //! clock for the log and the benchmarks, and never feed back into control.
 use std::time::Instant;
@@ -22,7 +26,7 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
-use crate::perception::{LidarFrame, Perception, PerceptionSummary};
+use crate::perception::{LidarFrame, Perception, PerceptionSummary, TerrainSource};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use estimator::StateEstimator;
 
@@ -108,6 +112,10 @@ pub struct Runtime {
     /// A new lidar frame is in `perception`'s buffer for this tick's perception step.
     lidar_fresh: bool,
     stats: TimingStats,
+    /// Where the policy's token comes from (perception unless an evaluation says otherwise).
+    terrain_source: TerrainSource,
+    /// The ground-truth token of this tick under [`TerrainSource::Truth`].
+    truth_token: hal::TerrainToken,
 }
 
 impl Runtime {
@@ -124,8 +132,25 @@ impl Runtime {
             perception: Perception::new(&spec.perception, &spec.base_dir),
             lidar_fresh: false,
             stats: TimingStats::new(),
+            terrain_source: TerrainSource::of_spec(&spec.perception),
+            truth_token: hal::TerrainToken::FLAT,
             controller,
         }
+    }
+
+    /// Selects where the policy's token comes from. `Cnn`/`Geometric` only label the perception
+    /// token (the estimator itself is the spec's, chosen before [`Runtime::new`]); `Truth` is the
+    /// evaluation ablation fed by [`run_loop`] from the HAL's ground truth; `None` keeps it flat.
+    pub fn set_terrain_source(&mut self, source: TerrainSource) {
+        self.terrain_source = source;
+    }
+    pub fn terrain_source(&self) -> TerrainSource {
+        self.terrain_source
+    }
+    /// Under [`TerrainSource::Truth`] (evaluation ablation only): this tick's ground-truth token
+    /// (flat when the simulator has no world).
+    pub fn set_truth_token(&mut self, token: Option<hal::TerrainToken>) {
+        self.truth_token = token.unwrap_or(hal::TerrainToken::FLAT);
     }
 
     pub fn controller(&self) -> &Controller {
@@ -250,7 +275,11 @@ impl Runtime {
         let mut t2 = t1;
         if self.controller.policy_due(k) {
             s.policy_step = true;
-            let terrain = self.perception.last().token;
+            let terrain = match self.terrain_source {
+                TerrainSource::Cnn | TerrainSource::Geometric => self.perception.last().token,
+                TerrainSource::Truth => self.truth_token,
+                TerrainSource::None => hal::TerrainToken::FLAT,
+            };
             if let Err(reason) = self.controller.policy_step(state, operator.velocity, terrain) {
                 self.latch(k, reason, &mut s);
             }
@@ -491,7 +520,11 @@ where
                 FrameStatus::Bad(hal::Error::kind(&e))
             }
         };
-        let op = operator.at(tick);
+        let op = operator.at_state(tick, &state);
+        if rt.terrain_source() == TerrainSource::Truth {
+            // The documented evaluation ablation: ground truth into the policy's token.
+            rt.set_truth_token(hal.truth().and_then(|t| t.terrain));
+        }
         rt.load_lidar(k, hal);
         let last = k >= last_tick;
         // The final tick computes its command but does not send it (a lock-stepped simulator

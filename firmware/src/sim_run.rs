@@ -6,11 +6,12 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Result};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use sim_hal::bridge::{BridgeHal, SimLaunch, SimProcess, Truth, Wants};
+use sim_hal::bridge::{BridgeHal, SimLaunch, SimProcess, StairProgress, Truth, Wants};
 
 use crate::controller::{Controller, Mode};
 use crate::log::{LogOptions, LogStats, Logger, RunMeta};
-use crate::operator::CommandSchedule;
+use crate::operator::{CommandSchedule, HeadingSource, OperatorInput, OperatorSource, ScheduleSource};
+use crate::perception::TerrainSource;
 use crate::replay::key;
 use crate::runtime::{run_loop, FrameSource, LatencySummary, LoopEnd, Overruns, Runtime, TickView};
 use crate::spec::DeploySpec;
@@ -60,6 +61,46 @@ pub struct SimOptions {
     pub log_options: LogOptions,
     /// Real-time set-up of the control thread.
     pub rt: crate::rt::RtOptions,
+    /// Where the policy's terrain token comes from (`None`: the spec's estimator).
+    pub terrain_source: Option<TerrainSource>,
+    /// Heading correction: the schedule's vx with [`crate::operator::heading_command`] towards
+    /// this target every tick (`None`: the schedule's commands as they are).
+    pub heading: Option<Heading>,
+    /// Stop once the base has stood on the staircase's end landing this long (s), with no fall
+    /// and no safety trip: the run has succeeded (saves time in evaluations).
+    pub stop_after_landing_s: Option<f64>,
+}
+
+/// The target of the heading correction.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Heading {
+    /// Target yaw in the world frame (= relative to the start heading: the robot starts at yaw 0), rad.
+    Fixed(f32),
+    /// The staircase's axis direction (the scenario's `yaw_deg`), as an operator pointing the robot
+    /// at the stairs would; read once from the world's layout before the first tick (0 on flat
+    /// ground). The world's geometry, never the robot's state.
+    StairAxis,
+}
+
+/// The run's operator: the schedule, with or without heading correction.
+enum SimOperator<'a> {
+    Plain(ScheduleSource<'a>),
+    Heading(HeadingSource<ScheduleSource<'a>>),
+}
+
+impl OperatorSource for SimOperator<'_> {
+    fn at(&mut self, tick: hal::TickTime) -> OperatorInput {
+        match self {
+            SimOperator::Plain(s) => s.at(tick),
+            SimOperator::Heading(h) => h.at(tick),
+        }
+    }
+    fn at_state(&mut self, tick: hal::TickTime, state: &hal::LowState) -> OperatorInput {
+        match self {
+            SimOperator::Plain(s) => s.at_state(tick, state),
+            SimOperator::Heading(h) => h.at_state(tick, state),
+        }
+    }
 }
 
 impl Default for SimOptions {
@@ -82,6 +123,9 @@ impl Default for SimOptions {
             log: None,
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
+            terrain_source: None,
+            heading: None,
+            stop_after_landing_s: None,
         }
     }
 }
@@ -128,8 +172,80 @@ pub struct Report {
     pub estimator: EstimatorReport,
     /// Perception against the world's ground truth (`null` without `--world`).
     pub terrain: Option<TerrainReport>,
+    /// Where the policy's terrain token came from: `cnn`, `geometric`, `truth` (evaluation
+    /// ablation: the simulator's ground truth) or `none` (flat).
+    pub terrain_source: String,
+    /// Target of the heading correction, degrees in the world frame (`null`: none).
+    pub heading_target_deg: Option<f64>,
+    /// Seconds under policy control (after the start-up ramp and hold).
+    pub policy_time_s: f64,
+    /// Progress over the world's staircase (`null` without one).
+    pub stairs: Option<StairsReport>,
     #[serde(flatten)]
     pub timing: Timing,
+}
+
+/// Progress over a staircase, from the simulator's ground truth ([`StairProgress`]).
+///
+/// **Reached the end landing**: the base (pelvis) is at least
+/// [`sim_hal::bridge::END_LANDING_MARGIN_M`] (0.25 m) past the last riser's edge along the
+/// staircase axis, not beyond the landing's far end, and within the stair width. **Success**: it
+/// did so within the run, and the run had no fall (base < 0.5 m or tilt > 60°) and no safety trip.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StairsReport {
+    /// `up` or `down` (the sign of the end landing's level minus the start landing's).
+    pub kind: String,
+    pub risers: u16,
+    /// Mean riser height (total rise / risers), m.
+    pub mean_step_height_m: f64,
+    /// Most risers behind the base at any tick.
+    pub risers_passed: u16,
+    /// Farthest base position along the axis, from the first riser, m.
+    pub max_axis_s_m: f64,
+    pub reached_end_landing: bool,
+    pub reached_end_landing_at_s: Option<f64>,
+    pub success: bool,
+}
+
+#[derive(Default)]
+struct StairsEval {
+    seen: Option<StairProgress>,
+    passed: u16,
+    max_s: f64,
+    reached_at: Option<f64>,
+    /// Since when the base has stood on the end landing without a break.
+    on_landing_since: Option<f64>,
+}
+
+impl StairsEval {
+    fn add(&mut self, p: &StairProgress, time_s: f64) {
+        if self.seen.is_none() {
+            self.max_s = p.axis_s;
+        }
+        self.seen = Some(*p);
+        self.passed = self.passed.max(p.risers_passed);
+        self.max_s = self.max_s.max(p.axis_s);
+        if p.on_end_landing {
+            self.reached_at.get_or_insert(time_s);
+            self.on_landing_since.get_or_insert(time_s);
+        } else {
+            self.on_landing_since = None;
+        }
+    }
+
+    fn report(&self, clean: bool) -> Option<StairsReport> {
+        let p = self.seen?;
+        Some(StairsReport {
+            kind: if p.rise_m >= 0.0 { "up" } else { "down" }.into(),
+            risers: p.risers,
+            mean_step_height_m: (p.rise_m.abs() as f64) / (p.risers.max(1) as f64),
+            risers_passed: self.passed,
+            max_axis_s_m: self.max_s,
+            reached_end_landing: self.reached_at.is_some(),
+            reached_end_landing_at_s: self.reached_at,
+            success: self.reached_at.is_some() && clean,
+        })
+    }
 }
 
 /// The terrain token of every fresh lidar frame against the ground truth at that tick. MAE(h),
@@ -312,9 +428,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         spec.startup.ramp_s = ramp;
         spec.startup.hold_s = hold;
     }
+    if let Some(k) = opts.terrain_source.and_then(TerrainSource::estimator) {
+        spec.perception.terrain_estimator = k;
+    }
+    let terrain_source = opts
+        .terrain_source
+        .unwrap_or_else(|| TerrainSource::of_spec(&spec.perception));
     let spec_name = spec.path.display().to_string();
     let control_dt = spec.control_dt();
-    let meta = run_meta(&spec, opts);
+    let mut meta = run_meta(&spec, opts);
+    meta.set(key::TERRAIN_SOURCE, terrain_source.as_str());
     let controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
@@ -322,7 +445,6 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     };
     let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
     let weights_sha256 = controller.weights_sha256();
-    let mut meta = meta;
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
 
     let mut child = None;
@@ -370,6 +492,13 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             missing.join(", ")
         );
     }
+    let heading_target = opts.heading.map(|h| match h {
+        Heading::Fixed(y) => y,
+        Heading::StairAxis => hal.truth().stairs.map_or(0.0, |p| p.axis_yaw_rad),
+    });
+    if let Some(y) = heading_target {
+        meta.set("heading_target_rad", y);
+    }
     let mut logger = match &opts.log {
         Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
         None => None,
@@ -382,8 +511,18 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let mut agg = Aggregate::new(&opts.schedule, total_ticks as usize);
     let mut est_eval = EstimatorEval::new(controller.spec().kinematics.clone(), control_dt);
     let mut terrain_eval = TerrainEval::default();
+    let mut stairs_eval = StairsEval::default();
+    let mut policy_ticks = 0u64;
     let mut runtime = Runtime::new(controller);
-    let mut operator = opts.schedule.source(welcome.control_dt_ns);
+    runtime.set_terrain_source(terrain_source);
+    let mut operator = match heading_target {
+        None => SimOperator::Plain(opts.schedule.source(welcome.control_dt_ns)),
+        Some(target_yaw) => SimOperator::Heading(HeadingSource {
+            inner: opts.schedule.source(welcome.control_dt_ns),
+            target_yaw,
+        }),
+    };
+    let mut landed = false;
     let wall = Instant::now();
     let mut ticks = 0u64;
 
@@ -406,6 +545,13 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             agg.add(truth, k as f64 * control_dt, opts.duration_s, v);
             est_eval.add(truth, v);
             terrain_eval.add(truth, v);
+            if let Some(p) = &truth.stairs {
+                stairs_eval.add(p, k as f64 * control_dt);
+            }
+        }
+        policy_ticks += (v.summary.mode == Mode::Policy) as u64;
+        if let (Some(hold), Some(since)) = (opts.stop_after_landing_s, stairs_eval.on_landing_since) {
+            landed |= k as f64 * control_dt - since >= hold && agg.fell_at.is_none() && v.runtime.trip().is_none();
         }
         observe(v);
         if let Some(pb) = &progress {
@@ -419,7 +565,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
                 ));
             }
         }
-        !(opts.stop_on_fall && agg.fell_at.is_some())
+        !(landed || opts.stop_on_fall && agg.fell_at.is_some())
     });
     if let Some(pb) = progress {
         pb.finish_and_clear();
@@ -437,6 +583,10 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     };
     let end_text = match &end {
         LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { .. } if landed => format!(
+            "stopped: on the end landing for {:.1} s (success)",
+            opts.stop_after_landing_s.unwrap_or(0.0)
+        ),
         LoopEnd::Stopped { .. } => "fell".to_string(),
         LoopEnd::HalError { tick, kind, message } => {
             let what = match kind {
@@ -455,6 +605,8 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     };
 
     let time_s = ticks as f64 * control_dt;
+    let trip = TripReport::of(&runtime, control_dt);
+    let clean = agg.fell_at.is_none() && trip.is_none() && !matches!(end, LoopEnd::HalError { .. });
     Ok(Report {
         fell: agg.fell_at.is_some(),
         fell_at_s: agg.fell_at,
@@ -479,12 +631,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         command: opts.schedule.velocity_at(0.0),
         seed: opts.seed,
         tracking: agg.tracking(&opts.schedule, opts.duration_s),
-        trip: TripReport::of(&runtime, control_dt),
+        trip,
         safety: SafetyReport::of(&runtime),
         end: end_text,
         log: log_stats,
         estimator: est_eval.report(),
         terrain: opts.world.as_ref().map(|w| terrain_eval.report(w, lidar_counters)),
+        terrain_source: terrain_source.as_str().into(),
+        heading_target_deg: heading_target.map(|y| (y as f64).to_degrees()),
+        policy_time_s: policy_ticks as f64 * control_dt,
+        stairs: stairs_eval.report(clean),
         timing: Timing {
             sim_seconds_per_wall_second: time_s / wall_s.max(1e-9),
             fast_group_us: runtime.timing_stats().fast(),

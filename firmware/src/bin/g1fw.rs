@@ -25,6 +25,15 @@ enum Cmd {
     /// Start the MuJoCo simulator (g1-sim) and run the firmware against it, lock-stepped over the
     /// bridge, then print (and optionally write) a JSON report evaluated from ground truth.
     Sim(Box<SimArgs>),
+    /// Evaluate a (stair) policy through the real firmware loop: N episodes, each exactly a
+    /// `g1fw sim` run (500 Hz, lock-stepped with its own g1-sim, perception on) walking forward at
+    /// --vx with the heading correction pointed along the staircase axis. Success on stairs: the
+    /// base reached the end landing (0.25 m past the last riser, within the stair width) within
+    /// --time-limit with no fall and no safety trip; on flat: no fall, no trip and at least
+    /// 0.8·vx·(time under policy) walked. Prints successes, failure causes (fell, safety trip and
+    /// its reason, stalled, timeout, short) and a table per step height and kind; writes a JSON
+    /// report with every episode.
+    Eval(Box<EvalArgs>),
     /// Run the firmware on the robot's CAN buses (docs/can.md): the motors (MIT protocol) and the
     /// IMU per the bus layout, until --duration or SIGINT/SIGTERM (which damp the motors). On a
     /// bench, `g1-can-emu` plays the robot on vcan. Prints a JSON report; exit 0 when no safety trip
@@ -159,6 +168,86 @@ struct SimArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Where the policy's terrain token comes from: cnn | geometric (the perception estimator;
+    /// default: the spec's `[perception] terrain_estimator`), truth (an evaluation ablation: the
+    /// simulator's privileged ground-truth token of each tick; such a log does not replay) or
+    /// none (the token stays flat: class flat, h = d = 0, yaw 0; the policy runs blind).
+    /// Recorded in the log and the report.
+    #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
+    terrain_source: Option<firmware::perception::TerrainSource>,
+    /// Heading correction: keep this heading (degrees, world frame = relative to the start
+    /// heading) by replacing the command's wz every tick with 0.5·wrap(target − IMU yaw), clamped
+    /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0.
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
+    heading: Option<f64>,
+    /// Draw base height and the ground under the base against distance along the staircase axis
+    /// (along x on flat ground) to this PNG.
+    #[arg(long, value_name = "FILE.png")]
+    profile_plot: Option<PathBuf>,
+    /// Stop once the base has stood on the staircase's end landing this long (s) with no fall and
+    /// no trip (the run has succeeded; `stairs` in the report).
+    #[arg(long, value_name = "S")]
+    stop_after_landing: Option<f64>,
+}
+
+/// Parses `--terrain-source`.
+fn parse_terrain_source(s: &str) -> Result<firmware::perception::TerrainSource, String> {
+    s.parse()
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// Deploy spec (TOML) of the policy under test.
+    #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
+    spec: PathBuf,
+    /// Robot model: g1-12dof, g1-29dof or an MJCF path (as `g1fw sim --model`).
+    #[arg(long, default_value = "g1-29dof")]
+    model: String,
+    /// Where the policy's terrain token comes from: cnn | geometric (the perception estimator;
+    /// default: the spec's `[perception] terrain_estimator`), truth (evaluation ablation: the
+    /// simulator's ground-truth token) or none (flat token: the policy runs blind).
+    #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
+    terrain_source: Option<firmware::perception::TerrainSource>,
+    /// Forward velocity command, m/s (vy = 0; wz from the heading correction).
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true)]
+    vx: f32,
+    /// Simulated seconds per episode.
+    #[arg(long, default_value_t = 20.0, value_name = "S")]
+    time_limit: f64,
+    /// Episodes run at once, each with its own g1-sim (results do not depend on it).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    jobs: usize,
+    /// Base seed: episode i runs its simulator with seed + i; the random sweep draws from it.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Worlds, comma-separated, one episode each: presets (flat, stairs-up, stairs-down, outdoor),
+    /// scenario files (specs/worlds/*.toml) or random:SEED.
+    #[arg(long, value_delimiter = ',', value_name = "LIST", conflicts_with = "heights")]
+    worlds: Vec<String>,
+    /// Random sweep: riser heights (m), comma-separated; each episode draws depth 0.22-0.40 m,
+    /// yaw ±30°, start distance 0.6-2.0 m, 3-8 steps and width 1.2-2.0 m from --seed and writes
+    /// a scenario file into a scratch directory removed afterwards.
+    #[arg(long, value_delimiter = ',', value_name = "H,...")]
+    heights: Vec<f64>,
+    /// Random sweep: staircase kinds, comma-separated: up, down.
+    #[arg(long, value_delimiter = ',', default_value = "up,down", value_name = "up,down")]
+    kinds: Vec<String>,
+    /// Random sweep: episodes per (kind, height).
+    #[arg(long, default_value_t = 10, value_name = "N")]
+    episodes_per_height: usize,
+    /// End an episode once the base has stood on the end landing this long (s); 0 runs every
+    /// episode to --time-limit.
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    stop_after_landing: f64,
+    /// Write the JSON report here.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Path of the g1-sim binary (default: beside g1fw, or $G1_SIM_BIN).
+    #[arg(long)]
+    sim_bin: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(clap::Args)]
@@ -271,6 +360,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Sim(a) => sim(*a),
+        Cmd::Eval(a) => eval(*a),
         Cmd::Run(a) => run_can(*a),
         Cmd::Replay(a) => {
             let report = replay(
@@ -344,6 +434,17 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         Some(p) => CommandSchedule::load(p)?,
         None => CommandSchedule::constant(a.cmd),
     };
+    if let Some(h) = a.heading {
+        if !h.is_finite() {
+            bail!("--heading must be a finite number of degrees");
+        }
+        if a.cmd_schedule.is_none() && (a.cmd[1] != 0.0 || a.cmd[2] != 0.0) {
+            bail!("--heading sets wz itself and keeps vy 0: give --cmd VX,0,0");
+        }
+    }
+    if a.stop_after_landing.is_some_and(|s| !(s >= 0.0 && s.is_finite())) {
+        bail!("--stop-after-landing must be a non-negative number of seconds");
+    }
     let opts = SimOptions {
         model: a.model,
         schedule,
@@ -362,12 +463,31 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         faults: a.faults,
         imu_noise: a.imu_noise,
-        world: a.world,
+        world: a.world.clone(),
         log: a.log.clone(),
         log_options: Default::default(),
         rt: a.rt.options(),
+        terrain_source: a.terrain_source,
+        heading: a
+            .heading
+            .map(|d| firmware::sim_run::Heading::Fixed(d.to_radians() as f32)),
+        stop_after_landing_s: a.stop_after_landing,
     };
-    let report = run_sim(spec, &opts, |_| {})?;
+    let mut profile = Vec::new();
+    let mut on_stairs = false;
+    let report = run_sim(spec, &opts, |v| {
+        if a.profile_plot.is_none() || v.summary.tick.index % 10 != 0 {
+            return;
+        }
+        if let Some(t) = v.truth {
+            on_stairs |= t.stairs.is_some();
+            profile.push(firmware::profile_plot::ProfileSample {
+                s: t.stairs.map_or(t.base_pos[0], |p| p.axis_s),
+                base_z: t.base_pos[2],
+                ground_z: t.ground_height_m,
+            });
+        }
+    })?;
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
     if let Some(path) = a.report {
@@ -380,6 +500,38 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         firmware::log_tools::plot_log(log, png)?;
         tracing::info!(plot = %png.display(), "velocity plot written");
     }
+    if let Some(png) = &a.profile_plot {
+        let at_s = |t: Option<f64>| t.and_then(|t| profile.get((t / 0.02) as usize).map(|p| p.s));
+        let event = match (&report.trip, report.fell_at_s) {
+            (Some(t), _) => at_s(Some(t.time_s)).map(|s| (s, format!("trip: {}", t.reason))),
+            (None, Some(f)) => at_s(Some(f)).map(|s| (s, "fell".to_string())),
+            _ => None,
+        };
+        let stairs = report.stairs.as_ref();
+        let p = firmware::profile_plot::Profile {
+            title: format!(
+                "{} on {}: {}, terrain source {}",
+                report.spec,
+                a.world.as_deref().unwrap_or("flat ground"),
+                match stairs {
+                    Some(s) if s.success => format!("success, {} of {} risers", s.risers_passed, s.risers),
+                    Some(s) => format!("no success, {} of {} risers", s.risers_passed, s.risers),
+                    None => format!("{:.2} m in {:.1} s", report.distance_x_m, report.time_s),
+                },
+                report.terrain_source
+            ),
+            axis_label: if on_stairs {
+                "along the staircase axis from its first riser".into()
+            } else {
+                "along world x".into()
+            },
+            landing_at: stairs.and_then(|s| at_s(s.reached_end_landing_at_s)),
+            event,
+            samples: profile,
+        };
+        firmware::profile_plot::profile_png(png, &p)?;
+        tracing::info!(plot = %png.display(), "profile plot written");
+    }
     tracing::info!(
         fell = report.fell,
         distance_x_m = format!("{:.2}", report.distance_x_m),
@@ -387,6 +539,67 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         end = report.end,
         "run finished"
     );
+    Ok(ExitCode::SUCCESS)
+}
+
+fn eval(a: EvalArgs) -> Result<ExitCode> {
+    use firmware::eval::{random_sweep, run_eval, EpisodeWorld, EvalOptions};
+    if !(a.time_limit > 0.0 && a.time_limit.is_finite()) {
+        bail!("--time-limit must be a positive number of seconds");
+    }
+    if !a.vx.is_finite() {
+        bail!("--vx must be a finite number (m/s)");
+    }
+    if a.jobs == 0 {
+        bail!("--jobs must be at least 1");
+    }
+    let (episodes, _scratch) = if !a.heights.is_empty() {
+        let mut kinds = Vec::new();
+        for k in &a.kinds {
+            kinds.push(match k.as_str() {
+                "up" => true,
+                "down" => false,
+                _ => bail!("--kinds: '{k}' is neither up nor down"),
+            });
+        }
+        if a.episodes_per_height == 0 {
+            bail!("--episodes-per-height must be at least 1");
+        }
+        let (w, g) = random_sweep(&a.heights, &kinds, a.episodes_per_height, a.seed, &std::env::temp_dir())?;
+        (w, Some(g))
+    } else if !a.worlds.is_empty() {
+        let w = a
+            .worlds
+            .iter()
+            .map(|w| EpisodeWorld {
+                world: w.trim().to_string(),
+                drawn: None,
+            })
+            .collect();
+        (w, None)
+    } else {
+        bail!("say which worlds: --worlds LIST (e.g. flat,stairs-up,specs/worlds/stairs_down_steep.toml) or a random sweep --heights 0.12,0.16 [--kinds up,down --episodes-per-height N]");
+    };
+    let opts = EvalOptions {
+        spec: a.spec,
+        model: a.model,
+        terrain_source: a.terrain_source,
+        vx: a.vx,
+        time_limit_s: a.time_limit,
+        jobs: a.jobs,
+        seed: a.seed,
+        episodes,
+        stop_after_landing_s: (a.stop_after_landing > 0.0).then_some(a.stop_after_landing),
+        sim_bin: a.sim_bin,
+        progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
+    };
+    let report = run_eval(&opts)?;
+    print!("{}", report.text());
+    if let Some(path) = &a.report {
+        let json = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
     Ok(ExitCode::SUCCESS)
 }
 

@@ -588,6 +588,8 @@ impl Simulator {
             base_ang_vel_body: w_body,
             foot_contact,
             terrain,
+            ground_height_m: self.world.as_ref().map_or(0.0, |w| w.ground_height(pos[0], pos[1])),
+            stairs: self.world.as_ref().and_then(|w| w.stair_progress(pos[0], pos[1])),
         }
     }
 

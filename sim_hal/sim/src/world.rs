@@ -495,6 +495,31 @@ impl World {
         self.stairs.as_ref().map_or_else(Vec::new, Staircase::primitives)
     }
 
+    /// The base's progress over the staircase at world (x, y) (`None` without a staircase): axis
+    /// coordinates, risers passed (edge behind the base while the base is within the stair
+    /// width) and whether the base is on the end landing ([`sim_hal::bridge::END_LANDING_MARGIN_M`]
+    /// past the last riser, not beyond the landing's far end, within the width). Evaluation only.
+    pub fn stair_progress(&self, x: f64, y: f64) -> Option<sim_hal::bridge::StairProgress> {
+        let st = self.stairs.as_ref()?;
+        let (s, t) = st.to_axis(x, y);
+        let within = t.abs() <= 0.5 * st.width;
+        let passed = if within {
+            st.risers.partition_point(|r| r.s < s)
+        } else {
+            0
+        };
+        let last = st.risers.last().map_or(0.0, |r| r.s);
+        Some(sim_hal::bridge::StairProgress {
+            axis_s: s,
+            axis_t: t,
+            axis_yaw_rad: st.yaw as f32,
+            rise_m: (st.levels.last().copied().unwrap_or(0.0) - st.levels[0]) as f32,
+            risers: st.risers.len().min(u16::MAX as usize) as u16,
+            risers_passed: passed.min(u16::MAX as usize) as u16,
+            on_end_landing: within && s >= last + sim_hal::bridge::END_LANDING_MARGIN_M && s <= st.end_s,
+        })
+    }
+
     /// Where the robot starts: (x, y, ground height, yaw).
     pub fn start(&self) -> [f64; 4] {
         [0.0, 0.0, self.ground_height(0.0, 0.0), 0.0]

@@ -301,3 +301,62 @@ fn committed_scenario_files_load() {
     }
     assert!(n >= 2, "scenario examples in {}", dir.display());
 }
+
+/// Stair progress for `g1fw eval`: risers passed and the end landing, on scripted base positions
+/// along a yawed, offset staircase (4 steps of 0.3 m from s = 0; end landing 1.5 m long).
+#[test]
+fn stair_progress_counts_risers_and_finds_the_end_landing() {
+    use sim_hal::bridge::END_LANDING_MARGIN_M;
+    let w = World::from_toml(
+        "[terrain]\nkind = \"stairs-up\"\nsteps = 4\nstep_depth = 0.3\nstep_height = 0.12\nyaw_deg = 20.0\n\
+         start_distance = 1.0\nlateral_offset = 0.2\nwidth = 1.2\nlanding_after = 1.5\n",
+        "progress",
+    )
+    .unwrap();
+    let yaw = 20f64.to_radians();
+    let (u, v) = ([yaw.cos(), yaw.sin()], [-yaw.sin(), yaw.cos()]);
+    // World point at axis coordinates (s, t): origin is 1.0 m along u and 0.2 m along v.
+    let at = |s: f64, t: f64| {
+        let (a, b) = (1.0 + s, 0.2 + t);
+        [u[0] * a + v[0] * b, u[1] * a + v[1] * b]
+    };
+    let p = |s: f64, t: f64| {
+        let q = at(s, t);
+        w.stair_progress(q[0], q[1]).unwrap()
+    };
+    // At the start pose: 1 m before the first riser, on the axis (t = −0.2).
+    let start = w.stair_progress(0.0, 0.0).unwrap();
+    assert!(
+        (start.axis_s + 1.0).abs() < 1e-9 && (start.axis_t + 0.2).abs() < 1e-9,
+        "{start:?}"
+    );
+    assert_eq!((start.risers, start.risers_passed, start.on_end_landing), (4, 0, false));
+    assert!((start.axis_yaw_rad as f64 - yaw).abs() < 1e-6 && (start.rise_m - 0.48).abs() < 1e-6);
+    for (s, passed) in [
+        (-0.01, 0),
+        (0.01, 1),
+        (0.29, 1),
+        (0.31, 2),
+        (0.61, 3),
+        (0.95, 4),
+        (2.0, 4),
+    ] {
+        assert_eq!(p(s, 0.1).risers_passed, passed, "s = {s}");
+    }
+    // The end landing: last riser at s = 0.9, landing to s = 2.4.
+    assert!(!p(0.9 + END_LANDING_MARGIN_M - 0.01, 0.0).on_end_landing);
+    assert!(p(0.9 + END_LANDING_MARGIN_M + 0.01, 0.0).on_end_landing);
+    assert!(p(2.39, 0.5).on_end_landing);
+    assert!(!p(2.41, 0.0).on_end_landing, "past the landing's far end");
+    // Beside the staircase nothing counts.
+    let beside = p(1.5, 0.7);
+    assert_eq!((beside.risers_passed, beside.on_end_landing), (0, false));
+    // Ground height under the base follows the steps.
+    let g = |s: f64| {
+        let q = at(s, 0.0);
+        w.ground_height(q[0], q[1])
+    };
+    assert!((g(-0.5) - 0.0).abs() < 1e-9 && (g(0.45) - 0.24).abs() < 1e-9 && (g(1.5) - 0.48).abs() < 1e-9);
+    // Flat worlds have no progress.
+    assert!(World::preset("flat").unwrap().stair_progress(1.0, 0.0).is_none());
+}

@@ -15,11 +15,12 @@
 //! (the simulator's fault injection dropped it); its payload is then empty, and the lock-step still
 //! advanced one tick (the `Truth` of that tick follows if asked). All other bits, and any flag on
 //! other kinds, are reserved and sent as zero. Version 2 introduced the flag, version 3 the lidar and
-//! the terrain label; older peers are refused at `Hello`.
+//! the terrain label, version 4 the ground height under the base and the stair progress in `Truth`
+//! ([`StairProgress`], for `g1fw eval`); other versions are refused at `Hello`.
 use std::io::{self, Read, Write};
 
 pub const MAGIC: [u8; 2] = *b"G1";
-pub const PROTOCOL_VERSION: u32 = 3;
+pub const PROTOCOL_VERSION: u32 = 4;
 pub const HEADER_LEN: usize = 8;
 /// `LowState` flag: no frame this tick (dropped); the payload is empty.
 pub const FLAG_NO_FRAME: u8 = 1 << 0;
@@ -252,6 +253,64 @@ pub struct Truth {
     pub foot_contact: [bool; 2],
     /// Ground-truth terrain token at the base's pose, when the simulator runs a terrain world.
     pub terrain: Option<hal::TerrainToken>,
+    /// Height of the walking surface under the base (x, y), m (0 on flat ground and without a
+    /// world).
+    pub ground_height_m: f64,
+    /// Where the base is on the world's staircase (`None` without one).
+    pub stairs: Option<StairProgress>,
+}
+
+/// The base's progress over a staircase (ground truth, evaluation only). Axis coordinates as in
+/// `g1_sim::world`: `s` along the staircase axis from the first riser, `t` to its left.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StairProgress {
+    /// Base position along the staircase axis, from the first riser, m.
+    pub axis_s: f64,
+    /// Base position across the axis (left positive), m.
+    pub axis_t: f64,
+    /// The staircase axis (direction of +s, from its first riser to its last), rad from world +x
+    /// (a fixed property of the world: where an operator would point the robot).
+    pub axis_yaw_rad: f32,
+    /// End landing level minus start landing level, m (> 0: the stairs go up along +s).
+    pub rise_m: f32,
+    /// Risers in the staircase.
+    pub risers: u16,
+    /// Risers whose edge lies behind the base (`riser.s < axis_s`) while the base is within the
+    /// stair width (`|axis_t| ≤ width/2`); 0 beside the staircase.
+    pub risers_passed: u16,
+    /// The base is on the end landing: `axis_s ≥ last riser + `[`END_LANDING_MARGIN_M`], at most
+    /// the landing's far end, and within the stair width.
+    pub on_end_landing: bool,
+}
+
+/// How far past the last riser's edge the base (pelvis) must be to count as on the end landing, m:
+/// with the G1's ~0.2 m feet under the pelvis, both feet are then past the edge.
+pub const END_LANDING_MARGIN_M: f64 = 0.25;
+
+impl StairProgress {
+    const LEN: usize = 1 + 8 + 8 + 4 + 4 + 2 + 2 + 1;
+    fn encode(&self, b: &mut [u8]) {
+        b[0] = 1;
+        b[1..9].copy_from_slice(&self.axis_s.to_le_bytes());
+        b[9..17].copy_from_slice(&self.axis_t.to_le_bytes());
+        b[17..21].copy_from_slice(&self.axis_yaw_rad.to_le_bytes());
+        b[21..25].copy_from_slice(&self.rise_m.to_le_bytes());
+        b[25..27].copy_from_slice(&self.risers.to_le_bytes());
+        b[27..29].copy_from_slice(&self.risers_passed.to_le_bytes());
+        b[29] = self.on_end_landing as u8;
+    }
+    fn decode(b: &[u8]) -> Option<Self> {
+        let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
+        (b[0] != 0).then(|| Self {
+            axis_s: f64::from_le_bytes(b[1..9].try_into().expect("8 bytes")),
+            axis_t: f64::from_le_bytes(b[9..17].try_into().expect("8 bytes")),
+            axis_yaw_rad: f32_at(17),
+            rise_m: f32_at(21),
+            risers: u16::from_le_bytes([b[25], b[26]]),
+            risers_passed: u16::from_le_bytes([b[27], b[28]]),
+            on_end_landing: b[29] != 0,
+        })
+    }
 }
 
 impl Truth {
@@ -267,8 +326,10 @@ impl Truth {
         self.base_pos[2] < 0.5 || self.tilt_deg() > 60.0
     }
 
-    pub const LEN: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2 + 1 + 12;
+    pub const LEN: usize = Self::STAIRS_AT + StairProgress::LEN;
     const TERRAIN_AT: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
+    const GROUND_AT: usize = Self::TERRAIN_AT + 1 + 12;
+    const STAIRS_AT: usize = Self::GROUND_AT + 8;
     pub fn encode(&self) -> [u8; Self::LEN] {
         let mut b = [0u8; Self::LEN];
         // No intermediate Vec: this runs every tick when truth is requested.
@@ -298,6 +359,11 @@ impl Truth {
                 b[t + 9..t + 13].copy_from_slice(&z.yaw_rad.to_le_bytes());
             }
         }
+        b[Self::GROUND_AT..Self::STAIRS_AT].copy_from_slice(&self.ground_height_m.to_le_bytes());
+        // First byte 0: no staircase.
+        if let Some(p) = &self.stairs {
+            p.encode(&mut b[Self::STAIRS_AT..]);
+        }
         b
     }
     pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
@@ -326,6 +392,8 @@ impl Truth {
                 step_depth_m: f32_at(t + 5),
                 yaw_rad: f32_at(t + 9),
             }),
+            ground_height_m: f64::from_le_bytes(b[Self::GROUND_AT..Self::STAIRS_AT].try_into().expect("8 bytes")),
+            stairs: StairProgress::decode(&b[Self::STAIRS_AT..]),
         })
     }
 }
@@ -422,6 +490,8 @@ mod tests {
             base_ang_vel_body: [0.0, 0.0, 0.2],
             foot_contact: [true, false],
             terrain: None,
+            ground_height_m: 0.0,
+            stairs: None,
         };
         assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
         let t = Truth {
@@ -430,6 +500,24 @@ mod tests {
                 step_height_m: 0.15,
                 step_depth_m: 0.3,
                 yaw_rad: -0.2,
+            }),
+            ground_height_m: 0.45,
+            stairs: Some(StairProgress {
+                axis_s: 1.37,
+                axis_t: -0.2,
+                axis_yaw_rad: 0.3,
+                rise_m: -0.9,
+                risers: 6,
+                risers_passed: 4,
+                on_end_landing: false,
+            }),
+            ..t
+        };
+        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
+        let t = Truth {
+            stairs: Some(StairProgress {
+                on_end_landing: true,
+                ..t.stairs.unwrap()
             }),
             ..t
         };
