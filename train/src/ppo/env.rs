@@ -196,16 +196,6 @@ pub struct StairEnv {
     pub last_end: Option<EpisodeEnd>,
 }
 
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI) - std::f64::consts::PI
-}
-
-/// Forward speed with heading hold: the operator command `g1fw eval` sends too
-/// (`wz = clamp(0.5 · wrap(target − yaw), ±0.5)`).
-pub fn heading_command(vx: f32, target_yaw: f64, yaw: f64) -> [f32; 3] {
-    [vx, 0.0, (0.5 * wrap(target_yaw - yaw)).clamp(-0.5, 0.5) as f32]
-}
-
 fn yaw_of(q: [f64; 4]) -> f64 {
     let [w, x, y, z] = q;
     (2.0 * (w * z + x * y)).atan2(1.0 - 2.0 * (y * y + z * z))
@@ -497,10 +487,10 @@ impl StairEnv {
         s
     }
 
-    /// The operator's command now (heading hold toward the staircase axis).
+    /// The operator's command now: forward speed with heading hold toward the staircase axis,
+    /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval`.
     pub fn operator_command(&self) -> [f32; 3] {
-        let q = self.state.imu.quaternion.map(|v| v as f64);
-        heading_command(self.vx_cmd, self.heading, yaw_of(q))
+        firmware::operator::heading_command(self.vx_cmd, self.heading as f32, firmware::operator::imu_yaw(&self.state))
     }
 
     /// The actor's observation of the current state, built by the firmware's `PolicyIo`.
