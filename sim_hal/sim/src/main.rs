@@ -134,6 +134,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         control_dt: cli.control_dt.unwrap_or(cli.physics_dt),
         seed: cli.seed,
         imu_noise: cli.imu_noise,
+        ..SimConfig::default()
     };
     let model_name = cli.model.to_string();
     // Syntax errors before the (slow) model load; slot checks need the model.
