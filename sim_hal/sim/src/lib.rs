@@ -96,6 +96,31 @@ pub struct SimConfig {
     pub imu_noise: Option<ImuNoise>,
     /// Solver and collision settings (default: the deploy-side model as shipped).
     pub physics: PhysicsProfile,
+    /// MuJoCo integrator (default implicitfast: the PD's damping implicit).
+    pub integrator: Integrator,
+}
+
+/// MuJoCo integrator. The PD actuator is the same under both; only its damping's integration
+/// differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Integrator {
+    /// `implicitfast`: −kd (and joint damping) enter each step's mass matrix; stable at any kd.
+    #[default]
+    ImplicitFast,
+    /// Semi-implicit Euler: the actuator force is evaluated from the state at the start of the
+    /// step, exactly the explicit motor law of Unitree's reference loop (for parity checks).
+    Euler,
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "implicitfast" => Ok(Self::ImplicitFast),
+            "euler" => Ok(Self::Euler),
+            _ => Err(format!("integrator '{s}': expected implicitfast or euler")),
+        }
+    }
 }
 
 /// Error model of the pelvis IMU, drawn from the seeded generator. Standard deviations.
@@ -193,6 +218,7 @@ impl Default for SimConfig {
             seed: 0,
             imu_noise: None,
             physics: PhysicsProfile::Deploy,
+            integrator: Integrator::ImplicitFast,
         }
     }
 }
@@ -338,7 +364,7 @@ impl Simulator {
                 )));
             }
         }
-        let l = model::load(&choice, config.physics_dt, world, config.physics, pool)?;
+        let l = model::load(&choice, &config, world, pool)?;
         let robot_root = l.model.body_rootid()[l.pelvis_body];
         let friction0 = l.model.geom_friction().to_vec();
         let pelvis_mass0 = l.model.body_mass()[l.pelvis_body];

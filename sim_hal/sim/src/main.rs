@@ -62,6 +62,12 @@ struct Cli {
     #[arg(long, value_name = "realistic|STD[,...]")]
     imu_noise: Option<g1_sim::ImuNoise>,
 
+    /// MuJoCo integrator: `implicitfast` (the PD actuators' damping integrated implicitly, stable at
+    /// real gains) or `euler` (the PD force from the state at the start of each step, explicit,
+    /// as in Unitree's Python reference loop; unstable once kd·dt/I > 2).
+    #[arg(long, value_name = "implicitfast|euler", default_value = "implicitfast")]
+    integrator: g1_sim::Integrator,
+
     /// Microseconds a socket read spins before blocking (lower latency when the client answers
     /// quickly; 0 = always block).
     #[arg(long, value_name = "US", default_value_t = 20)]
@@ -134,6 +140,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         control_dt: cli.control_dt.unwrap_or(cli.physics_dt),
         seed: cli.seed,
         imu_noise: cli.imu_noise,
+        integrator: cli.integrator,
         ..SimConfig::default()
     };
     let model_name = cli.model.to_string();

@@ -196,11 +196,11 @@ fn is_direct_motor(trn: mjtTrn, gain: mjtGain, gainprm0: f64, bias: mjtBias, dyn
 /// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map.
 pub fn load(
     choice: &ModelChoice,
-    physics_dt: f64,
+    config: &crate::SimConfig,
     world: Option<&World>,
-    profile: PhysicsProfile,
     pool: TerrainPool,
 ) -> Result<Loaded, SimError> {
+    let profile = config.physics;
     let path = choice.path();
     if !path.exists() {
         return Err(SimError::ModelMissing {
@@ -209,10 +209,13 @@ pub fn load(
         });
     }
     let mut spec = MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
-    spec.option_mut().timestep = physics_dt;
+    spec.option_mut().timestep = config.physics_dt;
     // The PD's damping (kd up to 10 on sub-kg wrist links) is stiff: integrated explicitly it
     // diverges once kd·dt/I > 2; implicitfast folds −kd into the mass matrix of each step.
-    spec.option_mut().integrator = mjtIntegrator::mjINT_IMPLICITFAST as i32;
+    spec.option_mut().integrator = match config.integrator {
+        crate::Integrator::ImplicitFast => mjtIntegrator::mjINT_IMPLICITFAST,
+        crate::Integrator::Euler => mjtIntegrator::mjINT_EULER,
+    } as i32;
     if profile == PhysicsProfile::Training {
         spec.option_mut().iterations = 10;
         spec.option_mut().ls_iterations = 20;
