@@ -66,10 +66,41 @@ fn wrists_hold_still_at_rl_lab_gains_dt_0_005_decimation_4() {
         control_dt: 0.02,
         ..SimConfig::default()
     };
-    let (peak, min_z) = hold_implicit(config, 4.0);
-    eprintln!("implicit PD, dt 0.005 x 4: peak wrist speed {peak:.4} rad/s, min pelvis z {min_z:.3}");
-    assert!(peak < 1.0, "wrist speed {peak} rad/s");
-    assert!(min_z > 0.6, "pelvis dropped to {min_z}");
+    for physics in [PhysicsProfile::Deploy, PhysicsProfile::Training] {
+        let (peak, min_z) = hold_implicit(SimConfig { physics, ..config }, 4.0);
+        eprintln!("implicit PD, dt 0.005 x 4, {physics:?}: peak wrist speed {peak:.4} rad/s, min pelvis z {min_z:.3}");
+        assert!(peak < 1.0, "{physics:?}: wrist speed {peak} rad/s");
+        assert!(min_z > 0.6, "{physics:?}: pelvis dropped to {min_z}");
+    }
+}
+
+/// Both models drive every slot through exactly one PD actuator: the 12-dof model's own gear-1
+/// motors are converted in place (not duplicated), and the joint-level force clamp moved onto the
+/// actuator, which MuJoCo's implicit derivative respects.
+#[test]
+fn every_slot_has_one_force_limited_affine_pd_actuator() {
+    require_deps();
+    let mut models = vec![(ModelChoice::G1_29Dof, 29)];
+    if have_12dof("every_slot_has_one_force_limited_affine_pd_actuator") {
+        models.push((ModelChoice::G1_12Dof, 12));
+    }
+    for (choice, n) in models {
+        let sim = Simulator::load(choice.clone(), SimConfig::default()).unwrap();
+        let m = sim.data().model();
+        assert_eq!(m.nu() as usize, n, "{choice}");
+        assert_eq!(m.opt().integrator, MjtIntegrator::mjINT_IMPLICITFAST as i32, "{choice}");
+        for a in 0..n {
+            assert_eq!(m.actuator_biastype()[a], MjtBias::mjBIAS_AFFINE, "{choice} {a}");
+            assert!(m.actuator_forcelimited()[a], "{choice} {a}");
+            assert!(!m.actuator_ctrllimited()[a], "{choice} {a}");
+        }
+        assert!(
+            m.jnt_actfrclimited().iter().all(|l| !l),
+            "{choice}: a joint-level clamp is left"
+        );
+        let (lo, hi) = sim.effort_limit(3).unwrap();
+        assert_eq!(m.actuator_forcerange()[3], [lo, hi], "{choice}");
+    }
 }
 
 /// The old motor law on the same setup: the torque computed from the state at the start of every
