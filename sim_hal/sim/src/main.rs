@@ -68,6 +68,11 @@ struct Cli {
     #[arg(long, value_name = "implicitfast|euler", default_value = "implicitfast")]
     integrator: g1_sim::Integrator,
 
+    /// Physics profile: `deploy` (the model's contacts and solver) or `training` (the lean RL
+    /// profile: feet and shins against the world only, 10 solver iterations, no joint friction).
+    #[arg(long, value_name = "deploy|training", default_value = "deploy")]
+    physics: g1_sim::PhysicsProfile,
+
     /// Microseconds a socket read spins before blocking (lower latency when the client answers
     /// quickly; 0 = always block).
     #[arg(long, value_name = "US", default_value_t = 20)]
@@ -141,6 +146,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         seed: cli.seed,
         imu_noise: cli.imu_noise,
         integrator: cli.integrator,
+        physics: cli.physics,
         ..SimConfig::default()
     };
     let model_name = cli.model.to_string();

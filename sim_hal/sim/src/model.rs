@@ -156,6 +156,17 @@ pub enum PhysicsProfile {
     Training,
 }
 
+impl FromStr for PhysicsProfile {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "deploy" => Ok(Self::Deploy),
+            "training" => Ok(Self::Training),
+            _ => Err(format!("physics profile '{s}': expected deploy or training")),
+        }
+    }
+}
+
 /// How many static terrain geoms to preallocate for [`crate::Simulator::set_world`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct TerrainPool {

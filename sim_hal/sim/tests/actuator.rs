@@ -238,6 +238,14 @@ fn training() -> SimConfig {
 #[test]
 fn training_profile_collides_feet_and_shins_only_and_stands() {
     require_deps();
+    assert_eq!("training".parse::<PhysicsProfile>(), Ok(PhysicsProfile::Training));
+    assert_eq!("deploy".parse::<PhysicsProfile>(), Ok(PhysicsProfile::Deploy));
+    assert!("fast"
+        .parse::<PhysicsProfile>()
+        .unwrap_err()
+        .contains("deploy or training"));
+    assert_eq!("euler".parse::<g1_sim::Integrator>(), Ok(g1_sim::Integrator::Euler));
+    assert!("rk4".parse::<g1_sim::Integrator>().is_err());
     let mut models = vec![ModelChoice::G1_29Dof];
     if have_12dof("training_profile_collides_feet_and_shins_only_and_stands") {
         models.push(ModelChoice::G1_12Dof);
