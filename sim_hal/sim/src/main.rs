@@ -147,7 +147,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
         imu_noise: cli.imu_noise,
         integrator: cli.integrator,
         physics: cli.physics,
-        ..SimConfig::default()
     };
     let model_name = cli.model.to_string();
     // Syntax errors before the (slow) model load; slot checks need the model.
