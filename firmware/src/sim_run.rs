@@ -55,6 +55,9 @@ pub struct SimOptions {
     pub imu_noise: Option<String>,
     /// Terrain world for the simulator (`g1-sim --world`: preset, scenario file or random:SEED).
     /// With a world the simulator also streams its MID-360 and the perception group runs.
+    /// The simulator's integrator (`g1-sim --integrator`): `None` its default (implicitfast, the
+    /// PD's damping implicit), `euler` to reproduce an explicit-PD reference loop.
+    pub integrator: Option<String>,
     pub world: Option<String>,
     /// Record an MCAP log here.
     pub log: Option<PathBuf>,
@@ -120,6 +123,7 @@ impl Default for SimOptions {
             faults: Vec::new(),
             imu_noise: None,
             world: None,
+            integrator: None,
             log: None,
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
@@ -462,6 +466,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
                 faults: opts.faults.clone(),
                 imu_noise: opts.imu_noise.clone(),
                 world: opts.world.clone(),
+                integrator: opts.integrator.clone(),
                 ..SimLaunch::new(&opts.model, control_dt)
             };
             let (c, hal) = launch.start("g1fw", want, Duration::from_secs(30))?;

@@ -49,6 +49,9 @@ fn first_observations_match_the_reference_loop() {
         duration_s: 0.25,
         ramp_override: Some((0.0, 0.0)),
         sim_bin: Some(built_bin("g1-sim")),
+        // The reference loop applied an explicitly computed PD torque with MuJoCo's Euler
+        // integrator; g1-sim's default implicit PD damping differs by ~1e-2 rad in 10 steps.
+        integrator: Some("euler".into()),
         ..SimOptions::default()
     };
     let mut obs: Vec<(f64, Vec<f32>)> = Vec::new();

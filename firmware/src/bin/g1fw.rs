@@ -125,6 +125,10 @@ struct SimArgs {
     /// and yaw drift), or numbers as `g1-sim --imu-noise` takes them. Off by default.
     #[arg(long, value_name = "realistic|STD[,...]")]
     imu_noise: Option<String>,
+    /// The simulator's integrator (`g1-sim --integrator`): implicitfast (its default) or euler
+    /// (the explicit PD of Unitree's Python reference loop).
+    #[arg(long, value_name = "implicitfast|euler")]
+    sim_integrator: Option<String>,
     /// Terrain world: a preset (flat, stairs-up, stairs-down, outdoor), a scenario file
     /// (SCENARIO.toml) or random:SEED. The simulator then streams its MID-360 (Livox packets), the
     /// perception group builds the BEV grid and a terrain token every frame, and the report gains
@@ -463,6 +467,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         faults: a.faults,
         imu_noise: a.imu_noise,
+        integrator: a.sim_integrator,
         world: a.world.clone(),
         log: a.log.clone(),
         log_options: Default::default(),

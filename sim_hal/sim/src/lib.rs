@@ -3,11 +3,26 @@
 //! - [`model`] loads a G1 MJCF (the 29-dof mjlab model by default, the 12-dof unitree_rl_gym model,
 //!   or any file) and makes it drivable: floor, armature, one torque motor per unitree_hg slot,
 //!   pelvis IMU.
-//! - [`Simulator`] runs the robot's motor drivers: at **every physics step** each enabled slot
-//!   gets `tau = tau_ff + kp (q_des − q) + kd (dq_des − dq)` from the state of that very step,
-//!   clamped to the joint's effort limit and written to the slot's motor actuator `ctrl` (gear 1,
-//!   so `ctrl` is the joint torque and shows up in `actuator_force`). It fills unitree_hg
-//!   [`LowState`]s and privileged [`Truth`].
+//! - [`Simulator`] runs the robot's motor drivers. **Actuator model**: each slot is one MuJoCo
+//!   general actuator (gear 1, gain 1, affine bias, `forcerange` = the effort limit) with
+//!   `ctrl = tau_ff + kp·q_des + kd·dq_des` and `biasprm = [0, −kp, −kd]`, written into the model
+//!   whenever the command (or a fault, or a randomisation hook) changes, so MuJoCo computes
+//!   `tau = tau_ff + kp (q_des − q) + kd (dq_des − dq)` at every physics step and clamps it. With
+//!   the `implicitfast` integrator the `−kd` term enters the step's mass matrix: the PD's damping
+//!   is integrated implicitly. Computing the torque explicitly diverges once `kd·dt / I > 2`
+//!   (unitree_rl_lab's kd 10 on a ~0.004 kg·m² wrist at dt 0.002: the wrists chatter bang-bang
+//!   between ±5 N·m). MuJoCo drops the `−kd` derivative of an actuator saturated at its
+//!   forcerange (its force is then constant), so the clamp stays exact. A stuck encoder (the driver
+//!   sees a fake q, dq) stays explicit: a constant torque in `ctrl`, no bias; a dead or disabled
+//!   motor gets zero. `tau_est` is MuJoCo's `actuator_force`, the clamped force applied. It fills
+//!   unitree_hg [`LowState`]s and privileged [`Truth`].
+//! - [`model::PhysicsProfile`] (`SimConfig::physics`): `Deploy` keeps the model's contacts and
+//!   solver; `Training` is lean (10 solver iterations, no joint friction loss, only feet and shins
+//!   colliding, only with the world) for RL rollouts.
+//! - Terrain pool ([`Simulator::load_with_terrain_capacity`], [`Simulator::set_world`]): static
+//!   boxes and cylinders preallocated as mocap bodies, so a trainer moves a robot onto a new stair
+//!   world per episode without recompiling (pose in `mjData`, size in `mjModel`).
+//! - Domain randomisation hooks for episode resets ([`Simulator::set_friction`] and friends).
 //! - [`faults`] parses `--fault` specs into a tick-indexed [`faults::FaultPlan`] (dropped, delayed,
 //!   corrupted frames, sensor and motor faults, disconnects) that the server injects.
 //! - [`server`] serves one bridge client over a Unix or loopback TCP socket with the protocol in
@@ -31,8 +46,8 @@ pub mod world;
 use std::path::PathBuf;
 
 use hal::{ImuState, LowCommand, LowState, MotorState, MOTOR_MODE_ENABLED, NUM_MOTORS};
-pub use model::ModelChoice;
-use model::SlotMap;
+pub use model::{ModelChoice, PhysicsProfile};
+use model::{PoolGeom, SlotMap};
 use mujoco_rs::prelude::*;
 use rng::Rng;
 pub use sim_hal::bridge::Truth;
@@ -48,6 +63,23 @@ pub enum SimError {
     Config(String),
     #[error("command: non-finite {field} in motor slot {slot}")]
     NonFinite { field: &'static str, slot: usize },
+    #[error(
+        "terrain pool too small: the world needs {need_boxes} boxes and {need_cylinders} cylinders, \
+         the pool has {have_boxes} and {have_cylinders}; load with a larger \
+         Simulator::load_with_terrain_capacity"
+    )]
+    PoolTooSmall {
+        need_boxes: usize,
+        need_cylinders: usize,
+        have_boxes: usize,
+        have_cylinders: usize,
+    },
+    #[error("{what} = {value} is out of range: {hint}")]
+    BadParameter {
+        what: &'static str,
+        value: f64,
+        hint: &'static str,
+    },
 }
 
 /// Timing and noise settings.
@@ -62,6 +94,33 @@ pub struct SimConfig {
     /// IMU errors (white noise, biases, attitude error). `None` (the default) keeps the output
     /// exactly the model's.
     pub imu_noise: Option<ImuNoise>,
+    /// Solver and collision settings (default: the deploy-side model as shipped).
+    pub physics: PhysicsProfile,
+    /// MuJoCo integrator (default implicitfast: the PD's damping implicit).
+    pub integrator: Integrator,
+}
+
+/// MuJoCo integrator. The PD actuator is the same under both; only its damping's integration
+/// differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Integrator {
+    /// `implicitfast`: −kd (and joint damping) enter each step's mass matrix; stable at any kd.
+    #[default]
+    ImplicitFast,
+    /// Semi-implicit Euler: the actuator force is evaluated from the state at the start of the
+    /// step, exactly the explicit motor law of Unitree's reference loop (for parity checks).
+    Euler,
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "implicitfast" => Ok(Self::ImplicitFast),
+            "euler" => Ok(Self::Euler),
+            _ => Err(format!("integrator '{s}': expected implicitfast or euler")),
+        }
+    }
 }
 
 /// Error model of the pelvis IMU, drawn from the seeded generator. Standard deviations.
@@ -158,6 +217,8 @@ impl Default for SimConfig {
             control_dt: 0.002,
             seed: 0,
             imu_noise: None,
+            physics: PhysicsProfile::Deploy,
+            integrator: Integrator::ImplicitFast,
         }
     }
 }
@@ -236,6 +297,22 @@ pub struct Simulator {
     attitude_offset: [f64; 2],
     world: Option<world::World>,
     lidar: Option<Box<LidarRig>>,
+    /// Terrain pool (empty unless loaded with a capacity) and the pose each pooled geom takes
+    /// after a reset (mocap poses live in `mjData`, which a reset rewinds).
+    pool_boxes: Vec<PoolGeom>,
+    pool_cylinders: Vec<PoolGeom>,
+    pool_pose: Vec<([f64; 3], [f64; 4])>,
+    /// Domain randomisation (1, 1, 0 = off): torque output and limit scale, commanded-kp scale.
+    motor_strength: f64,
+    kp_scale: f64,
+    /// Geom friction and body mass as compiled, so the hooks scale from them, not compound.
+    friction0: Vec<[f64; 3]>,
+    pelvis_mass0: f64,
+    pelvis_inertia0: [f64; 3],
+    /// Added to the initial root x, y and yaw at every reset (`set_initial_xy_yaw`).
+    start_offset: [f64; 3],
+    /// The initial `qpos` on flat ground at the origin, before any world's start pose.
+    base_qpos: Vec<f64>,
 }
 
 /// The simulated MID-360 and its packet stream, with per-tick buffers sized at attach time.
@@ -254,6 +331,31 @@ impl Simulator {
 
     /// [`Simulator::load`] in a terrain world (stairs); the robot starts on the world's start pose.
     pub fn load_in(choice: ModelChoice, config: SimConfig, world: Option<&world::World>) -> Result<Self, SimError> {
+        Self::load_full(choice, config, world, model::TerrainPool::default())
+    }
+
+    /// [`Simulator::load`] with a pool of `n_boxes` static boxes and `n_cylinders` cylinders that
+    /// [`Simulator::set_world`] fills with a terrain world per episode, without recompiling. The
+    /// robot starts on flat ground until a world is set.
+    pub fn load_with_terrain_capacity(
+        choice: ModelChoice,
+        config: SimConfig,
+        n_boxes: usize,
+        n_cylinders: usize,
+    ) -> Result<Self, SimError> {
+        let pool = model::TerrainPool {
+            boxes: n_boxes,
+            cylinders: n_cylinders,
+        };
+        Self::load_full(choice, config, None, pool)
+    }
+
+    fn load_full(
+        choice: ModelChoice,
+        config: SimConfig,
+        world: Option<&world::World>,
+        pool: model::TerrainPool,
+    ) -> Result<Self, SimError> {
         let substeps = config.substeps()?;
         if let Some(n) = config.imu_noise {
             if !n.is_valid() {
@@ -262,8 +364,13 @@ impl Simulator {
                 )));
             }
         }
-        let l = model::load(&choice, config.physics_dt, world)?;
+        let l = model::load(&choice, &config, world, pool)?;
         let robot_root = l.model.body_rootid()[l.pelvis_body];
+        let friction0 = l.model.geom_friction().to_vec();
+        let pelvis_mass0 = l.model.body_mass()[l.pelvis_body];
+        let pelvis_inertia0 = l.model.body_inertia()[l.pelvis_body];
+        let pool_pose =
+            vec![([0.0, 0.0, model::POOL_PARK_Z], [1.0, 0.0, 0.0, 0.0]); l.pool_boxes.len() + l.pool_cylinders.len()];
         let data = MjData::new(Box::new(l.model));
         let mut sim = Self {
             data,
@@ -291,23 +398,85 @@ impl Simulator {
             attitude_offset: [0.0; 2],
             world: world.cloned(),
             lidar: None,
+            pool_boxes: l.pool_boxes,
+            pool_cylinders: l.pool_cylinders,
+            pool_pose,
+            motor_strength: 1.0,
+            kp_scale: 1.0,
+            friction0,
+            pelvis_mass0,
+            pelvis_inertia0,
+            start_offset: [0.0; 3],
+            base_qpos: l.base_qpos,
         };
         sim.reset();
         Ok(sim)
     }
 
     /// Back to the initial state: all motors disabled and healthy, step counter 0, noise generator
-    /// reseeded.
+    /// reseeded, the robot on the world's start pose (plus [`Simulator::set_initial_xy_yaw`]).
+    /// Domain randomisation settings stay until changed.
     pub fn reset(&mut self) {
+        self.reset_state();
+        self.finish_reset();
+    }
+
+    /// [`Simulator::reset`], then the initial state offset: `joint_offsets[slot]` (rad) added to each
+    /// present slot's joint angle, `base_vel` (world linear xyz, body angular xyz) given to the free
+    /// joint. Rejects non-finite values (the state is then reset without offsets).
+    pub fn reset_with(&mut self, joint_offsets: &[f64; NUM_MOTORS], base_vel: [f64; 6]) -> Result<(), SimError> {
+        self.reset_state();
+        let bad = joint_offsets.iter().chain(&base_vel).position(|v| !v.is_finite());
+        if let Some(i) = bad {
+            self.finish_reset();
+            return Err(SimError::BadParameter {
+                what: if i < NUM_MOTORS {
+                    "reset_with joint offset"
+                } else {
+                    "reset_with base velocity"
+                },
+                value: f64::NAN,
+                hint: "give finite offsets and velocities",
+            });
+        }
+        {
+            let q = self.data.qpos_mut();
+            for s in &self.slots {
+                q[s.qpos_adr] += joint_offsets[s.slot];
+            }
+        }
+        if let Some(da) = self.root_dof_adr {
+            self.data.qvel_mut()[da..da + 6].copy_from_slice(&base_vel);
+        }
+        self.finish_reset();
+        Ok(())
+    }
+
+    fn reset_state(&mut self) {
         self.motor_fault = [MotorFault::Healthy; NUM_MOTORS];
         self.any_motor_fault = false;
         self.data.reset();
         self.data.qpos_mut().copy_from_slice(&self.initial_qpos);
-        // Positions, velocities and sensors of the initial state, so the first LowState is real.
-        self.data.forward();
+        if let Some(qa) = self.root_qpos_adr {
+            let [dx, dy, dyaw] = self.start_offset;
+            // Yaw about the start pose's own position, then the xy shift.
+            let q = self.data.qpos_mut();
+            let r = [(0.5 * dyaw).cos(), 0.0, 0.0, (0.5 * dyaw).sin()];
+            let o = [q[qa + 3], q[qa + 4], q[qa + 5], q[qa + 6]];
+            q[qa + 3..qa + 7].copy_from_slice(&quat_mul(r, o));
+            q[qa] += dx;
+            q[qa + 1] += dy;
+        }
+        self.write_pool_poses();
         self.cmd = [SlotCmd::default(); NUM_MOTORS];
         self.tau_applied = [0.0; NUM_MOTORS];
         self.steps = 0;
+    }
+
+    fn finish_reset(&mut self) {
+        self.sync_actuators();
+        // Positions, velocities and sensors of the initial state, so the first LowState is real.
+        self.data.forward();
         self.rng = Rng(self.config.seed);
         // Biases first, so the same seed gives the same biases whatever the run length.
         if let Some(n) = self.config.imu_noise {
@@ -341,6 +510,7 @@ impl Simulator {
                 kd: m.kd as f64,
             };
         }
+        self.sync_actuators();
         Ok(())
     }
 
@@ -352,6 +522,7 @@ impl Simulator {
             *f = fault;
         }
         self.any_motor_fault = self.motor_fault.iter().any(|f| *f != MotorFault::Healthy);
+        self.sync_actuators();
     }
 
     /// The driver fault currently injected on `slot`.
@@ -359,34 +530,234 @@ impl Simulator {
         self.motor_fault.get(slot).copied().unwrap_or_default()
     }
 
-    /// One physics step: the motor law from the current state, then `mj_step`.
-    fn physics_step(&mut self) {
-        let mut tau = [0.0f64; NUM_MOTORS];
-        {
-            let (qpos, qvel) = (self.data.qpos(), self.data.qvel());
-            for (t, s) in tau.iter_mut().zip(&self.slots) {
-                let c = &self.cmd[s.slot];
-                let (mut q, mut dq) = (qpos[s.qpos_adr], qvel[s.dof_adr]);
-                if self.any_motor_fault {
-                    match self.motor_fault[s.slot] {
-                        MotorFault::Healthy => {}
-                        MotorFault::StuckEncoder { q: qs, dq: dqs } => (q, dq) = (qs, dqs),
-                        MotorFault::Dead => continue,
-                    }
+    /// Writes the latched command, faults and randomisation into each slot's PD actuator:
+    /// `ctrl = tau_ff + kp·q_des + kd·dq_des`, `biasprm = [0, −kp, −kd]` (both times the motor
+    /// strength, as is the force range), so MuJoCo's force is the motor law of every physics step.
+    /// A stuck encoder's law is a constant torque (its q, dq are fixed), written to `ctrl` with no
+    /// bias; a disabled or dead motor gets nothing.
+    fn sync_actuators(&mut self) {
+        let (strength, kp_scale) = (self.motor_strength, self.kp_scale);
+        let mut ctrl_of = [0.0f64; NUM_MOTORS];
+        // SAFETY: only the values of existing per-actuator parameters change (gain, bias, force
+        // range); no size, count, index or address of the model, so `data` stays consistent.
+        let m = unsafe { self.data.model_mut() };
+        for s in &self.slots {
+            let c = &self.cmd[s.slot];
+            let (kp, kd) = (c.kp * kp_scale, c.kd);
+            let fault = if self.any_motor_fault {
+                self.motor_fault[s.slot]
+            } else {
+                MotorFault::Healthy
+            };
+            let (ctrl, bkp, bkd) = match (c.enabled, fault) {
+                (false, _) | (_, MotorFault::Dead) => (0.0, 0.0, 0.0),
+                (true, MotorFault::StuckEncoder { q, dq }) => {
+                    let raw = c.tau + kp * (c.q - q) + kd * (c.dq - dq);
+                    (raw.clamp(s.tau_lo, s.tau_hi), 0.0, 0.0)
                 }
-                if c.enabled {
-                    let raw = c.tau + c.kp * (c.q - q) + c.kd * (c.dq - dq);
-                    *t = raw.clamp(s.tau_lo, s.tau_hi);
-                }
-            }
+                (true, MotorFault::Healthy) => (c.tau + kp * c.q + kd * c.dq, kp, kd),
+            };
+            ctrl_of[s.slot] = ctrl;
+            let a = s.actuator;
+            // SAFETY: gainprm[0] of a fixed-gain actuator is a plain gain, never read as an index.
+            let gain = unsafe { m.actuator_gainprm_mut() };
+            gain[a][0] = strength;
+            let b = &mut m.actuator_biasprm_mut()[a];
+            b[0] = 0.0;
+            b[1] = -bkp * strength;
+            b[2] = -bkd * strength;
+            m.actuator_forcerange_mut()[a] = [s.tau_lo * strength, s.tau_hi * strength];
         }
         let ctrl = self.data.ctrl_mut();
-        for (t, s) in tau.iter().zip(&self.slots) {
-            ctrl[s.actuator] = *t;
-            self.tau_applied[s.slot] = *t;
+        for s in &self.slots {
+            ctrl[s.actuator] = ctrl_of[s.slot];
         }
+    }
+
+    /// One physics step; the applied torque is the (clamped) force MuJoCo computed for it.
+    fn physics_step(&mut self) {
         self.data.step();
+        let f = self.data.actuator_force();
+        for s in &self.slots {
+            self.tau_applied[s.slot] = f[s.actuator];
+        }
         self.steps += 1;
+    }
+
+    /// Fills the terrain pool with `world`'s geoms (pose into `mjData`'s mocap slots, size and
+    /// bounds into the model) and parks the unused ones; the next [`Simulator::reset`] puts the
+    /// robot on the world's start pose. [`Simulator::world`] and [`Simulator::truth`] use it at
+    /// once. Errors (changing nothing) if the pool is too small.
+    pub fn set_world(&mut self, world: &world::World) -> Result<(), SimError> {
+        let prims = world.primitives();
+        let need_boxes = prims
+            .iter()
+            .filter(|p| matches!(p, world::Primitive::Box { .. }))
+            .count();
+        let need_cylinders = prims.len() - need_boxes;
+        if need_boxes > self.pool_boxes.len() || need_cylinders > self.pool_cylinders.len() {
+            return Err(SimError::PoolTooSmall {
+                need_boxes,
+                need_cylinders,
+                have_boxes: self.pool_boxes.len(),
+                have_cylinders: self.pool_cylinders.len(),
+            });
+        }
+        let park = ([0.0, 0.0, model::POOL_PARK_Z], [1.0, 0.0, 0.0, 0.0]);
+        self.pool_pose.iter_mut().for_each(|p| *p = park);
+        let nb = self.pool_boxes.len();
+        let (mut ib, mut ic) = (0, 0);
+        // SAFETY: only geom sizes, bounding radii and boxes and the bodies' BVH boxes change, not
+        // any size, count, index or address of the model.
+        let m = unsafe { self.data.model_mut() };
+        for p in &prims {
+            let (g, slot, pose, half) = match *p {
+                world::Primitive::Box { pos, quat, half } => {
+                    ib += 1;
+                    (self.pool_boxes[ib - 1], ib - 1, (pos, quat), half)
+                }
+                world::Primitive::Cylinder {
+                    pos,
+                    quat,
+                    radius,
+                    half_len,
+                } => {
+                    ic += 1;
+                    (
+                        self.pool_cylinders[ic - 1],
+                        nb + ic - 1,
+                        (pos, quat),
+                        [radius, radius, half_len],
+                    )
+                }
+            };
+            let size = if slot < nb { half } else { [half[0], half[2], 0.0] };
+            m.geom_size_mut()[g.geom] = size;
+            // Geom and body frames coincide (one geom per pool body at its origin), so the local
+            // bounding box is centred with the half extents, for the geom and the body's BVH root.
+            let aabb = [0.0, 0.0, 0.0, half[0], half[1], half[2]];
+            m.geom_aabb_mut()[g.geom] = aabb;
+            m.geom_rbound_mut()[g.geom] = if slot < nb {
+                (half[0] * half[0] + half[1] * half[1] + half[2] * half[2]).sqrt()
+            } else {
+                (half[0] * half[0] + half[2] * half[2]).sqrt()
+            };
+            let bvh = m.body_bvhadr()[g.body];
+            if bvh >= 0 {
+                m.bvh_aabb_mut()[bvh as usize] = aabb;
+            }
+            self.pool_pose[slot] = pose;
+        }
+        self.world = Some(world.clone());
+        self.initial_qpos.copy_from_slice(&self.base_qpos);
+        if let Some(qa) = self.root_qpos_adr {
+            model::place_on_start(&mut self.initial_qpos, qa, world.start());
+        }
+        self.write_pool_poses();
+        self.data.forward();
+        Ok(())
+    }
+
+    /// Writes each pool geom's pose into its mocap slot.
+    fn write_pool_poses(&mut self) {
+        let all = self.pool_boxes.iter().chain(&self.pool_cylinders);
+        for (g, (pos, quat)) in all.zip(&self.pool_pose) {
+            self.data.mocap_pos_mut()[g.mocap] = *pos;
+            self.data.mocap_quat_mut()[g.mocap] = *quat;
+        }
+    }
+
+    /// Number of pooled terrain boxes and cylinders (0, 0 without a pool).
+    pub fn terrain_capacity(&self) -> (usize, usize) {
+        (self.pool_boxes.len(), self.pool_cylinders.len())
+    }
+
+    /// Domain randomisation: every geom's friction becomes `scale` × its compiled value (feet,
+    /// shins and terrain alike; MuJoCo takes the larger of a pair's, so scaling all keeps the
+    /// contact's friction scaled by `scale`). Acts until changed; `scale` must be finite and > 0.
+    pub fn set_friction(&mut self, scale: f64) -> Result<(), SimError> {
+        check_positive("friction scale", scale)?;
+        // SAFETY: only friction values change, no size, count, index or address of the model.
+        let m = unsafe { self.data.model_mut() };
+        for (f, f0) in m.geom_friction_mut().iter_mut().zip(&self.friction0) {
+            *f = f0.map(|v| v * scale);
+        }
+        Ok(())
+    }
+
+    /// Domain randomisation: adds `kg` (may be negative, down to −half the pelvis mass) to the
+    /// pelvis, scaling its inertia with it. Acts from the next step (a reset re-derives the
+    /// composite inertias); replaces any earlier added mass.
+    pub fn set_added_base_mass(&mut self, kg: f64) -> Result<(), SimError> {
+        if !(kg.is_finite() && kg > -0.5 * self.pelvis_mass0) {
+            return Err(SimError::BadParameter {
+                what: "added base mass (kg)",
+                value: kg,
+                hint: "must be finite and above minus half the pelvis mass",
+            });
+        }
+        let (b, ratio) = (self.pelvis_body, (self.pelvis_mass0 + kg) / self.pelvis_mass0);
+        // SAFETY: only the pelvis's mass and inertia values change, no size, count, index or
+        // address of the model.
+        let m = unsafe { self.data.model_mut() };
+        m.body_mass_mut()[b] = self.pelvis_mass0 + kg;
+        m.body_inertia_mut()[b] = self.pelvis_inertia0.map(|v| v * ratio);
+        Ok(())
+    }
+
+    /// Domain randomisation: every motor's output and torque limit × `scale` (a weaker or stronger
+    /// drive). Acts from the next physics step; `scale` must be finite and > 0.
+    pub fn set_motor_strength(&mut self, scale: f64) -> Result<(), SimError> {
+        check_positive("motor strength", scale)?;
+        self.motor_strength = scale;
+        self.sync_actuators();
+        Ok(())
+    }
+
+    /// Domain randomisation: the commanded kp of every motor × `scale` (the drive's gain error).
+    /// Acts from the next physics step; `scale` must be finite and >= 0.
+    pub fn set_kp_scale(&mut self, scale: f64) -> Result<(), SimError> {
+        if !(scale.is_finite() && scale >= 0.0) {
+            return Err(SimError::BadParameter {
+                what: "kp scale",
+                value: scale,
+                hint: "must be finite and >= 0",
+            });
+        }
+        self.kp_scale = scale;
+        self.sync_actuators();
+        Ok(())
+    }
+
+    /// Domain randomisation: adds `(dvx, dvy)` m/s (world frame) to the free joint's velocity now.
+    pub fn push_base(&mut self, dvx: f64, dvy: f64) -> Result<(), SimError> {
+        if !(dvx.is_finite() && dvy.is_finite()) {
+            return Err(SimError::BadParameter {
+                what: "push velocity",
+                value: if dvx.is_finite() { dvy } else { dvx },
+                hint: "give finite velocities",
+            });
+        }
+        if let Some(da) = self.root_dof_adr {
+            let v = self.data.qvel_mut();
+            v[da] += dvx;
+            v[da + 1] += dvy;
+        }
+        Ok(())
+    }
+
+    /// From the next reset on, the robot starts moved by `(x, y)` m and turned by `yaw` rad (about
+    /// its start position) from the world's start pose.
+    pub fn set_initial_xy_yaw(&mut self, x: f64, y: f64, yaw: f64) -> Result<(), SimError> {
+        if !(x.is_finite() && y.is_finite() && yaw.is_finite()) {
+            return Err(SimError::BadParameter {
+                what: "initial x, y, yaw",
+                value: f64::NAN,
+                hint: "give finite values",
+            });
+        }
+        self.start_offset = [x, y, yaw];
+        Ok(())
     }
 
     /// Advances one control tick (`control_dt / physics_dt` physics steps); an attached lidar
@@ -658,6 +1029,18 @@ impl Simulator {
             m.kd = kd;
         }
         cmd
+    }
+}
+
+fn check_positive(what: &'static str, v: f64) -> Result<(), SimError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(SimError::BadParameter {
+            what,
+            value: v,
+            hint: "must be finite and > 0",
+        })
     }
 }
 

@@ -62,6 +62,17 @@ struct Cli {
     #[arg(long, value_name = "realistic|STD[,...]")]
     imu_noise: Option<g1_sim::ImuNoise>,
 
+    /// MuJoCo integrator: `implicitfast` (the PD actuators' damping integrated implicitly, stable at
+    /// real gains) or `euler` (the PD force from the state at the start of each step, explicit,
+    /// as in Unitree's Python reference loop; unstable once kd·dt/I > 2).
+    #[arg(long, value_name = "implicitfast|euler", default_value = "implicitfast")]
+    integrator: g1_sim::Integrator,
+
+    /// Physics profile: `deploy` (the model's contacts and solver) or `training` (the lean RL
+    /// profile: feet and shins against the world only, 10 solver iterations, no joint friction).
+    #[arg(long, value_name = "deploy|training", default_value = "deploy")]
+    physics: g1_sim::PhysicsProfile,
+
     /// Microseconds a socket read spins before blocking (lower latency when the client answers
     /// quickly; 0 = always block).
     #[arg(long, value_name = "US", default_value_t = 20)]
@@ -134,6 +145,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
         control_dt: cli.control_dt.unwrap_or(cli.physics_dt),
         seed: cli.seed,
         imu_noise: cli.imu_noise,
+        integrator: cli.integrator,
+        physics: cli.physics,
     };
     let model_name = cli.model.to_string();
     // Syntax errors before the (slow) model load; slot checks need the model.

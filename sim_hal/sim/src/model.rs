@@ -5,9 +5,16 @@
 //! - a floor plane on the world body, if the world has no plane geom;
 //! - joint armature from the G1 table, for slot joints whose armature is zero (the 29-dof MJCF
 //!   ships none, and is unstable under explicit PD without it);
-//! - one `motor` actuator (gear 1, ctrlrange = effort limit) per slot joint that has no direct
-//!   torque actuator (gear 1, fixed gain 1, no bias, no dynamics);
-//! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it.
+//! - one PD actuator per slot joint (see [`crate`]'s actuator model): a general actuator with
+//!   gain 1, an affine bias whose `[0, −kp, −kd]` the simulator rewrites per command, and
+//!   `forcerange` = the effort limit. A shipped gear-1 `motor` on the joint (the 12-dof model has
+//!   one each) is converted in place rather than duplicated; the joint's own `actuatorfrcrange` moves
+//!   to the actuator (one clamp, which MuJoCo's implicit derivative knows about);
+//! - integrator `implicitfast`, so the PD's damping is integrated implicitly;
+//! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it;
+//! - [`PhysicsProfile::Training`] only: solver 10 / 20 iterations, no joint friction loss, shin
+//!   capsules where the model has none, and collisions between feet / shins and the world only.
+//! - a terrain pool (mocap bodies with one box or cylinder each) when asked for one.
 use crate::quat_mul;
 use crate::world::{Primitive, World};
 use std::path::PathBuf;
@@ -15,7 +22,7 @@ use std::str::FromStr;
 
 use hal::NUM_MOTORS;
 use mujoco_rs::mujoco_c::{
-    _mjtGeomBase, _mjtObjBase, mjtBias, mjtDyn, mjtGain, mjtJoint, mjtLimited, mjtSensor, mjtTrn,
+    _mjtGeomBase, _mjtObjBase, mjtBias, mjtDyn, mjtGain, mjtIntegrator, mjtJoint, mjtLimited, mjtSensor, mjtTrn,
 };
 use mujoco_rs::prelude::*;
 
@@ -108,7 +115,7 @@ pub struct SlotMap {
     pub joint: usize,
     pub qpos_adr: usize,
     pub dof_adr: usize,
-    /// Actuator whose `ctrl` is the joint torque (gear 1, gain 1).
+    /// The slot's PD actuator (gear 1, gain 1, affine bias, force-limited).
     pub actuator: usize,
     /// Torque clamp, N·m (`lo < 0 < hi` for the G1).
     pub tau_lo: f64,
@@ -131,24 +138,80 @@ pub struct Loaded {
     pub acc_adr: usize,
     /// Per body: 0 not a foot, 1 left foot, 2 right foot.
     pub foot_side: Vec<u8>,
+    /// Terrain pool: mocap index and geom id of each pooled box, then each pooled cylinder.
+    pub pool_boxes: Vec<PoolGeom>,
+    pub pool_cylinders: Vec<PoolGeom>,
+    /// `initial_qpos` before a world's start pose was applied (flat ground at the origin).
+    pub base_qpos: Vec<f64>,
 }
+
+/// Which physics settings the model is compiled with (see [`crate::SimConfig::physics`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PhysicsProfile {
+    /// The model's own solver settings, contacts and joint friction (the deploy-side simulator).
+    #[default]
+    Deploy,
+    /// Lean settings for RL training: 10 solver / 20 line-search iterations, joint friction loss 0,
+    /// and only feet and shins colliding, with the world only (no self-collision, no meshes).
+    Training,
+}
+
+impl FromStr for PhysicsProfile {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "deploy" => Ok(Self::Deploy),
+            "training" => Ok(Self::Training),
+            _ => Err(format!("physics profile '{s}': expected deploy or training")),
+        }
+    }
+}
+
+/// How many static terrain geoms to preallocate for [`crate::Simulator::set_world`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TerrainPool {
+    pub boxes: usize,
+    pub cylinders: usize,
+}
+
+/// One pooled terrain geom: its mocap slot (pose in `mjData`) and its geom (size in `mjModel`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PoolGeom {
+    pub mocap: usize,
+    pub geom: usize,
+    pub body: usize,
+}
+
+/// Where unused pool geoms wait: far below the floor, out of every contact and ray.
+pub const POOL_PARK_Z: f64 = -100.0;
+
+/// Collision bits of the training profile: robot colliders have `contype` ROBOT and
+/// `conaffinity` 0, world geoms add ROBOT to their `conaffinity`, so a robot geom only ever meets
+/// the world (MuJoCo pairs `a`, `b` when `contype_a & conaffinity_b` or the reverse is set).
+const TRAINING_ROBOT_BIT: i32 = 2;
 
 fn edit_err(what: &str, e: impl std::fmt::Display) -> SimError {
     SimError::Model(format!("{what}: {e}"))
 }
 
-/// A joint-transmission torque actuator the PD law can drive directly.
+/// A joint-transmission gear-1 actuator without dynamics: a shipped `motor`, or our PD actuator.
 fn is_direct_motor(trn: mjtTrn, gain: mjtGain, gainprm0: f64, bias: mjtBias, dyn_: mjtDyn, gear: &[f64]) -> bool {
     trn == mjtTrn::mjTRN_JOINT
         && gain == mjtGain::mjGAIN_FIXED
         && gainprm0 == 1.0
-        && bias == mjtBias::mjBIAS_NONE
+        && (bias == mjtBias::mjBIAS_NONE || bias == mjtBias::mjBIAS_AFFINE)
         && dyn_ == mjtDyn::mjDYN_NONE
         && gear[0] == 1.0
 }
 
 /// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map.
-pub fn load(choice: &ModelChoice, physics_dt: f64, world: Option<&World>) -> Result<Loaded, SimError> {
+pub fn load(
+    choice: &ModelChoice,
+    config: &crate::SimConfig,
+    world: Option<&World>,
+    pool: TerrainPool,
+) -> Result<Loaded, SimError> {
+    let profile = config.physics;
     let path = choice.path();
     if !path.exists() {
         return Err(SimError::ModelMissing {
@@ -157,7 +220,21 @@ pub fn load(choice: &ModelChoice, physics_dt: f64, world: Option<&World>) -> Res
         });
     }
     let mut spec = MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
-    spec.option_mut().timestep = physics_dt;
+    spec.option_mut().timestep = config.physics_dt;
+    // The PD's damping (kd up to 10 on sub-kg wrist links) is stiff: integrated explicitly it
+    // diverges once kd·dt/I > 2; implicitfast folds −kd into the mass matrix of each step.
+    spec.option_mut().integrator = match config.integrator {
+        crate::Integrator::ImplicitFast => mjtIntegrator::mjINT_IMPLICITFAST,
+        crate::Integrator::Euler => mjtIntegrator::mjINT_EULER,
+    } as i32;
+    if profile == PhysicsProfile::Training {
+        spec.option_mut().iterations = 10;
+        spec.option_mut().ls_iterations = 20;
+        for j in spec.joint_iter_mut() {
+            j.set_frictionloss(0.0);
+        }
+        add_shin_capsules_if_missing(&mut spec)?;
+    }
 
     add_floor_if_missing(&mut spec)?;
     let limits = prepare_slot_joints(&mut spec)?;
@@ -165,24 +242,32 @@ pub fn load(choice: &ModelChoice, physics_dt: f64, world: Option<&World>) -> Res
     if let Some(w) = world {
         add_world(&mut spec, w)?;
     }
+    add_pool(&mut spec, pool)?;
 
-    let model = spec
+    let mut model = spec
         .compile()
         .map_err(|e| edit_err(&format!("compiling {}", path.display()), e))?;
+    if profile == PhysicsProfile::Training {
+        lean_collisions(&mut model);
+    }
     let mut loaded = resolve(choice, model, &limits)?;
+    loaded.base_qpos = loaded.initial_qpos.clone();
     if let (Some(w), Some(qa)) = (world, loaded.root_qpos_adr) {
         // Stand the robot on the world's start pose (its ground may be a raised landing).
-        let [x, y, ground, yaw] = w.start();
-        let q = &mut loaded.initial_qpos;
-        q[qa] += x;
-        q[qa + 1] += y;
-        q[qa + 2] += ground;
-        let r = [(0.5 * yaw).cos(), 0.0, 0.0, (0.5 * yaw).sin()];
-        let o = [q[qa + 3], q[qa + 4], q[qa + 5], q[qa + 6]];
-        let m = quat_mul(r, o);
-        q[qa + 3..qa + 7].copy_from_slice(&m);
+        place_on_start(&mut loaded.initial_qpos, qa, w.start());
     }
     Ok(loaded)
+}
+
+/// Moves the free joint at `qa` of `q` by a world's start pose `[x, y, ground, yaw]`.
+pub fn place_on_start(q: &mut [f64], qa: usize, [x, y, ground, yaw]: [f64; 4]) {
+    q[qa] += x;
+    q[qa + 1] += y;
+    q[qa + 2] += ground;
+    let r = [(0.5 * yaw).cos(), 0.0, 0.0, (0.5 * yaw).sin()];
+    let o = [q[qa + 3], q[qa + 4], q[qa + 5], q[qa + 6]];
+    let m = quat_mul(r, o);
+    q[qa + 3..qa + 7].copy_from_slice(&m);
 }
 
 /// The world's static geoms (named `terrain_N`, grey, colliding like the floor).
@@ -229,23 +314,10 @@ fn add_floor_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
     Ok(())
 }
 
-/// Armature and motors for every slot joint present. Returns each slot's torque clamp.
+/// Armature and a PD actuator for every slot joint present. Returns each slot's torque clamp.
 fn prepare_slot_joints(spec: &mut MjSpec) -> Result<[Option<(f64, f64)>; NUM_MOTORS], SimError> {
-    // Joints that already have a direct torque actuator.
-    let mut has_motor: Vec<String> = Vec::new();
-    for a in spec.actuator_iter() {
-        if is_direct_motor(
-            a.trntype(),
-            a.gaintype(),
-            a.gainprm()[0],
-            a.biastype(),
-            a.dyntype(),
-            a.gear(),
-        ) {
-            has_motor.push(a.target().to_owned());
-        }
-    }
     let mut limits = [None; NUM_MOTORS];
+    let mut joints: Vec<String> = Vec::new();
     for (slot, lim) in limits.iter_mut().enumerate() {
         let (Some(sname), Some(jname)) = (slots::slot_name(slot), slots::joint_name(slot)) else {
             continue;
@@ -267,20 +339,154 @@ fn prepare_slot_joints(spec: &mut MjSpec) -> Result<[Option<(f64, f64)>; NUM_MOT
         } else {
             (-e, e)
         };
+        // One clamp, on the actuator: MuJoCo's implicit derivative (`mjd_actuator_vel`) drops the
+        // −kd term of an actuator saturated at its forcerange, but knows nothing of a joint-level
+        // clamp, and `actuator_force` (our tau_est) is the force before a joint-level clamp.
+        j.set_actfrclimited(mjtLimited::mjLIMITED_FALSE);
         *lim = Some((lo, hi));
-        if !has_motor.contains(&jname) {
-            let a = spec.add_actuator();
-            a.set_to_motor();
-            a.set_trntype(mjtTrn::mjTRN_JOINT);
-            a.set_target(&jname);
-            a.gear_mut()[0] = 1.0;
-            *a.ctrlrange_mut() = [lo, hi];
-            a.set_ctrllimited(mjtLimited::mjLIMITED_TRUE);
-            a.set_name(&format!("g1sim_{sname}"))
-                .map_err(|e| edit_err("naming an actuator", e))?;
+        joints.push(jname);
+    }
+    // Shipped gear-1 motors on slot joints become our PD actuators in place (ids and names kept).
+    let mut has_actuator: Vec<String> = Vec::new();
+    for a in spec.actuator_iter_mut() {
+        let target = a.target().to_owned();
+        let Some(slot) = (0..NUM_MOTORS).find(|&s| slots::joint_name(s).as_deref() == Some(target.as_str())) else {
+            continue;
+        };
+        let (Some((lo, hi)), true) = (limits[slot], joints.contains(&target)) else {
+            continue;
+        };
+        if is_direct_motor(
+            a.trntype(),
+            a.gaintype(),
+            a.gainprm()[0],
+            a.biastype(),
+            a.dyntype(),
+            a.gear(),
+        ) && !has_actuator.contains(&target)
+        {
+            make_pd_actuator(a, lo, hi);
+            has_actuator.push(target);
         }
     }
+    for (slot, lim) in limits.iter().enumerate() {
+        let (Some(sname), Some(jname), Some((lo, hi))) = (slots::slot_name(slot), slots::joint_name(slot), lim) else {
+            continue;
+        };
+        if has_actuator.contains(&jname) {
+            continue;
+        }
+        let a = spec.add_actuator();
+        a.set_trntype(mjtTrn::mjTRN_JOINT);
+        a.set_target(&jname);
+        a.gear_mut()[0] = 1.0;
+        make_pd_actuator(a, *lo, *hi);
+        a.set_name(&format!("g1sim_{sname}"))
+            .map_err(|e| edit_err("naming an actuator", e))?;
+    }
     Ok(limits)
+}
+
+/// `force = ctrl + biasprm[1]·q + biasprm[2]·dq`, clamped to `[lo, hi]`; ctrl unlimited (it
+/// carries `tau_ff + kp·q_des + kd·dq_des`).
+fn make_pd_actuator<C>(a: &mut mujoco_rs::wrappers::mj_editing::MjsActuator<C>, lo: f64, hi: f64) {
+    a.set_gaintype(mjtGain::mjGAIN_FIXED);
+    a.set_dyntype(mjtDyn::mjDYN_NONE);
+    a.set_biastype(mjtBias::mjBIAS_AFFINE);
+    *a.gainprm_mut() = [0.0; 10];
+    a.gainprm_mut()[0] = 1.0;
+    *a.biasprm_mut() = [0.0; 10];
+    a.set_ctrllimited(mjtLimited::mjLIMITED_FALSE);
+    a.set_forcelimited(mjtLimited::mjLIMITED_TRUE);
+    *a.forcerange_mut() = [lo, hi];
+}
+
+/// Training profile: a shin capsule on each knee link that has no primitive collider (the 12-dof
+/// model's shins are meshes only), sized like the 29-dof model's shin + linkage capsules.
+fn add_shin_capsules_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
+    for side in ["left", "right"] {
+        let name = format!("{side}_knee_link");
+        let Some(b) = spec.body_mut(&name) else {
+            continue;
+        };
+        let has_capsule = b.geom_iter(false).any(|g| g.type_() == _mjtGeomBase::mjGEOM_CAPSULE);
+        if has_capsule {
+            continue;
+        }
+        let g = b.add_geom();
+        g.set_type(_mjtGeomBase::mjGEOM_CAPSULE);
+        *g.fromto_mut() = [0.01, 0.0, -0.02, 0.01, 0.0, -0.22];
+        *g.size_mut() = [0.045, 0.0, 0.0];
+        g.set_density(0.0);
+        g.set_group(3);
+        g.set_name(&format!("g1sim_{side}_shin_collision"))
+            .map_err(|e| edit_err("naming a shin capsule", e))?;
+    }
+    Ok(())
+}
+
+/// Training profile: only primitive geoms of the feet and of the knee links (shins) collide, and
+/// only with the world. Everything else (meshes, arms, pelvis, thighs) keeps its visuals only.
+fn lean_collisions(model: &mut MjModel) {
+    let knee_bodies: Vec<i32> = ["left_knee_joint", "right_knee_joint"]
+        .iter()
+        .filter_map(|j| model.name_to_id(_mjtObjBase::mjOBJ_JOINT, j))
+        .map(|j| model.jnt_bodyid()[j])
+        .collect();
+    let foot_bodies: Vec<i32> = ["left_ankle_roll_joint", "right_ankle_roll_joint"]
+        .iter()
+        .filter_map(|j| model.name_to_id(_mjtObjBase::mjOBJ_JOINT, j))
+        .map(|j| model.jnt_bodyid()[j])
+        .collect();
+    let ngeom = model.ngeom() as usize;
+    for g in 0..ngeom {
+        let body = model.geom_bodyid()[g];
+        let ty = model.geom_type()[g];
+        let primitive = matches!(
+            ty,
+            _mjtGeomBase::mjGEOM_SPHERE | _mjtGeomBase::mjGEOM_CAPSULE | _mjtGeomBase::mjGEOM_BOX
+        );
+        let world = model.body_weldid()[body as usize] == 0;
+        let was_colliding = model.geom_contype()[g] != 0 || model.geom_conaffinity()[g] != 0;
+        let (ct, ca) = if world {
+            (
+                model.geom_contype()[g],
+                model.geom_conaffinity()[g] | TRAINING_ROBOT_BIT,
+            )
+        } else if primitive
+            && (foot_bodies.contains(&body) || knee_bodies.contains(&body))
+            && (was_colliding || ty == _mjtGeomBase::mjGEOM_CAPSULE)
+        {
+            (TRAINING_ROBOT_BIT, 0)
+        } else {
+            (0, 0)
+        };
+        model.geom_contype_mut()[g] = ct;
+        model.geom_conaffinity_mut()[g] = ca;
+    }
+}
+
+/// The terrain pool: one mocap body per geom, parked far below the floor, named `g1sim_pool_*`.
+fn add_pool(spec: &mut MjSpec, pool: TerrainPool) -> Result<(), SimError> {
+    for (kind, n, ty) in [
+        ("box", pool.boxes, _mjtGeomBase::mjGEOM_BOX),
+        ("cyl", pool.cylinders, _mjtGeomBase::mjGEOM_CYLINDER),
+    ] {
+        for i in 0..n {
+            let b = spec.world_body_mut().add_body();
+            b.set_mocap(true);
+            *b.pos_mut() = [0.0, 0.0, POOL_PARK_Z];
+            b.set_name(&format!("g1sim_pool_{kind}_{i}"))
+                .map_err(|e| edit_err("naming a terrain pool body", e))?;
+            let g = b.add_geom();
+            g.set_type(ty);
+            *g.size_mut() = [0.1, 0.1, 0.1];
+            *g.rgba_mut() = [0.62, 0.6, 0.55, 1.0];
+            g.set_name(&format!("g1sim_pool_{kind}_{i}"))
+                .map_err(|e| edit_err("naming a terrain pool geom", e))?;
+        }
+    }
+    Ok(())
 }
 
 fn add_imu_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
@@ -338,6 +544,7 @@ fn resolve(
         let actuator = (0..model.nu() as usize)
             .find(|&a| {
                 model.actuator_trnid()[a][0] == joint as i32
+                    && model.actuator_biastype()[a] == mjtBias::mjBIAS_AFFINE
                     && is_direct_motor(
                         model.actuator_trntype()[a],
                         model.actuator_gaintype()[a],
@@ -347,7 +554,7 @@ fn resolve(
                         &model.actuator_gear()[a],
                     )
             })
-            .ok_or_else(|| SimError::Model(format!("no torque actuator for {jname} after editing")))?;
+            .ok_or_else(|| SimError::Model(format!("no PD actuator for {jname} after editing")))?;
         slots_v.push(SlotMap {
             slot,
             joint,
@@ -431,6 +638,22 @@ fn resolve(
         }
     };
 
+    let pool_of = |kind: &str| -> Vec<PoolGeom> {
+        (0..)
+            .map_while(|i| {
+                let n = format!("g1sim_pool_{kind}_{i}");
+                let body = id(_mjtObjBase::mjOBJ_BODY, &n)?;
+                let geom = id(_mjtObjBase::mjOBJ_GEOM, &n)?;
+                Some(PoolGeom {
+                    mocap: model.body_mocapid()[body] as usize,
+                    geom,
+                    body,
+                })
+            })
+            .collect()
+    };
+    let (pool_boxes, pool_cylinders) = (pool_of("box"), pool_of("cyl"));
+
     Ok(Loaded {
         model,
         slots: slots_v,
@@ -443,5 +666,8 @@ fn resolve(
         gyro_adr,
         acc_adr,
         foot_side,
+        pool_boxes,
+        pool_cylinders,
+        base_qpos: Vec::new(),
     })
 }

@@ -61,6 +61,9 @@ pub struct SimLaunch {
     pub imu_noise: Option<String>,
     /// `--world` (a preset, scenario file or random:SEED); also turns the lidar on.
     pub world: Option<String>,
+    /// `--integrator` (`implicitfast`, the default, or `euler`: the explicit motor law of
+    /// Unitree's reference loop).
+    pub integrator: Option<String>,
 }
 
 impl SimLaunch {
@@ -75,6 +78,7 @@ impl SimLaunch {
             faults: Vec::new(),
             imu_noise: None,
             world: None,
+            integrator: None,
         }
     }
 
@@ -99,6 +103,7 @@ impl SimLaunch {
             .args(self.faults.iter().flat_map(|f| ["--fault", f.as_str()]))
             .args(self.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
             .args(self.world.iter().flat_map(|w| ["--world", w.as_str(), "--lidar"]))
+            .args(self.integrator.iter().flat_map(|i| ["--integrator", i.as_str()]))
             .arg("--quiet")
             .stdin(Stdio::null())
             .spawn()
