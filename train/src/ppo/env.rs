@@ -48,8 +48,40 @@ pub fn sim_config(seed: u64) -> SimConfig {
         control_dt: PHYSICS_DT,
         seed,
         imu_noise: None,
+        physics: g1_sim::PhysicsProfile::Training,
+        ..SimConfig::default()
     }
 }
+
+/// Terrain pool every environment's model carries: enough boxes and cylinders for the largest
+/// world the curriculum draws (8 outdoor steps with nosings), found by building it.
+pub fn terrain_capacity() -> (usize, usize) {
+    let spec = TerrainSpec {
+        kind: TerrainKind::StairsUp,
+        step_height: 0.2,
+        step_depth: 0.3,
+        steps: MAX_STEPS,
+        width: 2.0,
+        yaw_deg: 0.0,
+        start_distance: 1.0,
+        lateral_offset: 0.0,
+        landing_before: 2.0,
+        landing_after: 2.0,
+        outdoor: Some(Outdoor {
+            height_jitter: 0.1,
+            depth_jitter: 0.1,
+            tread_slope_deg: 2.0,
+            nosing_radius: 0.02,
+            seed: 1,
+        }),
+    };
+    let prims = World::build("capacity", spec).expect("valid").primitives();
+    let boxes = prims.iter().filter(|p| matches!(p, g1_sim::world::Primitive::Box { .. })).count();
+    (boxes, prims.len() - boxes)
+}
+
+/// Most steps a curriculum staircase has.
+pub const MAX_STEPS: usize = 8;
 
 pub fn level_height(level: usize) -> f64 {
     0.05 + 0.021 * level as f64
@@ -102,6 +134,8 @@ pub struct Randomization {
     pub max_latency_steps: usize,
     /// Random pushes: velocity change (m/s) every 4–8 s.
     pub push_mps: f64,
+    /// Per episode: friction ×0.5–1.25, base mass −1…+3 kg, motor strength and kp ×0.9–1.1.
+    pub dynamics: bool,
 }
 
 impl Randomization {
@@ -110,12 +144,14 @@ impl Randomization {
         token_noise: [0.01, 0.02, 0.045, 0.3],
         max_latency_steps: DECIMATION,
         push_mps: 0.5,
+        dynamics: true,
     };
     pub const NONE: Self = Self {
         obs_noise: [0.0; 3],
         token_noise: [0.0; 4],
         max_latency_steps: 0,
         push_mps: 0.0,
+        dynamics: false,
     };
 }
 
@@ -206,7 +242,7 @@ impl StairEnv {
     pub fn new(cfg: EnvConfig, seed: u64, weights: &[u8]) -> anyhow::Result<Self> {
         let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5747_5254);
         let world = World::preset("flat").expect("preset");
-        let sim = Self::load_sim(&cfg, &world, seed)?;
+        let sim = Self::load_sim(&cfg, seed)?;
         let spec = &cfg.spec;
         let io = PolicyIo::new(spec);
         let net = Network::from_safetensors_bytes(&spec.policy.network, weights)?;
@@ -270,8 +306,9 @@ impl StairEnv {
         Ok(env)
     }
 
-    fn load_sim(cfg: &EnvConfig, world: &World, seed: u64) -> anyhow::Result<Simulator> {
-        Ok(Simulator::load_in(cfg.model.clone(), sim_config(seed), Some(world))?)
+    fn load_sim(cfg: &EnvConfig, seed: u64) -> anyhow::Result<Simulator> {
+        let (boxes, cylinders) = terrain_capacity();
+        Ok(Simulator::load_with_terrain_capacity(cfg.model.clone(), sim_config(seed), boxes, cylinders)?)
     }
 
     /// Draws the next world from the curriculum.
@@ -290,7 +327,7 @@ impl StairEnv {
             kind,
             step_height: (level_height(self.level) + r.range(-0.01, 0.01)).clamp(0.04, 0.27),
             step_depth: r.range(0.22, 0.40),
-            steps: r.int(3, 8) as usize,
+            steps: r.int(3, MAX_STEPS as u64) as usize,
             width,
             yaw_deg: r.range(-30.0, 30.0),
             start_distance,
@@ -335,11 +372,17 @@ impl StairEnv {
             self.column = Column::draw(&mut self.rng, self.cfg.only);
         }
         self.world = self.draw_world();
-        let seed = self.rng.next_u64();
-        self.sim = Self::load_sim(&self.cfg, &self.world, seed)?;
+        self.sim.set_world(&self.world)?;
+        let r = self.cfg.random;
+        if r.dynamics {
+            self.sim.set_friction(self.rng.range(0.5, 1.25))?;
+            self.sim.set_added_base_mass(self.rng.range(-1.0, 3.0))?;
+            self.sim.set_motor_strength(self.rng.range(0.9, 1.1))?;
+            self.sim.set_kp_scale(self.rng.range(0.9, 1.1))?;
+        }
+        self.sim.reset();
         self.io.reset();
         self.net.reset();
-        let r = self.cfg.random;
         self.latency = self.rng.int(0, r.max_latency_steps as u64) as usize;
         self.token_phase = self.rng.int(0, TOKEN_PERIOD as u64 - 1) as u32;
         self.vx_cmd = if self.rng.chance(0.05) {
@@ -571,9 +614,7 @@ impl StairEnv {
         if self.cfg.random.push_mps > 0.0 && self.step == self.next_push {
             let p = self.cfg.random.push_mps;
             let (dx, dy) = (self.rng.range(-p, p), self.rng.range(-p, p));
-            let v = self.sim.data_mut().qvel_mut();
-            v[0] += dx;
-            v[1] += dy;
+            self.sim.push_base(dx, dy)?;
             self.next_push += self.push_interval();
         }
         self.sim.low_state(&mut self.state);
