@@ -138,7 +138,7 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
         /// Parallel environments.
-        #[arg(long, default_value_t = 64)]
+        #[arg(long, default_value_t = 256)]
         envs: usize,
         /// Worker threads stepping environments (default: every core).
         #[arg(long, default_value_t = default_jobs())]
@@ -149,6 +149,14 @@ enum Cmd {
         /// Policy steps per environment and iteration.
         #[arg(long, default_value_t = 24)]
         steps: usize,
+        /// Passes over each rollout.
+        #[arg(long, default_value_t = 5)]
+        epochs: usize,
+        /// Minibatches per pass (of whole environment sequences). The update's cost is mostly
+        /// per minibatch (the LSTM is replayed step by step), so fewer, larger ones keep the
+        /// learner from dominating on a CPU; rsl_rl uses 4 with thousands of environments.
+        #[arg(long, default_value_t = 2)]
+        minibatches: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Warm start: an LSTM-64 actor in the peer walker's safetensors layout (its input is
@@ -241,6 +249,8 @@ fn main() -> anyhow::Result<()> {
             threads,
             iterations,
             steps,
+            epochs,
+            minibatches,
             seed,
             init_actor,
             init_std,
@@ -270,6 +280,8 @@ fn main() -> anyhow::Result<()> {
                 episode_s,
                 ppo: train::ppo::algo::PpoConfig {
                     steps,
+                    epochs,
+                    minibatches,
                     lr,
                     entropy_coef,
                     ..Default::default()
