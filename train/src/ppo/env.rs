@@ -76,7 +76,10 @@ pub fn terrain_capacity() -> (usize, usize) {
         }),
     };
     let prims = World::build("capacity", spec).expect("valid").primitives();
-    let boxes = prims.iter().filter(|p| matches!(p, g1_sim::world::Primitive::Box { .. })).count();
+    let boxes = prims
+        .iter()
+        .filter(|p| matches!(p, g1_sim::world::Primitive::Box { .. }))
+        .count();
     (boxes, prims.len() - boxes)
 }
 
@@ -308,7 +311,12 @@ impl StairEnv {
 
     fn load_sim(cfg: &EnvConfig, seed: u64) -> anyhow::Result<Simulator> {
         let (boxes, cylinders) = terrain_capacity();
-        Ok(Simulator::load_with_terrain_capacity(cfg.model.clone(), sim_config(seed), boxes, cylinders)?)
+        Ok(Simulator::load_with_terrain_capacity(
+            cfg.model.clone(),
+            sim_config(seed),
+            boxes,
+            cylinders,
+        )?)
     }
 
     /// Draws the next world from the curriculum.
@@ -533,7 +541,11 @@ impl StairEnv {
     /// The operator's command now: forward speed with heading hold toward the staircase axis,
     /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval`.
     pub fn operator_command(&self) -> [f32; 3] {
-        firmware::operator::heading_command(self.vx_cmd, self.heading as f32, firmware::operator::imu_yaw(&self.state))
+        firmware::operator::heading_command(
+            self.vx_cmd,
+            self.heading as f32,
+            firmware::operator::imu_yaw(&self.state),
+        )
     }
 
     /// The actor's observation of the current state, built by the firmware's `PolicyIo`.
