@@ -50,10 +50,6 @@ fn elu(x: &Tensor) -> Result<Tensor> {
     x.relu()? + (neg.exp()? - 1.0)?
 }
 
-fn sigmoid(x: &Tensor) -> Result<Tensor> {
-    (x.neg()?.exp()? + 1.0)?.recip()
-}
-
 impl ActorCritic {
     /// Fresh networks: actor and critic with PyTorch-like uniform init, log std = ln(`init_std`).
     pub fn new(obs_dim: usize, critic_dim: usize, act_dim: usize, init_std: f64, seed: u64) -> Result<Self> {
@@ -148,10 +144,13 @@ impl ActorCritic {
             h = h.broadcast_mul(&m)?;
             c = c.broadcast_mul(&m)?;
             let g = (xproj.get(s)? + h.matmul(&w_hh_t)?)?;
-            let gi = sigmoid(&g.narrow(1, 0, HIDDEN)?)?;
-            let gf = sigmoid(&g.narrow(1, HIDDEN, HIDDEN)?)?;
+            // One sigmoid over all four gate blocks (the g block's is unused): the update's cost
+            // is the number of ops per step, not their size.
+            let sg = candle_nn::ops::sigmoid(&g)?;
+            let gi = sg.narrow(1, 0, HIDDEN)?;
+            let gf = sg.narrow(1, HIDDEN, HIDDEN)?;
             let gg = g.narrow(1, 2 * HIDDEN, HIDDEN)?.tanh()?;
-            let go = sigmoid(&g.narrow(1, 3 * HIDDEN, HIDDEN)?)?;
+            let go = sg.narrow(1, 3 * HIDDEN, HIDDEN)?;
             c = ((gf * &c)? + (gi * gg)?)?;
             h = (go * c.tanh()?)?;
             outs.push(h.clone());
