@@ -150,12 +150,10 @@ enum Cmd {
         #[arg(long, default_value_t = 24)]
         steps: usize,
         /// Passes over each rollout.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 4)]
         epochs: usize,
-        /// Minibatches per pass (of whole environment sequences). The update's cost is mostly
-        /// per minibatch (the LSTM is replayed step by step), so fewer, larger ones keep the
-        /// learner from dominating on a CPU; rsl_rl uses 4 with thousands of environments.
-        #[arg(long, default_value_t = 2)]
+        /// Minibatches per pass (of whole environment sequences), as rsl_rl.
+        #[arg(long, default_value_t = 4)]
         minibatches: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
