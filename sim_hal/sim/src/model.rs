@@ -446,7 +446,9 @@ fn lean_collisions(model: &mut MjModel) {
             ty,
             _mjtGeomBase::mjGEOM_SPHERE | _mjtGeomBase::mjGEOM_CAPSULE | _mjtGeomBase::mjGEOM_BOX
         );
-        let world = model.body_weldid()[body as usize] == 0;
+        // Terrain: geoms welded to the world body, and the terrain pool's mocap bodies (a mocap
+        // body is its own weld root, so the weld test alone would disable the pool's collisions).
+        let world = model.body_weldid()[body as usize] == 0 || model.body_mocapid()[body as usize] >= 0;
         let was_colliding = model.geom_contype()[g] != 0 || model.geom_conaffinity()[g] != 0;
         let (ct, ca) = if world {
             (

@@ -310,6 +310,19 @@ fn settle(sim: &mut Simulator) -> f64 {
 #[test]
 fn swapped_terrain_matches_a_compiled_world() {
     require_deps();
+    // The training profile too (its lean collision filter once left the pool's mocap geoms
+    // colliding with nothing: the robot fell through every pooled step).
+    let training = SimConfig {
+        physics: g1_sim::PhysicsProfile::Training,
+        ..SimConfig::default()
+    };
+    let mut pooled = Simulator::load_with_terrain_capacity(ModelChoice::G1_29Dof, training, 24, 0).unwrap();
+    let flat_z = settle(&mut pooled);
+    pooled.set_world(&World::preset("stairs-down").unwrap()).unwrap();
+    pooled.reset();
+    let z = settle(&mut pooled);
+    assert!(z > flat_z + 0.1, "training profile: stands at {z} on the raised landing? flat {flat_z}");
+
     let mut pooled = Simulator::load_with_terrain_capacity(ModelChoice::G1_29Dof, SimConfig::default(), 24, 0).unwrap();
     assert_eq!(pooled.terrain_capacity(), (24, 0));
     let flat_z = settle(&mut pooled);

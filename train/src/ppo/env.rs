@@ -730,9 +730,11 @@ impl StairEnv {
             if g1 < 0 || g2 < 0 || con.dist > 0.0 {
                 continue;
             }
+            // Robot bodies share the pelvis's root; terrain is the world body or a pool body.
+            let robot_root = root[self.foot_body[0]];
             let (b1, b2) = (gb[g1 as usize] as usize, gb[g2 as usize] as usize);
-            let (robot, other) = if root[b1] != 0 { (b1, b2) } else { (b2, b1) };
-            if root[other] != 0 || root[robot] == 0 {
+            let (robot, other) = if root[b1] == robot_root { (b1, b2) } else { (b2, b1) };
+            if root[robot] != robot_root || root[other] == robot_root {
                 continue;
             }
             if self.foot_body.contains(&robot) {
