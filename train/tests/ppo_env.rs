@@ -123,10 +123,10 @@ fn candle_actor_matches_the_firmware_executor() {
     let mut means = Vec::new();
     let mut masks = vec![1.0f32; t];
     let mut mean = vec![0.0; 12];
-    for s in 0..t {
+    for (s, mask) in masks.iter_mut().enumerate() {
         if s == 25 {
             e.net.reset();
-            masks[s] = 0.0;
+            *mask = 0.0;
         }
         obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
         means.extend_from_slice(&mean);

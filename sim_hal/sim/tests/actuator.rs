@@ -321,7 +321,10 @@ fn swapped_terrain_matches_a_compiled_world() {
     pooled.set_world(&World::preset("stairs-down").unwrap()).unwrap();
     pooled.reset();
     let z = settle(&mut pooled);
-    assert!(z > flat_z + 0.1, "training profile: stands at {z} on the raised landing? flat {flat_z}");
+    assert!(
+        z > flat_z + 0.1,
+        "training profile: stands at {z} on the raised landing? flat {flat_z}"
+    );
 
     let mut pooled = Simulator::load_with_terrain_capacity(ModelChoice::G1_29Dof, SimConfig::default(), 24, 0).unwrap();
     assert_eq!(pooled.terrain_capacity(), (24, 0));

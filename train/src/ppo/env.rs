@@ -260,7 +260,7 @@ impl StairEnv {
         }
         let m = sim.data().model();
         let body = |n: &str| {
-            m.name_to_id(_mjtObjBase::mjOBJ_BODY.into(), n)
+            m.name_to_id(_mjtObjBase::mjOBJ_BODY, n)
                 .ok_or_else(|| anyhow::anyhow!("model has no body {n}"))
         };
         let foot_body = [body("left_ankle_roll_link")?, body("right_ankle_roll_link")?];
@@ -449,7 +449,7 @@ impl StairEnv {
             .filter(|&&s| self.enabled[s])
             .filter_map(|&s| {
                 let name = format!("{}_joint", hal::G1_MOTOR_NAMES[s]);
-                m.name_to_id(_mjtObjBase::mjOBJ_JOINT.into(), &name)
+                m.name_to_id(_mjtObjBase::mjOBJ_JOINT, &name)
                     .map(|j| (s, m.jnt_qposadr()[j] as usize))
             })
             .collect()
@@ -460,9 +460,8 @@ impl StairEnv {
             mode_machine: self.sim.mode_machine(),
             ..LowCommand::default()
         };
-        for s in 0..NUM_MOTORS {
+        for (s, m) in cmd.motors.iter_mut().enumerate() {
             if self.enabled[s] {
-                let m = &mut cmd.motors[s];
                 m.mode = MOTOR_MODE_ENABLED;
                 m.q = target[s];
                 m.kp = self.kp[s];
