@@ -39,8 +39,12 @@ fn warm_start(spec: &DeploySpec, peer: &std::path::Path) -> (ActorCritic, Vec<u8
 }
 
 fn env(spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
+    env_on(g1_sim::ModelChoice::G1_12Dof, spec, weights, seed, only)
+}
+
+fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
     let cfg = EnvConfig {
-        model: g1_sim::ModelChoice::G1_12Dof,
+        model,
         spec: Arc::new(spec),
         episode_s: 10.0,
         random: Randomization::NONE,
@@ -53,10 +57,17 @@ fn env(spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
 
 #[test]
 fn warm_started_actor_walks_in_the_training_environment() {
+    for model in [g1_sim::ModelChoice::G1_12Dof, g1_sim::ModelChoice::G1_29Dof] {
+        walks_on(model);
+    }
+}
+
+/// On the 29-dof model the spec's `[[held]]` groups hold waist and arms, as in the firmware.
+fn walks_on(model: g1_sim::ModelChoice) {
     let Some(peer) = peer_weights() else { return };
     let spec = stair_spec();
     let (_, w) = warm_start(&spec, &peer);
-    let mut e = env(spec, &w, 1, Column::Flat);
+    let mut e = env_on(model, spec, &w, 1, Column::Flat);
     let mut mean = vec![0.0; 12];
     let mut steps = 0;
     for _ in 0..400 {
@@ -70,6 +81,7 @@ fn warm_started_actor_walks_in_the_training_environment() {
     let end = e.debug_summary();
     eprintln!("{steps} steps: {end}");
     assert_eq!(steps, 400, "the warm start fell or ended early: {end}");
+    assert!(e.progress() > 3.0, "8 s at 0.5 m/s: {end}");
 }
 
 /// Trainer and firmware observe identically: the environment's observation of each state equals,

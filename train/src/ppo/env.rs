@@ -258,6 +258,18 @@ impl StairEnv {
             (kp[slot], kd[slot], default_q[slot]) = (spec.policy.kp[i], spec.policy.kd[i], spec.policy.default_pose[i]);
             enabled[slot] = present & (1 << slot) != 0;
         }
+        // Joints the spec holds (waist and arms on the 29-dof model), as the firmware holds them.
+        for g in &spec.held {
+            let k = g.joints.len();
+            let e =
+                |v: Option<Vec<f32>>| v.ok_or_else(|| anyhow::anyhow!("held group sizes (validated by DeploySpec)"));
+            let (q, gp, gd) = (e(g.q.expand(k))?, e(g.kp.expand(k))?, e(g.kd.expand(k))?);
+            for (j, name) in g.joints.iter().enumerate() {
+                let slot = hal::g1_motor_slot(name).ok_or_else(|| anyhow::anyhow!("held joint {name}"))?;
+                (kp[slot], kd[slot], default_q[slot]) = (gp[j], gd[j], q[j]);
+                enabled[slot] = present & (1 << slot) != 0;
+            }
+        }
         let m = sim.data().model();
         let body = |n: &str| {
             m.name_to_id(_mjtObjBase::mjOBJ_BODY, n)
@@ -444,10 +456,9 @@ impl StairEnv {
 
     fn slot_qpos_adr(&self) -> Vec<(usize, usize)> {
         let m = self.sim.data().model();
-        self.slots
-            .iter()
-            .filter(|&&s| self.enabled[s])
-            .filter_map(|&s| {
+        (0..NUM_MOTORS)
+            .filter(|&s| self.enabled[s])
+            .filter_map(|s| {
                 let name = format!("{}_joint", hal::G1_MOTOR_NAMES[s]);
                 m.name_to_id(_mjtObjBase::mjOBJ_JOINT, &name)
                     .map(|j| (s, m.jnt_qposadr()[j] as usize))
@@ -775,6 +786,11 @@ impl StairEnv {
     /// The current (noise-free) LowState, for parity tests.
     pub fn low_state(&self) -> &LowState {
         &self.state
+    }
+
+    /// Farthest the base got along the staircase axis (along x on flat ground) this episode, m.
+    pub fn progress(&self) -> f64 {
+        self.progress
     }
 
     /// Base pose and world, for test messages.
