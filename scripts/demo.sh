@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# README command 1: install everything, build, and run the sim-to-sim demo on the 29-dof G1:
-# the peer walking policy at 0.5 m/s for 20 s when ../shared is beside the checkout, otherwise the
-# firmware ramps to and holds the default pose (and says how to give it a policy).
+# README command 1: install everything, build, and run the main job: this project's stair policy
+# (specs/stairs/g1_stairs_lstm.toml, weights committed) walking the 29-dof G1 up a staircase and then
+# down one, with perception in the loop (simulated MID-360 -> Livox packets -> BEV -> terrain CNN ->
+# token -> policy -> PD), through the firmware's 500 Hz lock-stepped loop. Writes per staircase a
+# JSON report and a picture of base height against distance with the steps drawn (out/demo_*).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -9,16 +11,22 @@ scripts/install.sh
 echo "[demo] building (release)…" >&2
 cargo build --release --workspace --bins
 mkdir -p out
-weights="${G1_SHARED_DIR:-$root/../shared}/peer_policy/unitree_g1_lstm/policy.safetensors"
-if [ -f "$weights" ]; then
-  echo "[demo] peer policy found: walking the 29-dof G1 at vx 0.5 m/s for 20 s" >&2
-  target/release/g1fw sim --model g1-29dof --spec specs/peer/unitree_g1_lstm.toml --cmd 0.5,0,0 \
-    --duration 20 --seed 0 --report out/demo_report.json "$@"
-else
-  echo "[demo] no policy: $weights is missing (../shared is not beside this checkout)." >&2
-  echo "[demo] holding the default pose instead. To walk, put ../shared beside the checkout or pass" >&2
-  echo "[demo]   target/release/g1fw sim --spec YOUR_SPEC.toml   (see specs/ for the format)" >&2
-  target/release/g1fw sim --model g1-29dof --spec specs/peer/unitree_g1_lstm.toml --hold --ramp 2 --duration 10 \
-    --report out/demo_report.json "$@"
-fi
-echo "[demo] report written to out/demo_report.json" >&2
+spec=specs/stairs/g1_stairs_lstm.toml
+status=0
+for world in stairs-up stairs-down; do
+  echo "[demo] $world: 29-dof G1, vx 0.5 m/s with heading hold, the terrain CNN's token" >&2
+  target/release/g1fw sim --model g1-29dof --spec "$spec" --world "$world" --cmd 0.5,0,0 --heading 0 \
+    --duration 20 --stop-after-landing 1 --seed 0 --report "out/demo_$world.json" \
+    --profile-plot "out/demo_$world.png" "$@" || status=$?
+  python3 - "out/demo_$world.json" <<'PY' || true
+import json, sys
+r = json.load(open(sys.argv[1]))
+s = r.get("stairs") or {}
+trip = (r.get("trip") or {}).get("reason", "none")
+print(f"[demo]   {s.get('kind')}: {s.get('risers_passed')}/{s.get('risers')} risers, "
+      f"landing reached: {s.get('reached_end_landing')}, success: {s.get('success')}, "
+      f"fell: {r['fell']}, trip: {trip}", file=sys.stderr)
+PY
+done
+echo "[demo] reports and profile plots in out/demo_stairs-up.{json,png} and out/demo_stairs-down.{json,png}" >&2
+exit $status
