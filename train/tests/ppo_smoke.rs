@@ -18,7 +18,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         spec: root.join("specs/stairs/g1_stairs_lstm.toml"),
         model: g1_sim::ModelChoice::G1_12Dof,
         out: out.clone(),
-        envs: 16,
+        envs: 32,
         threads: 2,
         iterations: 16,
         seed: 1,
@@ -47,7 +47,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
             .map(|l| (l.mean_reward_per_step * 1000.0).round() / 1000.0)
             .collect::<Vec<_>>()
     );
-    assert!(last > first + 0.02, "PPO did not learn: {first:.4} -> {last:.4}");
+    assert!(last > first + 0.1, "PPO did not learn: {first:.4} -> {last:.4}");
     for f in [CHECKPOINT, HISTORY, CURVES, "state.json", "g1_stairs_lstm.safetensors"] {
         assert!(out.join(f).exists(), "{f} not written");
     }

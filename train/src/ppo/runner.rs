@@ -184,7 +184,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         spec: Arc::new(spec),
         episode_s: cfg.episode_s,
         random: cfg.random,
-        vx: (0.3, 0.8),
+        vx: (0.4, 0.8),
         max_init_level: cfg.max_init_level,
         only: cfg.only,
     };
@@ -217,45 +217,84 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let bar = g1_sim::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
     let threads = cfg.threads.max(1);
+    // The environments form two halves that take turns: while one half rolls out on the worker
+    // threads with the newest weights, the learner (this thread) updates on the other half's
+    // rollout, which is one update old (PPO's ratio and clip take the lag). Both cores stay busy:
+    // rollouts alone use ~1/3 of an iteration's wall time, the update the rest, on one core.
+    let half = slots.len() / 2;
+    anyhow::ensure!(half > 0, "--envs must be at least 2 (two halves take turns)");
+    let workers = threads.saturating_sub(1).max(1);
+    let mut have_data = [false; 2];
+    let mut turn = state.iteration % 2;
     while state.iteration < cfg.iterations {
         let t0 = Instant::now();
         let log_std: Vec<f32> = ac.log_std().to_vec1()?;
-        let per = slots.len().div_ceil(threads);
-        let results: Vec<anyhow::Result<()>> = std::thread::scope(|s| {
-            let handles: Vec<_> = slots
+        let (first, second) = slots.split_at_mut(half);
+        let (rolling, learning) = if turn == 0 { (first, second) } else { (second, first) };
+        let learn_idx = 1 - turn;
+        let mut rolls: Vec<EnvRollout> = learning
+            .iter_mut()
+            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0)))
+            .collect();
+        let per = rolling.len().div_ceil(workers);
+        let critic_only = state.iteration < cfg.critic_warmup;
+        let (results, learned) = std::thread::scope(|s| {
+            let handles: Vec<_> = rolling
                 .chunks_mut(per)
                 .map(|chunk| {
                     let ls = &log_std;
                     s.spawn(move || rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim))
                 })
                 .collect();
-            handles
+            let learned = if have_data[learn_idx] {
+                let t1 = Instant::now();
+                let r = (|| -> anyhow::Result<UpdateStats> {
+                    for r in &rolls {
+                        state.normalizer.update(&r.critic_obs);
+                    }
+                    compute_gae(&ac, &state.normalizer, &mut rolls, &cfg.ppo)?;
+                    Ok(learner.update(&ac, &state.normalizer, &rolls, critic_only)?)
+                })();
+                Some((r, t1.elapsed().as_secs_f64()))
+            } else {
+                None
+            };
+            let results: Vec<anyhow::Result<()>> = handles
                 .into_iter()
                 .map(|h| h.join().expect("rollout worker panicked"))
-                .collect()
+                .collect();
+            (results, learned)
         });
         for r in results {
             r?;
         }
-        let t_roll = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        let mut rolls: Vec<EnvRollout> = slots
-            .iter_mut()
-            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0)))
-            .collect();
-        for r in &rolls {
-            state.normalizer.update(&r.critic_obs);
+        have_data[turn] = true;
+        let t_iter = t0.elapsed().as_secs_f64();
+        let (stats, t_learn) = match learned {
+            Some((r, t)) => (r?, t),
+            None => (UpdateStats::default(), 0.0),
+        };
+        if t_learn > 0.0 {
+            let weights = ac.actor_safetensors()?;
+            for s in slots.iter_mut() {
+                s.env.set_weights(&weights)?;
+            }
         }
-        compute_gae(&ac, &state.normalizer, &mut rolls, &cfg.ppo)?;
-        let critic_only = state.iteration < cfg.critic_warmup;
-        let stats = learner.update(&ac, &state.normalizer, &rolls, critic_only)?;
-        let weights = ac.actor_safetensors()?;
-        for s in slots.iter_mut() {
-            s.env.set_weights(&weights)?;
+        let mean_reward = rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>()
+            / ((cfg.ppo.steps * rolls.len()) as f64).max(1.0);
+        let learned_envs: &mut [Slot] = if turn == 0 {
+            &mut slots[half..]
+        } else {
+            &mut slots[..half]
+        };
+        for (s, r) in learned_envs.iter_mut().zip(rolls.drain(..)) {
+            s.roll = r;
         }
-        let t_learn = t1.elapsed().as_secs_f64();
-
-        let steps = (cfg.ppo.steps * slots.len()) as u64;
+        turn = 1 - turn;
+        if t_learn == 0.0 {
+            continue; // nothing learned yet: the first half-rollout only primes the pipeline
+        }
+        let steps = (cfg.ppo.steps * half) as u64;
         state.env_steps += steps;
         state.iteration += 1;
         state.lr = learner.lr;
@@ -264,8 +303,6 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             .iter()
             .filter(|e| e.column != Some(super::env::Column::Flat))
             .collect();
-        let mean_reward =
-            rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>() / (steps as f64).max(1.0);
         let log = IterLog {
             iteration: state.iteration,
             env_steps: state.env_steps,
@@ -279,8 +316,8 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
             fall_causes: [0, 1, 2].map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count()),
             mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
-            env_steps_per_s: steps as f64 / (t_roll + t_learn),
-            learner_share: t_learn / (t_roll + t_learn),
+            env_steps_per_s: steps as f64 / t_iter,
+            learner_share: t_learn / t_iter,
             update: stats,
         };
         bar.set_message(format!(
@@ -297,9 +334,6 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             tracing::info!(?log, "iteration");
         }
         history.push(log);
-        for (s, r) in slots.iter_mut().zip(rolls) {
-            s.roll = r;
-        }
         let out_of_time = wall0 + start.elapsed().as_secs_f64() - state.wall_s > cfg.max_wall_s;
         state.wall_s = wall0 + start.elapsed().as_secs_f64();
         if last_ckpt.elapsed().as_secs_f64() > cfg.checkpoint_every_s

@@ -1,0 +1,70 @@
+//! This project's stair policy (`specs/stairs/g1_stairs_lstm.toml`, weights trained by
+//! `g1-train ppo`) through the real firmware loop: 500 Hz, lock-stepped bridge, simulated MID-360 →
+//! BEV → terrain CNN → token → policy → PD. Needs ../shared for the 12-dof model (loud skip outside CI).
+#![allow(clippy::disallowed_methods)]
+use std::path::Path;
+
+use integration_tests::*;
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn run(dir: &Path, name: &str, world: &str) -> serde_json::Value {
+    let report = dir.join(format!("{name}.json"));
+    let spec = repo_root().join("specs/stairs/g1_stairs_lstm.toml");
+    let out = g1fw(&[
+        "sim",
+        "--spec",
+        spec.to_str().unwrap(),
+        "--model",
+        "g1-12dof",
+        "--world",
+        world,
+        "--cmd",
+        "0.5,0,0",
+        "--heading",
+        "0",
+        "--duration",
+        "14",
+        "--stop-after-landing",
+        "0.5",
+        "--seed",
+        "0",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "g1fw sim failed ({:?}): {}",
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    json(&report)
+}
+
+#[test]
+fn stair_policy_short_staircase_through_g1fw_with_the_cnn_token() {
+    if shared_dir().is_none() {
+        return skip_or_fail("stair_policy_short_staircase_through_g1fw_with_the_cnn_token");
+    }
+    let dir = scratch_dir("stair-policy");
+    let world = repo_root().join("specs/worlds/stairs_up_low.toml");
+    let r = run(&dir, "a", world.to_str().unwrap());
+    println!("{}", serde_json::to_string_pretty(&r["stairs"]).unwrap());
+    // Perception ran and its token saw the staircase.
+    let t = &r["terrain"];
+    assert!(t["frames"].as_u64().unwrap() > 20, "{t}");
+    assert!(t["truth_classes"][1].as_u64().unwrap() > 0, "{t}");
+    assert!(t["class_acc"].as_f64().unwrap() > 0.8, "{t}");
+    assert_eq!(r["terrain_source"], "cnn");
+    // The policy climbed it: every riser, the end landing, no fall, no trip.
+    let s = &r["stairs"];
+    assert_eq!(s["risers"], 3);
+    assert_eq!(s["risers_passed"], 3, "{s}");
+    assert_eq!(s["success"], true, "{s} trip {}", r["trip"]);
+    assert_eq!(r["fell"], false);
+    // Deterministic: the same run again gives the same frames, bit for bit.
+    let r2 = run(&dir, "b", world.to_str().unwrap());
+    assert_eq!(r["state_trace_sha256"], r2["state_trace_sha256"]);
+}
