@@ -35,7 +35,7 @@ fn diag() {
         let mut succ = 0;
         let mut causes = [0; 3];
         let mut steps = 0;
-        while n < 6 {
+        while n < 8 {
             e.observe_and_act(&mut mean).unwrap();
             let o = e.step(&mean.clone()).unwrap();
             steps += 1;
@@ -52,6 +52,6 @@ fn diag() {
                 }
             }
         }
-        eprintln!("{col:?}: 6 episodes {steps} steps, fell {fails} causes {causes:?}, success {succ}");
+        eprintln!("{col:?}: 8 episodes {steps} steps, fell {fails} causes {causes:?}, success {succ}");
     }
 }
