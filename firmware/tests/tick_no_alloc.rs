@@ -101,7 +101,9 @@ impl FrameSource for SyntheticHal {
 fn run_ticks(spec_path: &Path) {
     let spec = DeploySpec::load(spec_path).expect("spec loads");
     let (obs, act) = (spec.observation_dim(), spec.num_joints());
-    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-{}", std::process::id()));
+    // One directory per spec: the tests run in parallel, and each removes its directory at the end
+    // (a shared one was removed under the other test's open log: a flaky NotFound).
+    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-{}-{}", std::process::id(), spec.meta.name));
     std::fs::create_dir_all(&dir).unwrap();
     let log_path = dir.join(format!("{}.mcap", spec.meta.name));
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
