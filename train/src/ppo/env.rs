@@ -640,7 +640,11 @@ impl StairEnv {
             self.next_push += self.push_interval();
         }
         self.sim.low_state(&mut self.state);
-        let (terms, terminated) = self.rewards(action);
+        let was_success = self.succeeded();
+        let (mut terms, terminated) = self.rewards(action);
+        if !was_success && self.succeeded() {
+            terms.success = 1.0 / POLICY_DT;
+        }
         let reward = terms.total(&WEIGHTS, POLICY_DT);
         self.ret += reward;
         let n = self.prev_action.len();
