@@ -727,7 +727,7 @@ impl StairEnv {
                     .ground(feet[f][0], feet[f][1])
                     .max(self.ground(feet[f][0] + ux * la, feet[f][1] + uy * la));
                 let clearance = feet[f][2] - self.sole_offset - terrain;
-                r.foot_clearance += (clearance - reward::CLEARANCE_TARGET).powi(2) * speed;
+                r.foot_clearance += (reward::CLEARANCE_TARGET - clearance).max(0.0) * speed.min(1.0);
             }
         }
         if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {

@@ -20,11 +20,15 @@
 //! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
 //! | `joint_speed` | Σ max(\|q̇\| − 7 rad/s, 0)²: a soft wall before g1fw's 10 rad/s guard trips | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
-//! | `foot_clearance` | Σ swing feet (clearance − 0.10 m)² · ‖v_foot,xy‖; clearance from the highest terrain under and 0.12 m ahead of the foot | −2.0 |
+//! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under and 0.12 m ahead of the foot | −10 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain | −1.0 |
 //! | `termination` | 1 on a fall or safety trip (not on time-out or success) | −200 |
 //! | `success` | 1 / dt on the step the base reaches the end landing (a one-off +10) | +10 |
+//!
+//! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
+//! a 6 cm deficit cost 0.0001 per step against ~0.06 for tracking, nothing the policy noticed, and
+//! toes caught on risers (the joint-speed guard's trips); the linear deficit costs ~0.012.
 //!
 //! Why `success`: with only the tracking kernels, standing at the first riser still earns ~80 % of
 //! walking's reward per step, while a fall costs 200 · dt = 4, so the policy learned to stop at
@@ -69,7 +73,7 @@ pub const WEIGHTS: Weights = Weights {
     joint_deviation: -0.1,
     joint_speed: -1.0,
     ankle_limits: -1.0,
-    foot_clearance: -2.0,
+    foot_clearance: -10.0,
     stumble: -1.0,
     body_contact: -1.0,
     termination: -200.0,
