@@ -148,6 +148,12 @@ fn real_simulator_killed_mid_run_is_a_clear_error() {
         .args(["--socket", sock.to_str().unwrap(), "--model", "g1-29dof", "--quiet"])
         .spawn()
         .expect("g1-sim starts");
+    // Wait for the simulator to listen (loading the 29-dof model takes seconds on a loaded
+    // machine), so the kill below lands mid-run, not before g1fw could connect.
+    let t0 = std::time::Instant::now();
+    while !sock.exists() && t0.elapsed().as_secs() < 60 {
+        thread::sleep(std::time::Duration::from_millis(50));
+    }
     let child = Command::new(built_bin("g1fw"))
         .args([
             "sim",
