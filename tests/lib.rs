@@ -43,6 +43,12 @@ pub fn built_bin(name: &str) -> PathBuf {
     p
 }
 
+/// A JSON file (a `g1fw` report) as a value.
+pub fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
 /// The peer policy's deploy spec.
 pub fn peer_spec_path() -> PathBuf {
     repo_root().join("specs/peer/unitree_g1_lstm.toml")

@@ -93,28 +93,13 @@ impl Controller {
         if let Some(net) = &net {
             Self::check_dims(&spec, net)?;
         }
-        let mut enabled = [false; NUM_MOTORS];
-        let mut default_q = [0.0; NUM_MOTORS];
-        let mut kp = [0.0; NUM_MOTORS];
-        let mut kd = [0.0; NUM_MOTORS];
+        let crate::spec::MotorTable {
+            enabled,
+            default_q,
+            kp,
+            kd,
+        } = spec.motor_table();
         let p = &spec.policy;
-        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
-            enabled[slot] = true;
-            default_q[slot] = p.default_pose[i];
-            kp[slot] = p.kp[i];
-            kd[slot] = p.kd[i];
-        }
-        for g in &spec.held {
-            let k = g.joints.len();
-            let (q, gp, gd) = (g.q.expand(k).unwrap(), g.kp.expand(k).unwrap(), g.kd.expand(k).unwrap());
-            for (j, name) in g.joints.iter().enumerate() {
-                let slot = hal::g1_motor_slot(name).expect("validated by DeploySpec");
-                enabled[slot] = true;
-                default_q[slot] = q[j];
-                kp[slot] = gp[j];
-                kd[slot] = gd[j];
-            }
-        }
         let (mut startup_kp, mut startup_kd) = (kp, kd);
         for (i, &slot) in p.joint_ids_map.iter().enumerate() {
             if let Some(v) = &spec.startup.kp {

@@ -477,7 +477,48 @@ impl ObsKind {
     }
 }
 
+/// What the spec commands on each of the 35 motor slots in policy mode: driven (policy joints) or
+/// held (`[[held]]`), the target pose those slots rest at, and their PD gains. The controller and the
+/// PPO trainer both build their commands from it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotorTable {
+    pub enabled: [bool; hal::NUM_MOTORS],
+    pub default_q: [f32; hal::NUM_MOTORS],
+    pub kp: [f32; hal::NUM_MOTORS],
+    pub kd: [f32; hal::NUM_MOTORS],
+}
+
 impl DeploySpec {
+    /// The per-slot table of driven and held motors (policy joints first, then `[[held]]` groups).
+    pub fn motor_table(&self) -> MotorTable {
+        const N: usize = hal::NUM_MOTORS;
+        let mut t = MotorTable {
+            enabled: [false; N],
+            default_q: [0.0; N],
+            kp: [0.0; N],
+            kd: [0.0; N],
+        };
+        let p = &self.policy;
+        for (i, &slot) in p.joint_ids_map.iter().enumerate() {
+            t.enabled[slot] = true;
+            t.default_q[slot] = p.default_pose[i];
+            t.kp[slot] = p.kp[i];
+            t.kd[slot] = p.kd[i];
+        }
+        for g in &self.held {
+            let k = g.joints.len();
+            let (q, gp, gd) = (g.q.expand(k).unwrap(), g.kp.expand(k).unwrap(), g.kd.expand(k).unwrap());
+            for (j, name) in g.joints.iter().enumerate() {
+                let slot = hal::g1_motor_slot(name).expect("validated by DeploySpec");
+                t.enabled[slot] = true;
+                t.default_q[slot] = q[j];
+                t.kp[slot] = gp[j];
+                t.kd[slot] = gd[j];
+            }
+        }
+        t
+    }
+
     pub fn load(path: &Path) -> Result<Self, SpecError> {
         let text = std::fs::read_to_string(path).map_err(|source| SpecError::Read {
             path: path.into(),

@@ -10,10 +10,6 @@ use firmware::log::channels as ch;
 use firmware::log::LogFile;
 use integration_tests::*;
 
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
 fn ok(out: &std::process::Output, what: &str) {
     assert!(
         out.status.success(),
@@ -53,7 +49,7 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     println!("{stdout}");
     assert!(stdout.contains("1 of 2 episodes succeeded"), "{stdout}");
-    let r = json(&report);
+    let r = read_json(&report);
     assert_eq!(r["episodes"], 2);
     let eps = r["results"].as_array().unwrap();
     let (flat, stairs) = (&eps[0], &eps[1]);
@@ -103,7 +99,7 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
         sim_report.to_str().unwrap(),
     ]);
     ok(&out, "g1fw sim");
-    let s = json(&sim_report);
+    let s = read_json(&sim_report);
     assert_eq!(s["state_trace_sha256"], stairs["state_trace_sha256"]);
     assert_eq!(s["stairs"]["success"], false);
     assert_eq!(s["stairs"]["risers_passed"], stairs["risers_passed"]);
@@ -133,7 +129,7 @@ fn heading_command_turns_the_robot_to_the_target() {
         report.to_str().unwrap(),
     ]);
     ok(&out, "g1fw sim --heading 30");
-    let r = json(&report);
+    let r = read_json(&report);
     assert_eq!(r["fell"], false);
     assert!((r["heading_target_deg"].as_f64().unwrap() - 30.0).abs() < 1e-4);
     // Time constant 1/K = 2 s over ~7 s under policy: within a few degrees of 30°.
@@ -180,7 +176,7 @@ fn terrain_run(dir: &Path, source: &str) -> (std::path::PathBuf, serde_json::Val
         report.to_str().unwrap(),
     ]);
     ok(&out, &format!("g1fw sim --terrain-source {source}"));
-    (log.clone(), json(&report))
+    (log.clone(), read_json(&report))
 }
 
 #[test]

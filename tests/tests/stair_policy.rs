@@ -6,10 +6,6 @@ use std::path::Path;
 
 use integration_tests::*;
 
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
-
 fn run(dir: &Path, name: &str, world: &str) -> serde_json::Value {
     let report = dir.join(format!("{name}.json"));
     let spec = repo_root().join("specs/stairs/g1_stairs_lstm.toml");
@@ -40,7 +36,7 @@ fn run(dir: &Path, name: &str, world: &str) -> serde_json::Value {
         out.status.code(),
         String::from_utf8_lossy(&out.stderr)
     );
-    json(&report)
+    read_json(&report)
 }
 
 #[test]

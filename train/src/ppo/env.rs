@@ -249,26 +249,16 @@ impl StairEnv {
         let spec = &cfg.spec;
         let io = PolicyIo::new(spec);
         let net = Network::from_safetensors_bytes(&spec.policy.network, weights)?;
-        let mut kp = [0.0; NUM_MOTORS];
-        let mut kd = [0.0; NUM_MOTORS];
-        let mut enabled = [false; NUM_MOTORS];
-        let mut default_q = [0.0; NUM_MOTORS];
+        // Driven and held motors exactly as the firmware commands them; slots the model lacks off.
+        let firmware::spec::MotorTable {
+            mut enabled,
+            default_q,
+            kp,
+            kd,
+        } = spec.motor_table();
         let present = sim.motor_slots_present();
-        for (i, &slot) in spec.policy.joint_ids_map.iter().enumerate() {
-            (kp[slot], kd[slot], default_q[slot]) = (spec.policy.kp[i], spec.policy.kd[i], spec.policy.default_pose[i]);
-            enabled[slot] = present & (1 << slot) != 0;
-        }
-        // Joints the spec holds (waist and arms on the 29-dof model), as the firmware holds them.
-        for g in &spec.held {
-            let k = g.joints.len();
-            let e =
-                |v: Option<Vec<f32>>| v.ok_or_else(|| anyhow::anyhow!("held group sizes (validated by DeploySpec)"));
-            let (q, gp, gd) = (e(g.q.expand(k))?, e(g.kp.expand(k))?, e(g.kd.expand(k))?);
-            for (j, name) in g.joints.iter().enumerate() {
-                let slot = hal::g1_motor_slot(name).ok_or_else(|| anyhow::anyhow!("held joint {name}"))?;
-                (kp[slot], kd[slot], default_q[slot]) = (gp[j], gd[j], q[j]);
-                enabled[slot] = present & (1 << slot) != 0;
-            }
+        for (s, e) in enabled.iter_mut().enumerate() {
+            *e &= present & (1 << s) != 0;
         }
         let m = sim.data().model();
         let body = |n: &str| {

@@ -38,27 +38,8 @@
 //! Terminations mirror what stops the robot in `g1fw`: tilt past the supervisor's 1 rad, any leg
 //! joint faster than its 10 rad/s guard, or the base within 0.4 m of the ground under it (fallen).
 
-/// Term weights (see the module table).
-#[derive(Clone, Copy, Debug)]
-pub struct Weights {
-    pub track_lin_vel_xy: f64,
-    pub track_ang_vel_z: f64,
-    pub feet_air_time: f64,
-    pub feet_slide: f64,
-    pub flat_orientation: f64,
-    pub ang_vel_xy: f64,
-    pub action_rate: f64,
-    pub torques: f64,
-    pub joint_acc: f64,
-    pub joint_deviation: f64,
-    pub joint_speed: f64,
-    pub ankle_limits: f64,
-    pub foot_clearance: f64,
-    pub stumble: f64,
-    pub body_contact: f64,
-    pub termination: f64,
-    pub success: f64,
-}
+/// Term weights (see the module table): one [`Terms`] value per term.
+pub type Weights = Terms;
 
 pub const WEIGHTS: Weights = Weights {
     track_lin_vel_xy: 1.0,
