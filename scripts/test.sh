@@ -17,7 +17,7 @@ cargo fmt --all -- --check
 cargo clippy --release --workspace --all-targets -- -D warnings
 # Integration tests start the g1fw and g1-sim binaries: build them first.
 cargo build --release --workspace --bins
-cargo test --release --workspace
+cargo test --release --workspace --no-fail-fast
 # The robot's CPU (README, "aarch64 replay and deploy image"): cross-build g1fw once, replay the corpus
 # under qemu-aarch64 bit for bit, pack the deploy image from the same build, check the image.
 aarch64_start=$(date +%s)

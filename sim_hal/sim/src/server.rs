@@ -255,8 +255,21 @@ fn session<S: Read + Write>(
                 sim.apply_command(&b.cmd).expect("decoder rejects non-finite fields");
                 sim.step_control_tick();
                 ticks += 1;
-                if !send_state(s, sim, (want_truth, want_lidar), b, faults.as_mut(), ticks)? {
-                    return Ok(fault_disconnect(ticks, sim));
+                match send_state(s, sim, (want_truth, want_lidar), b, faults.as_mut(), ticks) {
+                    Ok(true) => {}
+                    Ok(false) => return Ok(fault_disconnect(ticks, sim)),
+                    // A client that sent its last command and left without reading the reply (a run
+                    // ended by a trip or a fall) is a disconnect, not a failure of the simulator.
+                    Err(ServeError::Io(e))
+                        if matches!(e.kind(), io::ErrorKind::BrokenPipe | io::ErrorKind::ConnectionReset) =>
+                    {
+                        return Ok(SessionSummary {
+                            end: SessionEnd::Disconnected,
+                            ticks,
+                            sim_time_s: sim.time(),
+                        })
+                    }
+                    Err(e) => return Err(e),
                 }
             }
             Kind::Bye => {
