@@ -34,6 +34,7 @@ enum Cmd {
         /// Dataset directories (g1-dataset export --out); repeat for several.
         #[arg(long, required = true)]
         data: Vec<PathBuf>,
+        /// Output directory (created): the export, checkpoint, history.json, training.png
         #[arg(long)]
         out: PathBuf,
         #[arg(long, default_value_t = 30)]
@@ -135,6 +136,7 @@ enum Cmd {
         /// g1-12dof (default), g1-29dof (upper body held by the spec's [[held]] groups) or an MJCF.
         #[arg(long, default_value = "g1-12dof")]
         model: g1_sim::ModelChoice,
+        /// Run directory: created if missing; a run whose directory holds a checkpoint resumes from it
         #[arg(long)]
         out: PathBuf,
         /// Parallel environments.

@@ -1,6 +1,8 @@
 //! PPO learns: on a small budget, from a random actor on flat ground, the mean reward per policy
 //! step rises (falling early costs the termination penalty; PPO quickly learns to stay up longer).
-use std::path::PathBuf;
+//! And training is deterministic for a seed: the same run twice, or on another thread count, writes
+//! the same weights.
+use std::path::{Path, PathBuf};
 
 use train::ppo::env::{Column, Randomization};
 use train::ppo::runner::{train, RunConfig, CHECKPOINT, CURVES, HISTORY};
@@ -8,8 +10,7 @@ use train::ppo::runner::{train, RunConfig, CHECKPOINT, CURVES, HISTORY};
 #[test]
 fn ppo_return_rises_on_a_small_budget_and_resumes() {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
-    if !g1_sim::ModelChoice::G1_12Dof.path().exists() {
-        eprintln!("SKIPPED: the 12-dof model in ../shared is missing (CI has it)");
+    if !model_present() {
         return;
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_smoke_{}", std::process::id()));
@@ -58,4 +59,65 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     assert_eq!(h2.last().unwrap().iteration, 18);
     assert!(h2[17].env_steps > h[15].env_steps);
     std::fs::remove_dir_all(&out).unwrap();
+}
+
+/// The 12-dof model from ../shared; a loud skip without it, a failure in CI (which always has it).
+fn model_present() -> bool {
+    if g1_sim::ModelChoice::G1_12Dof.path().exists() {
+        return true;
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "the 12-dof model in ../shared is missing, and CI must have it"
+    );
+    eprintln!("SKIPPED: the 12-dof model in ../shared is missing (CI has it)");
+    false
+}
+
+/// A short run on the full curriculum mix with every randomisation on; returns the exported actor.
+fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
+    let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let _ = std::fs::remove_dir_all(out);
+    let cfg = RunConfig {
+        spec: root.join("specs/stairs/g1_stairs_lstm.toml"),
+        model: g1_sim::ModelChoice::G1_12Dof,
+        out: out.to_path_buf(),
+        envs: 8,
+        threads,
+        iterations: 4,
+        seed: 7,
+        init_actor: None,
+        init_std: 0.5,
+        critic_warmup: 1,
+        episode_s: 1.0,
+        ppo: Default::default(),
+        random: Randomization::DEFAULT,
+        max_init_level: 10,
+        only: None,
+        checkpoint_every_s: f64::INFINITY,
+        quiet: true,
+        max_wall_s: f64::INFINITY,
+    };
+    let h = train(&cfg).expect("training runs");
+    let weights = std::fs::read(out.join("g1_stairs_lstm.safetensors")).expect("exported actor");
+    std::fs::remove_dir_all(out).unwrap();
+    (weights, h.iter().map(|l| l.mean_reward_per_step).collect())
+}
+
+#[test]
+fn training_is_deterministic_for_a_seed_and_any_thread_count() {
+    if !model_present() {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("g1_ppo_det_{}", std::process::id()));
+    let (a, ra) = short_run(&dir.join("a"), 2);
+    let (b, rb) = short_run(&dir.join("b"), 2);
+    let (c, rc) = short_run(&dir.join("c"), 1);
+    eprintln!("reward/step per iteration: {ra:?}");
+    assert!(ra.iter().all(|r| r.is_finite()) && ra.len() == 4, "{ra:?}");
+    assert_eq!(ra, rb, "same seed, same threads: different rewards");
+    assert!(a == b, "same seed, same threads: different weights");
+    assert_eq!(ra, rc, "1 thread vs 2: different rewards");
+    assert!(a == c, "1 thread vs 2: different weights");
+    let _ = std::fs::remove_dir_all(&dir);
 }
