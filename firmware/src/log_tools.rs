@@ -77,6 +77,7 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
         measured: Vec::new(),
         estimated: Vec::new(),
         events: Vec::new(),
+        marks: Vec::new(),
     };
     let mut command = [0f32; 3];
     // The newest valid estimate, paired with the truth of the same tick (written after it).
@@ -92,10 +93,19 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
         z: f64,
     }
     #[derive(serde::Deserialize)]
+    struct Stairs {
+        risers_passed: u16,
+        on_end_landing: bool,
+    }
+    #[derive(serde::Deserialize)]
     struct Truth {
         lin_vel_body: Xy,
         ang_vel_body: Z,
+        #[serde(default)]
+        stairs: Option<Stairs>,
     }
+    // On a staircase, each riser passed and the arrival on the end landing are marked.
+    let (mut risers_passed, mut landed) = (0u16, false);
     #[derive(serde::Deserialize)]
     struct Est {
         valid: bool,
@@ -136,6 +146,17 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
                 s.commanded.push(command);
                 s.measured
                     .push([tr.lin_vel_body.x, tr.lin_vel_body.y, tr.ang_vel_body.z]);
+                if let Some(st) = tr.stairs {
+                    let t = t_ns as f64 * 1e-9;
+                    if st.risers_passed > risers_passed {
+                        risers_passed = st.risers_passed;
+                        s.marks.push((t, format!("riser {risers_passed}")));
+                    }
+                    if st.on_end_landing && !landed {
+                        landed = true;
+                        s.marks.push((t, "end landing".into()));
+                    }
+                }
             }
         }
         ch::SAFETY_EVENT => {

@@ -41,6 +41,7 @@ const COMMANDED: RGBColor = RGBColor(0, 0, 0);
 const MEASURED: RGBColor = RGBColor(31, 119, 180);
 const ESTIMATED: RGBColor = RGBColor(255, 127, 14);
 const EVENT: RGBColor = RGBColor(214, 39, 40);
+const MARK: RGBColor = RGBColor(120, 120, 120);
 
 /// One velocity-tracking run to plot. All per-sample vectors are indexed like `t`.
 #[derive(Debug, Clone, Default)]
@@ -56,6 +57,8 @@ pub struct VelocitySeries {
     pub estimated: Vec<[f64; 3]>,
     /// Times of safety events to mark with a vertical line and label (e.g. "damping: tilt").
     pub events: Vec<(f64, String)>,
+    /// Times of terrain milestones (a riser passed, the end landing reached), drawn as thin grey lines.
+    pub marks: Vec<(f64, String)>,
 }
 
 /// Why a plot could not be written.
@@ -274,7 +277,32 @@ where
     }
     mesh.draw()?;
 
-    // Events go first so the data lines are drawn over them.
+    // Marks and events go first so the data lines are drawn over them.
+    let marks: Vec<(f64, &str)> = s
+        .marks
+        .iter()
+        .filter(|(te, _)| te.is_finite() && (t0..=t1).contains(te))
+        .map(|(te, label)| (*te, label.as_str()))
+        .collect();
+    if !marks.is_empty() {
+        let style = MARK.stroke_width(1);
+        chart
+            .draw_series(
+                marks
+                    .iter()
+                    .map(|&(te, _)| PathElement::new(vec![(te, y0), (te, y1)], style)),
+            )?
+            .label("stairs: riser passed / end landing")
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        if axis == 0 {
+            let font = ("sans-serif", 13).into_font().color(&MARK);
+            chart.draw_series(
+                marks
+                    .iter()
+                    .map(|&(te, label)| Text::new(format!(" {label}"), (te, y0 + (y1 - y0) * 0.08), font.clone())),
+            )?;
+        }
+    }
     let events: Vec<(f64, &str)> = s
         .events
         .iter()

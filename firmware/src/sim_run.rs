@@ -793,8 +793,10 @@ impl Aggregate {
         for (i, &(start, cmd)) in segs.iter().enumerate() {
             let end = segs.get(i + 1).map_or(duration_s, |s| s.0);
             let (mut sum, mut sq, mut n) = ([0.0f64; 3], [0.0f64; 3], 0u64);
+            // Errors against the command sent on that tick: with the heading correction its wz
+            // is the correction's, not the schedule's.
             for &(t, c, m) in &self.samples {
-                if t >= start + SETTLE_S && t < end && c == cmd {
+                if t >= start + SETTLE_S && t < end {
                     for a in 0..3 {
                         sum[a] += m[a];
                         sq[a] += (m[a] - c[a] as f64).powi(2);

@@ -54,6 +54,7 @@ fn synthetic() -> VelocitySeries {
         measured,
         estimated,
         events: vec![(12.5, "damping: tilt".into())],
+        marks: vec![(3.0, "riser 1".into()), (4.0, "end landing".into())],
     }
 }
 

@@ -54,7 +54,8 @@ fn start_emulator(name: &str, mut bus: MemBuses, sc: &Scenario, emu_tick: Arc<At
         let mut emu = MotorEmulator::new(layout());
         let r = serve(&mut bus, &mut emu, &mut bridge, &opts, |tick, _| {
             emu_tick.store(tick, Ordering::Relaxed)
-        }).expect("emulator serves");
+        })
+        .expect("emulator serves");
         bridge.close();
         drop(sim);
         r
@@ -162,7 +163,13 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
     let (fw_bus, emu_bus, peer_bus) = (eps.next().unwrap(), eps.next().unwrap(), eps.next().unwrap());
     let done = Arc::new(AtomicBool::new(false));
     let emu_tick = Arc::new(AtomicU64::new(0));
-    let (peer, sniffed) = start_peer(peer_bus, sc.at_sample, sc.inject.clone(), done.clone(), emu_tick.clone());
+    let (peer, sniffed) = start_peer(
+        peer_bus,
+        sc.at_sample,
+        sc.inject.clone(),
+        done.clone(),
+        emu_tick.clone(),
+    );
     let emu = start_emulator(name, emu_bus, &sc, emu_tick);
     let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
     let opts = CanRunOptions {

@@ -181,7 +181,8 @@ struct SimArgs {
     terrain_source: Option<firmware::perception::TerrainSource>,
     /// Heading correction: keep this heading (degrees, world frame = relative to the start
     /// heading) by replacing the command's wz every tick with 0.5·wrap(target − IMU yaw), clamped
-    /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0.
+    /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0 or from
+    /// --cmd-schedule (whose vy and wz it then ignores).
     #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
     heading: Option<f64>,
     /// Draw base height and the ground under the base against distance along the staircase axis

@@ -148,7 +148,7 @@ pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
     (
         TRUTH,
         "g1fw.SimTruth",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"base_pos":{"type":"object"},"base_quat":{"type":"object"},"lin_vel_body":{"type":"object"},"ang_vel_body":{"type":"object"},"foot_contact":{"type":"array","items":{"type":"boolean"}}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"base_pos":{"type":"object"},"base_quat":{"type":"object"},"lin_vel_body":{"type":"object"},"ang_vel_body":{"type":"object"},"foot_contact":{"type":"array","items":{"type":"boolean"}},"stairs":{"type":"object","properties":{"axis_s":{"type":"number"},"risers":{"type":"integer"},"risers_passed":{"type":"integer"},"on_end_landing":{"type":"boolean"}}}}}"#,
     ),
 ];
 

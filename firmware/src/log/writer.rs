@@ -682,6 +682,12 @@ impl McapSink {
                     lin_vel_body: Xyz64::from(tr.base_lin_vel_body),
                     ang_vel_body: Xyz64::from(tr.base_ang_vel_body),
                     foot_contact: tr.foot_contact,
+                    stairs: tr.stairs.map(|p| StairsMsg {
+                        axis_s: p.axis_s,
+                        risers: p.risers,
+                        risers_passed: p.risers_passed,
+                        on_end_landing: p.on_end_landing,
+                    }),
                 },
             )?;
         }
@@ -1122,4 +1128,15 @@ struct TruthMsg {
     lin_vel_body: Xyz64,
     ang_vel_body: Xyz64,
     foot_contact: [bool; 2],
+    /// The base's progress on the world's staircase (absent on flat ground).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    stairs: Option<StairsMsg>,
+}
+
+#[derive(Serialize)]
+struct StairsMsg {
+    axis_s: f64,
+    risers: u16,
+    risers_passed: u16,
+    on_end_landing: bool,
 }
