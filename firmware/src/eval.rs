@@ -99,6 +99,8 @@ fn round(v: f64, per: f64) -> f64 {
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
     pub spec: PathBuf,
+    /// Weights instead of the spec's file (e.g. a checkpoint's actor).
+    pub weights: Option<PathBuf>,
     pub model: String,
     pub terrain_source: Option<TerrainSource>,
     pub vx: f32,
@@ -174,8 +176,13 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
     if opts.episodes.is_empty() {
         bail!("no episodes: give --worlds LIST or --heights H,... (with --kinds and --episodes-per-height)");
     }
-    // Fail on a bad spec once, before starting any simulator.
-    let spec = DeploySpec::load(&opts.spec)?;
+    // Fail on a bad spec or weights file once, before starting any simulator.
+    let mut spec = DeploySpec::load(&opts.spec)?;
+    if let Some(w) = &opts.weights {
+        spec = spec.with_weights(w)?;
+    }
+    crate::controller::Controller::new(spec.clone())
+        .with_context(|| format!("loading the policy of {}", opts.spec.display()))?;
     let wall = std::time::Instant::now();
     let n = opts.episodes.len();
     let next = AtomicUsize::new(0);

@@ -593,6 +593,14 @@ impl DeploySpec {
         self.base_dir.join(&self.policy.weights)
     }
 
+    /// The same spec with another weights file (a training checkpoint's actor, say); the file is
+    /// checked when the controller loads it, as the spec's own would be.
+    pub fn with_weights(mut self, weights: &Path) -> Result<Self, SpecError> {
+        self.policy.weights = std::path::absolute(weights)
+            .map_err(|e| self.invalid("policy.weights", format!("cannot resolve {}: {e}", weights.display())))?;
+        Ok(self)
+    }
+
     /// Number of joints the policy drives.
     pub fn num_joints(&self) -> usize {
         self.policy.joint_ids_map.len()

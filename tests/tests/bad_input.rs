@@ -213,3 +213,64 @@ fn spec_with_wrong_dimension_is_a_clear_error() {
         );
     }
 }
+
+/// `--weights` replaces the spec's file (the same file by another path runs bit-identically); a
+/// missing file or one whose tensors do not fit the spec is a clear error.
+#[test]
+fn weights_override_runs_the_given_file_and_rejects_a_bad_one() {
+    let stair_weights = repo_root().join("specs/stairs/g1_stairs_lstm.safetensors");
+    let missing = std::env::temp_dir().join("g1fw-no-such-weights.safetensors");
+    let peer = peer_spec_path();
+    for (weights, expect) in [
+        (missing.to_str().unwrap(), "g1fw-no-such-weights.safetensors"),
+        // The stair actor reads 51 inputs; the peer spec's observation has 47.
+        (stair_weights.to_str().unwrap(), "51"),
+    ] {
+        for cmd in ["sim", "eval"] {
+            let mut args = vec![cmd, "--spec", peer.to_str().unwrap(), "--weights", weights, "--quiet"];
+            args.extend_from_slice(if cmd == "sim" {
+                &["--duration", "0.5", "--model", "g1-12dof"][..]
+            } else {
+                &["--worlds", "flat", "--time-limit", "0.5", "--model", "g1-12dof"][..]
+            });
+            let out = g1fw(&args);
+            let err = String::from_utf8_lossy(&out.stderr);
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert!(!err.contains("panicked"), "{err}");
+            let text = format!("{stdout}{err}");
+            assert!(text.contains(expect), "g1fw {cmd} --weights {weights}: {text}");
+            assert_ne!(out.status.code(), Some(0), "{text}");
+        }
+    }
+    if shared_dir().is_none() {
+        return skip_or_fail("weights_override (positive run; needs ../shared)");
+    }
+    let dir = scratch_dir("weights-override");
+    let run = |name: &str, extra: &[&str]| {
+        let report = dir.join(format!("{name}.json"));
+        let mut args = vec![
+            "sim",
+            "--spec",
+            peer.to_str().unwrap(),
+            "--model",
+            "g1-12dof",
+            "--cmd",
+            "0.5,0,0",
+            "--duration",
+            "2",
+            "--quiet",
+            "--report",
+            report.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = g1fw(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        read_json(&report)
+    };
+    let own = shared_dir()
+        .unwrap()
+        .join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    let a = run("spec", &[]);
+    let b = run("override", &["--weights", own.to_str().unwrap()]);
+    assert_eq!(a["state_trace_sha256"], b["state_trace_sha256"]);
+}

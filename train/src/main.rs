@@ -200,8 +200,10 @@ enum Cmd {
     },
     /// Write a PPO checkpoint's actor as the weights file its deploy spec names.
     PpoExport {
+        /// `checkpoint.safetensors` in a `g1-train ppo --out` directory (its actor is written)
         #[arg(long)]
         checkpoint: PathBuf,
+        /// Deploy spec whose `[policy] weights` file receives the actor (overwritten)
         #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml")]
         spec: PathBuf,
     },

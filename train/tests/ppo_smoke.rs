@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use train::ppo::env::{Column, Randomization};
-use train::ppo::runner::{train, RunConfig, CHECKPOINT, CURVES, HISTORY};
+use train::ppo::runner::{train, RunConfig, ACTORS, CHECKPOINT, CURVES, HISTORY};
 
 #[test]
 fn ppo_return_rises_on_a_small_budget_and_resumes() {
@@ -58,6 +58,25 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     assert_eq!(h2.len(), 18);
     assert_eq!(h2.last().unwrap().iteration, 18);
     assert!(h2[17].env_steps > h[15].env_steps);
+    // Each checkpoint's actor is kept, named by its env steps, and equals the export at that point.
+    let mut actors: Vec<_> = std::fs::read_dir(out.join(ACTORS))
+        .expect("actors/ written")
+        .map(|e| e.unwrap().path())
+        .collect();
+    actors.sort();
+    assert_eq!(
+        actors.len(),
+        2,
+        "one actor per checkpoint (end of each run): {actors:?}"
+    );
+    assert!(
+        actors[1].ends_with(format!("actor_{:012}.safetensors", h2[17].env_steps)),
+        "{actors:?}"
+    );
+    assert_eq!(
+        std::fs::read(&actors[1]).unwrap(),
+        std::fs::read(out.join("g1_stairs_lstm.safetensors")).unwrap()
+    );
     std::fs::remove_dir_all(&out).unwrap();
 }
 

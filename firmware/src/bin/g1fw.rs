@@ -99,6 +99,10 @@ struct SimArgs {
     /// Deploy spec (TOML): observation layout, joint map, gains, rates, weights file.
     #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
     spec: PathBuf,
+    /// Policy weights (safetensors) instead of the file the spec names, e.g. a training run's
+    /// `g1_stairs_lstm.safetensors` or one of its `actors/` snapshots.
+    #[arg(long, value_name = "FILE")]
+    weights: Option<PathBuf>,
     /// Robot model: `g1-29dof` (mjlab's 29-dof G1, installed by scripts/install.sh), `g1-12dof`
     /// (../shared/assets/unitree_g1_12dof) or a path to an MJCF file.
     #[arg(long, default_value = "g1-29dof")]
@@ -205,6 +209,10 @@ struct EvalArgs {
     /// Deploy spec (TOML) of the policy under test.
     #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
     spec: PathBuf,
+    /// Policy weights (safetensors) instead of the file the spec names, e.g. a training run's
+    /// `g1_stairs_lstm.safetensors` or one of its `actors/` snapshots.
+    #[arg(long, value_name = "FILE")]
+    weights: Option<PathBuf>,
     /// Robot model: g1-12dof, g1-29dof or an MJCF path (as `g1fw sim --model`).
     #[arg(long, default_value = "g1-29dof")]
     model: String,
@@ -434,7 +442,10 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
     if a.ramp.is_some_and(|r| !(r >= 0.0 && r.is_finite())) {
         bail!("--ramp must be a non-negative number of seconds");
     }
-    let spec = DeploySpec::load(&a.spec)?;
+    let mut spec = DeploySpec::load(&a.spec)?;
+    if let Some(w) = &a.weights {
+        spec = spec.with_weights(w)?;
+    }
     let schedule = match &a.cmd_schedule {
         Some(p) => CommandSchedule::load(p)?,
         None => CommandSchedule::constant(a.cmd),
@@ -588,6 +599,7 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
     };
     let opts = EvalOptions {
         spec: a.spec,
+        weights: a.weights,
         model: a.model,
         terrain_source: a.terrain_source,
         vx: a.vx,

@@ -15,6 +15,8 @@ use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
 use super::policy::ActorCritic;
 
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
+/// Folder of the actor at every checkpoint, named by env steps (`g1fw eval --weights`).
+pub const ACTORS: &str = "actors";
 pub const STATE: &str = "state.json";
 pub const HISTORY: &str = "history.json";
 pub const CURVES: &str = "curves.png";
@@ -360,7 +362,16 @@ fn save(ac: &ActorCritic, state: &RunState, history: &[IterLog], out: &Path) -> 
     std::fs::rename(&tmp, out.join(CHECKPOINT))?;
     std::fs::write(out.join(STATE), serde_json::to_string_pretty(state)?)?;
     std::fs::write(out.join(HISTORY), serde_json::to_string(history)?)?;
-    std::fs::write(out.join("g1_stairs_lstm.safetensors"), ac.actor_safetensors()?)?;
+    let actor = ac.actor_safetensors()?;
+    std::fs::write(out.join("g1_stairs_lstm.safetensors"), &actor)?;
+    // Every checkpoint's actor is kept (130 KB each): training's own success rate does not rank
+    // checkpoints as `g1fw eval` does (docs/stair_policy.md), so the choice is made afterwards.
+    let actors = out.join(ACTORS);
+    std::fs::create_dir_all(&actors)?;
+    std::fs::write(
+        actors.join(format!("actor_{:012}.safetensors", state.env_steps)),
+        &actor,
+    )?;
     crate::plot::ppo_curves_png(&out.join(CURVES), history)?;
     Ok(())
 }
