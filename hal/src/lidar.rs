@@ -58,6 +58,14 @@ impl<const CAP: usize> PointFrame<CAP> {
     pub fn as_slice(&self) -> &[LidarPoint] {
         &self.points[..self.len]
     }
+
+    /// Makes this frame a copy of `src` (its points only, not the whole capacity).
+    pub fn copy_from(&mut self, src: &Self) {
+        self.points[..src.len].copy_from_slice(&src.points[..src.len]);
+        self.len = src.len;
+        self.timestamp_ns = src.timestamp_ns;
+        self.overflow = src.overflow;
+    }
 }
 
 impl<const CAP: usize> Default for PointFrame<CAP> {

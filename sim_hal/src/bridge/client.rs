@@ -313,7 +313,7 @@ impl BridgeHal {
                 };
                 // Malformed packets are counted by the assembler and skipped.
                 if let Ok(Some(frame)) = l.assembler.push(d) {
-                    copy_frame(frame, &mut l.latest);
+                    l.latest.copy_from(frame);
                     l.fresh = true;
                 }
             }
@@ -323,6 +323,12 @@ impl BridgeHal {
             self.truth = Truth::decode(&self.payload)?;
         }
         Ok(())
+    }
+
+    /// The last tick's Livox datagrams as the simulator sent them (length-prefixed, see
+    /// [`datagrams`]); empty without lidar. What a UDP transport would have carried this tick.
+    pub fn lidar_datagrams(&self) -> &[u8] {
+        self.lidar.as_deref().map_or(&[], |l| &l.payload)
     }
 
     /// Decoder and framing counters of the lidar stream (None without lidar).
@@ -424,14 +430,6 @@ impl LowLevel for BridgeHal {
     }
 }
 
-/// Copies a frame without a frame-sized temporary.
-fn copy_frame<const CAP: usize>(src: &PointFrame<CAP>, dst: &mut PointFrame<CAP>) {
-    dst.points[..src.len].copy_from_slice(&src.points[..src.len]);
-    dst.len = src.len;
-    dst.timestamp_ns = src.timestamp_ns;
-    dst.overflow = src.overflow;
-}
-
 impl hal::Lidar<LIDAR_FRAME_CAP> for BridgeHal {
     type Error = BridgeError;
 
@@ -440,7 +438,7 @@ impl hal::Lidar<LIDAR_FRAME_CAP> for BridgeHal {
     fn read_frame(&mut self, out: &mut PointFrame<LIDAR_FRAME_CAP>) -> Result<bool, BridgeError> {
         match self.lidar.as_deref_mut() {
             Some(l) if l.fresh => {
-                copy_frame(&l.latest, out);
+                out.copy_from(&l.latest);
                 l.fresh = false;
                 Ok(true)
             }
