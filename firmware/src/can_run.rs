@@ -10,7 +10,11 @@ use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use sim_hal::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
 
+use robot_io::UdpLidar;
+use sim_hal::bridge::LIDAR_FRAME_CAP;
+
 use crate::controller::Controller;
+use crate::lidar_source::WithLidar;
 use crate::log::{LogOptions, LogStats, Logger};
 use crate::operator::CommandSchedule;
 use crate::replay::key;
@@ -40,6 +44,8 @@ pub struct CanRunOptions {
     pub rt: crate::rt::RtOptions,
     /// Stop when this becomes true (signal handlers set it); the motors are then damped.
     pub stop: Arc<AtomicBool>,
+    /// The MID-360 over UDP (`None`: no lidar; perception, if the spec has it, sees no frames).
+    pub lidar: Option<robot_io::UdpLidarConfig>,
 }
 
 impl Default for CanRunOptions {
@@ -54,6 +60,7 @@ impl Default for CanRunOptions {
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
             stop: Arc::new(AtomicBool::new(false)),
+            lidar: None,
         }
     }
 }
@@ -70,10 +77,26 @@ pub struct CanReport {
     pub end: String,
     pub safety: SafetyReport,
     pub can: CanCounters,
+    /// The UDP lidar's counters (absent without `--lidar-udp`).
+    pub lidar: Option<LidarReport>,
     pub spec: String,
     pub weights_sha256: String,
     pub log: Option<LogStats>,
     pub wall_s: f64,
+}
+
+/// What the lidar delivered over the run.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct LidarReport {
+    pub datagrams: u64,
+    /// From an address other than the configured lidar (dropped).
+    pub foreign: u64,
+    pub malformed: u64,
+    pub lost_packets: u64,
+    /// Frames assembled, and frames the perception step took.
+    pub frames: u64,
+    pub frames_used: u64,
+    pub read_errors: u64,
 }
 
 /// Opens the layout's interfaces and runs.
@@ -131,11 +154,15 @@ pub fn run_on<B: CanBuses>(
         Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
         None => None,
     };
+    let lidar = match &opts.lidar {
+        Some(cfg) => Some(UdpLidar::<LIDAR_FRAME_CAP>::open(cfg.clone())?),
+        None => None,
+    };
     crate::rt::apply(&opts.rt)?;
     let last_tick = opts.duration_s.map_or(u64::MAX, |d| (d / control_dt).round() as u64);
     let mut runtime = Runtime::new(controller);
     runtime.disable_frozen_check();
-    let mut hal = CanHal::open(buses, layout, period_ns, opts.startup_timeout)?;
+    let mut hal = WithLidar::new(CanHal::open(buses, layout, period_ns, opts.startup_timeout)?, lidar);
     let mut operator = opts.schedule.source(period_ns);
     let wall = Instant::now();
     let mut ticks = 0u64;
@@ -176,7 +203,19 @@ pub fn run_on<B: CanBuses>(
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
         safety: SafetyReport::of(&runtime),
-        can: hal.counters(),
+        can: hal.hal.counters(),
+        lidar: hal.lidar.as_ref().map(|l| {
+            let (c, s) = (l.counters(), l.assembler_stats());
+            LidarReport {
+                datagrams: c.datagrams,
+                foreign: c.foreign,
+                malformed: c.malformed,
+                lost_packets: s.lost_packets,
+                frames: c.frames,
+                frames_used: hal.counters.used,
+                read_errors: hal.counters.errors,
+            }
+        }),
         spec: spec_name,
         weights_sha256,
         log,

@@ -19,6 +19,7 @@ pub mod bev_render;
 pub mod can_run;
 pub mod controller;
 pub mod eval;
+pub mod lidar_source;
 pub mod log;
 pub mod log_tools;
 pub mod nn;

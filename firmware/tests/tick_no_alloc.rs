@@ -99,6 +99,10 @@ impl FrameSource for SyntheticHal {
 }
 
 fn run_ticks(spec_path: &Path) {
+    run_ticks_on(spec_path, &mut SyntheticHal::new());
+}
+
+fn run_ticks_on<H: TimeBase + LowLevel + FrameSource>(spec_path: &Path, hal: &mut H) {
     let spec = DeploySpec::load(spec_path).expect("spec loads");
     let (obs, act) = (spec.observation_dim(), spec.num_joints());
     // One directory per spec: the tests run in parallel, and each removes its directory at the end
@@ -111,7 +115,6 @@ fn run_ticks(spec_path: &Path) {
     let schedule =
         CommandSchedule::parse("0 0.5 0 0.2\n10 0.3 0 0\n21 estop\n22 reset\n", Path::new("inline")).unwrap();
     let mut operator = schedule.source(2_000_000);
-    let mut hal = SyntheticHal::new();
     let n = 12_000u64;
     // Start-up (first tick, lazily initialised statics) is allowed to allocate: warm up one
     // operator query and one encode outside the counted window.
@@ -120,7 +123,7 @@ fn run_ticks(spec_path: &Path) {
 
     let (mut policy_ticks, mut damping_ticks, mut reset_seen, mut pushed) = (0u64, 0u64, false, 0u64);
     let before = counts();
-    let end = run_loop(&mut hal, &mut rt, &mut operator, n, |v| {
+    let end = run_loop(hal, &mut rt, &mut operator, n, |v| {
         policy_ticks += v.summary.policy_step as u64;
         damping_ticks += matches!(v.summary.mode, Mode::Damping(_)) as u64;
         reset_seen |= v.summary.reset;
@@ -277,6 +280,64 @@ fn can_hal_tick_path_does_not_allocate() {
 }
 
 /// The probe itself can fail the tests above: an allocation on this thread is counted.
+/// The MID-360 over UDP beside the state HAL (`g1fw run --lidar-udp`): every tick drains the socket
+/// into the assembler and stages completed frames, without allocating, while another thread
+/// streams Livox packets at the lidar's rate.
+#[test]
+fn udp_lidar_tick_path_does_not_allocate() {
+    use firmware::lidar_source::WithLidar;
+    use robot_io::{UdpLidar, UdpLidarConfig};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let lidar = UdpLidar::<{ sim_hal::bridge::LIDAR_FRAME_CAP }>::open(UdpLidarConfig {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        lidar: None,
+        ..UdpLidarConfig::default()
+    })
+    .unwrap();
+    let to = lidar.local_addr();
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let sender = {
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            tx.connect(to).unwrap();
+            let mut writer = sensor_io::livox::PacketWriter::new();
+            let mut buf = vec![0u8; writer.max_packet_len()];
+            let points: Vec<hal::LidarPoint> = (0..2000)
+                .map(|i| hal::LidarPoint {
+                    xyz: [1.0 + (i % 50) as f32 * 0.1, (i / 50) as f32 * 0.05 - 1.0, -0.5],
+                    reflectivity: 10,
+                    tag: 0,
+                    offset_ns: 0,
+                })
+                .collect();
+            let mut t = 0u64;
+            while !stop.load(Ordering::Relaxed) {
+                writer
+                    .write_frame(&points, t, &mut buf, |d| {
+                        let _ = tx.send(d);
+                        std::thread::sleep(std::time::Duration::from_micros(200));
+                    })
+                    .unwrap();
+                t += 100_000_000;
+            }
+        })
+    };
+    let mut hal = WithLidar::new(SyntheticHal::new(), Some(lidar));
+    run_ticks_on(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml"),
+        &mut hal,
+    );
+    stop.store(true, Ordering::Relaxed);
+    sender.join().unwrap();
+    let c = hal.lidar.as_ref().unwrap().counters();
+    assert!(
+        c.datagrams > 50 && c.frames > 2,
+        "the lidar stream reached the tick path: {c:?}"
+    );
+    assert_eq!(c.malformed, 0);
+}
+
 #[test]
 fn the_probe_counts_this_threads_allocations() {
     let before = counts();

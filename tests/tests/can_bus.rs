@@ -30,6 +30,7 @@ fn layout() -> BusLayout {
 fn start_emulator(name: &str, mut bus: MemBuses, sc: &Scenario, emu_tick: Arc<AtomicU64>) -> JoinHandle<EmuReport> {
     let launch = SimLaunch {
         bin: Some(built_bin("g1-sim")),
+        world: sc.lidar_port.map(|_| "stairs-up".to_string()),
         ..SimLaunch::new("g1-12dof", 0.002)
     };
     let opts = ServeOptions {
@@ -41,12 +42,14 @@ fn start_emulator(name: &str, mut bus: MemBuses, sc: &Scenario, emu_tick: Arc<At
         control_dt: 0.002,
         power_off: sc.power_off.clone(),
         imu_off: sc.imu_off,
+        lidar_to: sc.lidar_port.map(|p| std::net::SocketAddr::from(([127, 0, 0, 1], p))),
     };
     let tag = format!("can_bus_{name}");
+    let lidar_to_set = sc.lidar_port.is_some();
     std::thread::spawn(move || {
         let wants = Wants {
             truth: true,
-            lidar: false,
+            lidar: lidar_to_set,
         };
         let (sim, mut bridge) = launch
             .start(&tag, wants, Duration::from_secs(60))
@@ -127,6 +130,9 @@ struct Scenario {
     tick_timeout_ms: Option<u32>,
     /// MCAP log of the firmware.
     log: Option<std::path::PathBuf>,
+    /// The emulator plays the MID-360 too (g1-sim on `stairs-up`), sending its packets over UDP to
+    /// the firmware on this loopback port, and the firmware runs the stair spec (with perception).
+    lidar_port: Option<u16>,
 }
 
 impl Scenario {
@@ -141,6 +147,7 @@ impl Scenario {
             imu_off: None,
             tick_timeout_ms: None,
             log: None,
+            lidar_port: None,
         }
     }
 }
@@ -171,12 +178,20 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
         emu_tick.clone(),
     );
     let emu = start_emulator(name, emu_bus, &sc, emu_tick);
-    let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
+    let spec = match sc.lidar_port {
+        None => DeploySpec::load(&peer_spec_path()).expect("peer spec"),
+        Some(_) => DeploySpec::load(&repo_root().join("specs/stairs/g1_stairs_lstm.toml")).expect("stair spec"),
+    };
     let opts = CanRunOptions {
         schedule: CommandSchedule::constant(sc.cmd),
         duration_s: Some(sc.duration_s),
         startup_timeout: Duration::from_secs(60),
         log: sc.log,
+        lidar: sc.lidar_port.map(|p| robot_io::UdpLidarConfig {
+            bind: std::net::SocketAddr::from(([127, 0, 0, 1], p)),
+            lidar: Some([127, 0, 0, 1].into()),
+            ..Default::default()
+        }),
         ..CanRunOptions::default()
     };
     let mut fw_layout = layout();
@@ -452,4 +467,47 @@ fn an_imu_that_stops_ends_the_run_in_damping() {
     let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
     assert!(rep.compared_commands >= 700, "{rep:?}");
+}
+
+/// The robot's full sensor set: motors and IMU on CAN, the MID-360 over UDP. The emulator sends the
+/// simulated lidar's packets to `g1fw run --lidar-udp`'s socket; the stair spec's perception turns
+/// them into frames and tokens while the robot walks.
+#[test]
+fn the_mid360_over_udp_feeds_perception_on_can() {
+    if shared_dir().is_none() {
+        return skip_or_fail("UDP lidar over CAN");
+    }
+    // A free loopback port (released again just before the firmware binds it).
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let r = run_scenario(
+        "udp_lidar",
+        Scenario {
+            cmd: [0.0, 0.0, 0.0],
+            duration_s: 1.5,
+            lidar_port: Some(port),
+            ..Scenario::walk()
+        },
+    );
+    let lidar = r.fw.lidar.expect("the report has the lidar's counters");
+    eprintln!(
+        "lidar {lidar:?}; emulator sent {} ({} failed)",
+        r.emu.lidar_datagrams_sent, r.emu.lidar_send_errors
+    );
+    assert_eq!(r.fw.end, "completed", "{:?}", r.fw.trip);
+    assert!(r.fw.trip.is_none(), "{:?}", r.fw.trip);
+    assert!(r.emu.lidar_datagrams_sent > 1000, "{}", r.emu.lidar_datagrams_sent);
+    // Loopback loses nothing the socket's buffer holds; the last tick's packets may still be in flight.
+    assert!(lidar.datagrams + 100 >= r.emu.lidar_datagrams_sent, "{lidar:?}");
+    assert_eq!(
+        (lidar.foreign, lidar.malformed, lidar.read_errors),
+        (0, 0, 0),
+        "{lidar:?}"
+    );
+    // 1.5 s at 10 Hz, the first frame completing when the second starts.
+    assert!(lidar.frames >= 12, "{lidar:?}");
+    assert!(lidar.frames_used >= 10, "{lidar:?}");
 }

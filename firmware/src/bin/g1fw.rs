@@ -302,6 +302,20 @@ struct RunArgs {
     /// damping); e.g. for emulated buses on a loaded machine.
     #[arg(long, value_name = "MS")]
     tick_timeout_ms: Option<u32>,
+    /// Receive the MID-360's point packets (Livox SDK2 over UDP) on this local address, e.g.
+    /// 0.0.0.0:56301 (the G1's host port); the spec's perception then runs on them as under
+    /// `g1fw sim --world`. The report gains `lidar` (datagrams, frames, drops).
+    #[arg(long, value_name = "ADDR:PORT")]
+    lidar_udp: Option<std::net::SocketAddr>,
+    /// With --lidar-udp: accept packets only from this address (`any`: from anyone, e.g. a replay
+    /// on loopback).
+    #[arg(
+        long,
+        default_value = "192.168.123.120",
+        value_name = "IP|any",
+        requires = "lidar_udp"
+    )]
+    lidar_from: String,
     #[command(flatten)]
     rt: RtArgs,
 }
@@ -656,6 +670,19 @@ fn run_can(a: RunArgs) -> Result<ExitCode> {
         log_options: Default::default(),
         rt: a.rt.options(),
         stop,
+        lidar: match a.lidar_udp {
+            None => None,
+            Some(bind) => Some(robot_io::UdpLidarConfig {
+                bind,
+                lidar: match a.lidar_from.as_str() {
+                    "any" => None,
+                    ip => Some(ip.parse().with_context(|| {
+                        format!("--lidar-from {ip}: give the lidar's IP address (e.g. 192.168.123.120) or `any`")
+                    })?),
+                },
+                ..Default::default()
+            }),
+        },
     };
     tracing::info!(
         interfaces = layout.interfaces.join(","),

@@ -38,6 +38,15 @@ struct Args {
     /// Passed to g1-sim (`--imu-noise`).
     #[arg(long)]
     imu_noise: Option<String>,
+    /// Terrain world for g1-sim (`--world`: preset, scenario file or random:SEED); mounts the
+    /// simulated MID-360.
+    #[arg(long)]
+    world: Option<String>,
+    /// Play the MID-360 as well: send its Livox point packets over UDP to this address (the
+    /// firmware's `g1fw run --lidar-udp`), e.g. 127.0.0.1:56301. Needs --world (or a --connect'ed
+    /// simulator started with --lidar).
+    #[arg(long, value_name = "ADDR:PORT")]
+    lidar_udp_to: Option<std::net::SocketAddr>,
     /// Connect to a running g1-sim at this Unix socket instead of starting one.
     #[arg(long, value_name = "SOCKET")]
     connect: Option<PathBuf>,
@@ -123,9 +132,12 @@ fn run(args: Args) -> Result<()> {
         .map(|secs| tick_at(&format!("--imu-off {secs}"), secs, control_dt))
         .transpose()?;
     let mut buses = SocketCanBuses::open(&layout.interfaces)?;
+    if args.lidar_udp_to.is_some() && args.world.is_none() && args.connect.is_none() {
+        bail!("--lidar-udp-to needs --world: the simulated MID-360 only scans a terrain world");
+    }
     let wants = Wants {
         truth: true,
-        lidar: false,
+        lidar: args.lidar_udp_to.is_some(),
     };
     let mut _child = None;
     let mut bridge = match &args.connect {
@@ -137,6 +149,7 @@ fn run(args: Args) -> Result<()> {
                 physics_dt: args.physics_dt,
                 faults: args.faults.clone(),
                 imu_noise: args.imu_noise.clone(),
+                world: args.world.clone(),
                 ..SimLaunch::new(&args.model, control_dt)
             };
             let (child, hal) = launch.start("g1-can-emu", wants, Duration::from_secs(120))?;
@@ -178,6 +191,7 @@ fn run(args: Args) -> Result<()> {
         control_dt,
         power_off,
         imu_off,
+        lidar_to: args.lidar_udp_to,
     };
     let report = serve(&mut buses, &mut emu, &mut bridge, &opts, |_, _| {})?;
     bridge.close();

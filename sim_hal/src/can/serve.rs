@@ -1,5 +1,6 @@
 //! The emulator's loop: CAN frames in, the simulator stepped over the bridge, CAN frames out, and
 //! a report judged from the simulator's ground truth (which never crosses the bus).
+use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
 use hal::{LowLevel, LowState, TimeBase};
@@ -21,6 +22,9 @@ pub struct ServeOptions {
     pub power_off: Vec<(usize, u64)>,
     /// Fault: the IMU loses power after this many steps (its last sample is that step's).
     pub imu_off: Option<u64>,
+    /// Play the MID-360 too: send each step's Livox datagrams (the simulator must have a world,
+    /// and the bridge lidar) over UDP to this address, as the lidar sends them to the robot's computer.
+    pub lidar_to: Option<SocketAddr>,
 }
 
 /// Judged from ground truth: did the robot stay up?
@@ -41,6 +45,9 @@ pub struct EmuReport {
     pub end: String,
     /// Joints whose motor was at rest (not in motor mode) when serving ended.
     pub motors_at_rest: Vec<String>,
+    /// Livox datagrams sent over UDP (`lidar_to`), and sends that failed (nobody listening yet).
+    pub lidar_datagrams_sent: u64,
+    pub lidar_send_errors: u64,
     pub counters: EmuCounters,
     pub wall_s: f64,
 }
@@ -51,6 +58,8 @@ pub enum ServeError {
     Bus(#[from] BusError),
     #[error(transparent)]
     Bridge(#[from] BridgeError),
+    #[error("lidar UDP socket towards {to}: {source}")]
+    LidarSocket { to: SocketAddr, source: std::io::Error },
 }
 
 /// Serves the motors of `emu` on `buses` from the simulator behind `bridge` until the firmware goes
@@ -79,8 +88,22 @@ pub fn serve<B: CanBuses>(
         distance_y_m: 0.0,
         end: String::new(),
         motors_at_rest: Vec::new(),
+        lidar_datagrams_sent: 0,
+        lidar_send_errors: 0,
         counters: EmuCounters::default(),
         wall_s: 0.0,
+    };
+    let lidar = match opts.lidar_to {
+        Some(to) => {
+            let err = |source| ServeError::LidarSocket { to, source };
+            let bind: SocketAddr = if to.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" }
+                .parse()
+                .expect("literal");
+            let sock = UdpSocket::bind(bind).map_err(err)?;
+            sock.connect(to).map_err(err)?;
+            Some(sock)
+        }
+        None => None,
     };
     let mut last_heard = Instant::now();
     let mut send_error: Option<BusError> = None;
@@ -127,6 +150,15 @@ pub fn serve<B: CanBuses>(
         }
         // A bad or missing frame from the simulator (an injected fault) keeps the last state.
         let _ = bridge.read_state(&mut state);
+        if let Some(sock) = &lidar {
+            for d in crate::bridge::datagrams(bridge.lidar_datagrams()) {
+                let Ok(d) = d else { break };
+                match sock.send(d) {
+                    Ok(_) => rep.lidar_datagrams_sent += 1,
+                    Err(_) => rep.lidar_send_errors += 1,
+                }
+            }
+        }
         rep.ticks += 1;
         let t = bridge.truth();
         let time = rep.ticks as f64 * opts.control_dt;
