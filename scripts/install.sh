@@ -50,7 +50,7 @@ if [ ! -x "$py" ]; then
   say "python: creating .venv"
   /usr/bin/env python3 -m venv "$root/.venv"
 fi
-if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime, mcap, can' 2>/dev/null; then
+if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime, mcap, can, cyclonedds.idl' 2>/dev/null; then
   say "python: installing test tools into .venv"
   "$py" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
 fi

@@ -2,6 +2,7 @@
 //! zero padding, CRC32 in the last word. Encoders always zero the padding (dirty padding changes the
 //! CRC and makes the robot drop commands silently). Decoders check length, then CRC, then that every
 //! float is finite, and report the first problem by field name.
+pub mod cdr;
 mod crc;
 
 pub use crc::crc32_words;
