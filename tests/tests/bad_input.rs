@@ -274,3 +274,18 @@ fn weights_override_runs_the_given_file_and_rejects_a_bad_one() {
     let b = run("override", &["--weights", own.to_str().unwrap()]);
     assert_eq!(a["state_trace_sha256"], b["state_trace_sha256"]);
 }
+
+/// `g1-can-emu --lidar-udp-to` without a world is refused before any bus or simulator is opened.
+#[test]
+fn can_emulator_lidar_without_a_world_is_a_clear_error() {
+    let out = Command::new(built_bin("g1-can-emu"))
+        .args(["--can", "vcan0,vcan1", "--can-config"])
+        .arg(repo_root().join("specs/can/g1_12dof.toml"))
+        .args(["--lidar-udp-to", "127.0.0.1:9"])
+        .output()
+        .expect("run g1-can-emu");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_ne!(out.status.code(), Some(0), "{err}");
+    assert!(err.contains("--lidar-udp-to needs --world"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

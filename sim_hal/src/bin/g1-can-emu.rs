@@ -131,10 +131,10 @@ fn run(args: Args) -> Result<()> {
         .imu_off
         .map(|secs| tick_at(&format!("--imu-off {secs}"), secs, control_dt))
         .transpose()?;
-    let mut buses = SocketCanBuses::open(&layout.interfaces)?;
     if args.lidar_udp_to.is_some() && args.world.is_none() && args.connect.is_none() {
         bail!("--lidar-udp-to needs --world: the simulated MID-360 only scans a terrain world");
     }
+    let mut buses = SocketCanBuses::open(&layout.interfaces)?;
     let wants = Wants {
         truth: true,
         lidar: args.lidar_udp_to.is_some(),
