@@ -277,57 +277,25 @@ where
     }
     mesh.draw()?;
 
-    // Marks and events go first so the data lines are drawn over them.
-    let marks: Vec<(f64, &str)> = s
-        .marks
-        .iter()
-        .filter(|(te, _)| te.is_finite() && (t0..=t1).contains(te))
-        .map(|(te, label)| (*te, label.as_str()))
-        .collect();
-    if !marks.is_empty() {
-        let style = MARK.stroke_width(1);
-        chart
-            .draw_series(
-                marks
-                    .iter()
-                    .map(|&(te, _)| PathElement::new(vec![(te, y0), (te, y1)], style)),
-            )?
-            .label("stairs: riser passed / end landing")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-        if axis == 0 {
-            let font = ("sans-serif", 13).into_font().color(&MARK);
-            chart.draw_series(
-                marks
-                    .iter()
-                    .map(|&(te, label)| Text::new(format!(" {label}"), (te, y0 + (y1 - y0) * 0.08), font.clone())),
-            )?;
-        }
-    }
-    let events: Vec<(f64, &str)> = s
-        .events
-        .iter()
-        .filter(|(te, _)| te.is_finite() && (t0..=t1).contains(te))
-        .map(|(te, label)| (*te, label.as_str()))
-        .collect();
-    if !events.is_empty() {
-        let style = EVENT.stroke_width(2);
-        chart
-            .draw_series(
-                events
-                    .iter()
-                    .map(|&(te, _)| PathElement::new(vec![(te, y0), (te, y1)], style)),
-            )?
-            .label("safety event")
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-        // Labels only in the top panel, staggered so nearby events don't overprint.
-        if axis == 0 {
-            let font = ("sans-serif", 15).into_font().color(&EVENT);
-            chart.draw_series(events.iter().enumerate().map(|(i, &(te, label))| {
-                let y = y1 - (y1 - y0) * (0.04 + 0.09 * (i % 3) as f64);
-                Text::new(format!(" {label}"), (te, y), font.clone())
-            }))?;
-        }
-    }
+    // Marks and events go first so the data lines are drawn over them. Labels only in the top
+    // panel; event labels are staggered so nearby events don't overprint.
+    let labels = axis == 0;
+    let mark = VerticalLines {
+        color: MARK,
+        width: 1,
+        legend: "stairs: riser passed / end landing",
+        font_size: 13,
+        label_y: |_| y0 + (y1 - y0) * 0.08,
+    };
+    mark.draw(&mut chart, &s.marks, (t0, t1), (y0, y1), labels)?;
+    let event = VerticalLines {
+        color: EVENT,
+        width: 2,
+        legend: "safety event",
+        font_size: 15,
+        label_y: |i| y1 - (y1 - y0) * (0.04 + 0.09 * (i % 3) as f64),
+    };
+    event.draw(&mut chart, &s.events, (t0, t1), (y0, y1), labels)?;
 
     let cmd_style = COMMANDED.stroke_width(2);
     legend_entry(&mut chart, "commanded", cmd_style, false)?;
@@ -367,6 +335,61 @@ where
 }
 
 type Chart<'a, DB> = ChartContext<'a, DB, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Labelled vertical lines across a panel at given times (safety events, stair milestones).
+struct VerticalLines<F> {
+    color: RGBColor,
+    width: u32,
+    legend: &'static str,
+    font_size: u32,
+    /// Where the i-th label sits.
+    label_y: F,
+}
+
+impl<F: Fn(usize) -> f64> VerticalLines<F> {
+    /// Draws the times of `items` inside the time range (non-finite ones dropped), with one legend
+    /// entry, and their labels when `labels`.
+    fn draw<DB>(
+        &self,
+        chart: &mut Chart<'_, DB>,
+        items: &[(f64, String)],
+        (t0, t1): (f64, f64),
+        (y0, y1): (f64, f64),
+        labels: bool,
+    ) -> DrawResult
+    where
+        DB: DrawingBackend,
+        DB::ErrorType: 'static,
+    {
+        let shown: Vec<(f64, &str)> = items
+            .iter()
+            .filter(|(te, _)| te.is_finite() && (t0..=t1).contains(te))
+            .map(|(te, label)| (*te, label.as_str()))
+            .collect();
+        if shown.is_empty() {
+            return Ok(());
+        }
+        let style = self.color.stroke_width(self.width);
+        chart
+            .draw_series(
+                shown
+                    .iter()
+                    .map(|&(te, _)| PathElement::new(vec![(te, y0), (te, y1)], style)),
+            )?
+            .label(self.legend)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        if labels {
+            let font = ("sans-serif", self.font_size).into_font().color(&self.color);
+            chart.draw_series(
+                shown
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &(te, label))| Text::new(format!(" {label}"), (te, (self.label_y)(i)), font.clone())),
+            )?;
+        }
+        Ok(())
+    }
+}
 
 /// An empty series that only carries a legend entry, so the legend shows every series even
 /// when its data is all non-finite or split into several runs.
