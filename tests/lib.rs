@@ -91,6 +91,22 @@ pub fn venv_python(what: &str) -> Option<PathBuf> {
     None
 }
 
+/// Runs `tests/python/SCRIPT` with `py` (from [`venv_python`]) and parses what it prints as JSON;
+/// a failing script fails the test with its stderr.
+pub fn python_json<A: AsRef<std::ffi::OsStr>>(py: &Path, script: &str, args: &[A]) -> serde_json::Value {
+    let out = std::process::Command::new(py)
+        .arg(repo_root().join("tests/python").join(script))
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {script}: {e}"));
+    assert!(
+        out.status.success(),
+        "{script} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{script} printed no JSON: {e}"))
+}
+
 /// A fresh scratch directory under the system temp dir, unique per test. Removed when the guard
 /// drops, unless the test is failing: then its logs and reports stay for inspection (the path is
 /// printed). Runs used to leave ~12 MB each in /tmp, on a disk CI shares.

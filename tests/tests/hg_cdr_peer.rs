@@ -3,8 +3,6 @@
 //! way unitree_sdk2py does (tests/python/hg_cdr_peer.py). Our LowCmd_ CDR must deserialize there to
 //! the values we encoded, with a CRC that matches the C layout; the peer's LowState_ CDR must decode
 //! here (CRC checked by our decoder) to the values it wrote.
-use std::process::Command;
-
 use hal::{LowCommand, LowState, MotorCommand};
 use integration_tests::*;
 use sensor_io::unitree_hg::cdr::{low_cmd_to_cdr, low_state_from_cdr, LOW_CMD_CDR_LEN};
@@ -12,17 +10,7 @@ use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, LOW_CMD_LEN, LOW_S
 
 fn peer(args: &[&str]) -> Option<serde_json::Value> {
     let py = venv_python("the CDR peer (cyclonedds.idl)")?;
-    let out = Command::new(py)
-        .arg(repo_root().join("tests/python/hg_cdr_peer.py"))
-        .args(args)
-        .output()
-        .expect("run the peer");
-    assert!(
-        out.status.success(),
-        "peer failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Some(serde_json::from_slice(&out.stdout).expect("peer JSON"))
+    Some(python_json(&py, "hg_cdr_peer.py", args))
 }
 
 fn f(v: &serde_json::Value) -> f32 {

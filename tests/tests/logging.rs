@@ -27,17 +27,7 @@ fn rust_ticks(path: &Path) -> (Vec<u64>, Option<String>) {
 }
 
 fn python_read(py: &Path, log: &Path) -> serde_json::Value {
-    let out = Command::new(py)
-        .arg(repo_root().join("tests/python/read_log.py"))
-        .arg(log)
-        .output()
-        .expect("python runs");
-    assert!(
-        out.status.success(),
-        "python reader failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("reader prints JSON")
+    python_json(py, "read_log.py", &[log])
 }
 
 fn contiguous_from_zero(t: &[u64]) -> bool {
