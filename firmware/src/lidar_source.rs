@@ -2,23 +2,20 @@
 //! DDS) and the MID-360 over its own (UDP). [`WithLidar`] presents both to `run_loop` as one HAL:
 //! the tick, state and commands are the inner HAL's; perception ticks take the lidar's newest frame.
 //!
-//! The lidar is read on every tick, not only on perception ticks: the MID-360 sends ~2080 packets
-//! a second, and a UDP socket left alone for a 100 ms perception period overflows its default
-//! receive buffer (measured: 1634 of 3134 datagrams lost when it was read at 10 Hz). Each tick takes
-//! what has arrived (a few datagrams); a completed frame waits in a staging buffer for the next
-//! perception tick.
+//! The lidar takes in what has arrived on every tick ([`Lidar::receive`]), not only on perception
+//! ticks: the MID-360 sends ~2080 packets a second, and a UDP socket left alone for a 100 ms
+//! perception period overflows its default receive buffer (measured: 1634 of 3134 datagrams lost
+//! when it was read at 10 Hz). The completed frame stays in the lidar's assembler until a
+//! perception tick copies it out.
 use hal::{Lidar, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 use crate::perception::LidarFrame;
 use crate::runtime::FrameSource;
 
-/// Lidar read failures, counted (a lidar that fails leaves perception holding its last token; the
-/// motors do not depend on it).
+/// Frames handed to perception, and lidar failures (a lidar that fails leaves perception holding
+/// its last token; the motors do not depend on it).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct LidarReadCounters {
-    /// Frames the lidar completed, and those a perception tick took (the rest were replaced by a
-    /// newer frame before one came).
-    pub frames: u64,
     pub used: u64,
     pub errors: u64,
 }
@@ -28,37 +25,24 @@ pub struct WithLidar<H, L> {
     /// `None`: no lidar (perception, if the spec has it, never gets a frame).
     pub lidar: Option<L>,
     pub counters: LidarReadCounters,
-    staged: Box<LidarFrame>,
-    staged_fresh: bool,
 }
 
 impl<H, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> WithLidar<H, L> {
-    /// Allocates the staging frame (before the loop, as every buffer the tick uses).
     pub fn new(hal: H, lidar: Option<L>) -> Self {
         Self {
             hal,
             lidar,
             counters: LidarReadCounters::default(),
-            staged: sensor_io::livox::boxed_point_frame(),
-            staged_fresh: false,
         }
     }
 
-    fn pull_lidar(&mut self) {
-        let Some(lidar) = self.lidar.as_mut() else {
-            return;
-        };
-        match lidar.read_frame(&mut self.staged) {
-            Ok(true) => {
-                self.counters.frames += 1;
-                self.staged_fresh = true;
-            }
-            Ok(false) => {}
-            Err(e) => {
-                self.counters.errors += 1;
-                tracing::warn!(error = %e, "lidar read failed; perception holds its token");
-            }
-        }
+    /// Counts a failure (and says so) instead of ending the run.
+    fn count<T: Default>(&mut self, r: Result<T, L::Error>) -> T {
+        r.unwrap_or_else(|e| {
+            self.counters.errors += 1;
+            tracing::warn!(error = %e, "lidar read failed; perception holds its token");
+            T::default()
+        })
     }
 }
 
@@ -66,7 +50,9 @@ impl<H: TimeBase, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> TimeBase for W
     type Error = H::Error;
     fn wait_tick(&mut self) -> Result<TickTime, H::Error> {
         let t = self.hal.wait_tick()?;
-        self.pull_lidar();
+        if let Some(r) = self.lidar.as_mut().map(|l| l.receive()) {
+            self.count(r);
+        }
         Ok(t)
     }
     fn period_ns(&self) -> u64 {
@@ -92,12 +78,12 @@ impl<H: FrameSource, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> FrameSource
         self.hal.truth()
     }
     fn read_lidar(&mut self, out: &mut LidarFrame) -> bool {
-        if !std::mem::take(&mut self.staged_fresh) {
+        let Some(r) = self.lidar.as_mut().map(|l| l.read_frame(out)) else {
             return false;
-        }
-        out.copy_from(&self.staged);
-        self.counters.used += 1;
-        true
+        };
+        let fresh = self.count(r);
+        self.counters.used += fresh as u64;
+        fresh
     }
 }
 
@@ -119,21 +105,31 @@ mod tests {
         }
     }
 
-    /// Frames on odd calls, an error every third call.
-    struct FakeLidar(u32);
+    /// `receive` call k: a frame stamped k completes on odd k, fails every third call.
+    #[derive(Default)]
+    struct FakeLidar {
+        calls: u64,
+        completed: Option<u64>,
+    }
     impl Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }> for FakeLidar {
         type Error = E;
         fn read_frame(&mut self, out: &mut LidarFrame) -> Result<bool, E> {
-            self.0 += 1;
-            if self.0.is_multiple_of(3) {
+            let Some(t) = self.completed.take() else {
+                return Ok(false);
+            };
+            out.clear(t);
+            out.push(LidarPoint::default());
+            Ok(true)
+        }
+        fn receive(&mut self) -> Result<(), E> {
+            self.calls += 1;
+            if self.calls.is_multiple_of(3) {
                 return Err(E);
             }
-            if self.0 % 2 == 1 {
-                out.clear(u64::from(self.0));
-                out.push(LidarPoint::default());
-                return Ok(true);
+            if self.calls % 2 == 1 {
+                self.completed = Some(self.calls);
             }
-            Ok(false)
+            Ok(())
         }
     }
 
@@ -158,11 +154,11 @@ mod tests {
     }
 
     #[test]
-    fn every_tick_reads_the_lidar_and_perception_takes_the_newest_frame() {
-        let mut h = WithLidar::new(Ticks(0), Some(FakeLidar(0)));
+    fn every_tick_takes_in_lidar_data_and_perception_takes_the_newest_frame() {
+        let mut h = WithLidar::new(Ticks(0), Some(FakeLidar::default()));
         let mut out = sensor_io::livox::boxed_point_frame();
         assert!(!h.read_lidar(&mut out), "nothing before a tick");
-        // Lidar calls 1..6 on ticks 1..6: frame, none, error, none, frame, error.
+        // receive calls 1..6 on ticks 1..6: frame, none, error, none, frame, error.
         for _ in 0..3 {
             h.wait_tick().unwrap();
         }
@@ -174,14 +170,7 @@ mod tests {
         }
         assert!(h.read_lidar(&mut out));
         assert_eq!(out.timestamp_ns, 5);
-        assert_eq!(
-            h.counters,
-            LidarReadCounters {
-                frames: 2,
-                used: 2,
-                errors: 2
-            }
-        );
+        assert_eq!(h.counters, LidarReadCounters { used: 2, errors: 2 });
         assert_eq!(h.received_frame(), Some(&b"state"[..]));
         let mut none = WithLidar::<Ticks, FakeLidar>::new(Ticks(0), None);
         none.wait_tick().unwrap();

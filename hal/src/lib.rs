@@ -71,6 +71,13 @@ pub trait Lidar<const CAP: usize> {
     type Error: Error;
     /// Fills `out` with the newest complete frame. `Ok(false)`: no new frame since the last call.
     fn read_frame(&mut self, out: &mut PointFrame<CAP>) -> Result<bool, Self::Error>;
+
+    /// Takes in what has arrived without handing a frame over. A loop that reads frames less often
+    /// than packets arrive calls it every tick, for transports whose buffers overflow when left
+    /// alone (a UDP socket); the default does nothing.
+    fn receive(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
 }
 
 /// Time of a control tick.

@@ -4,8 +4,8 @@
 //! every datagram to the same [`FrameAssembler`] the simulator bridge uses, so a frame is assembled
 //! the same way whichever transport carried its packets.
 //!
-//! Nothing here allocates after [`UdpLidar::open`]: one receive buffer, the assembler's two frames
-//! and the latest frame are allocated once.
+//! Nothing here allocates after [`UdpLidar::open`]: one receive buffer and the assembler's two
+//! frames are allocated once.
 //!
 //! Time: the packets carry the lidar's own timestamps (`timestamp_ns`, `time_type` 0 = since power-on
 //! unless PTP/gPTP or GPS synchronises it). The assembler only uses differences inside a frame, so
@@ -81,8 +81,9 @@ pub struct UdpLidar<const CAP: usize> {
     cfg: UdpLidarConfig,
     local: SocketAddr,
     buf: Box<[u8; RECV_BUF_LEN]>,
+    /// Its last completed frame stays put until the next completes: that is the frame handed over.
     assembler: FrameAssembler<CAP>,
-    latest: Box<PointFrame<CAP>>,
+    /// A frame completed since the last hand-over.
     fresh: bool,
     counters: UdpLidarCounters,
 }
@@ -103,7 +104,6 @@ impl<const CAP: usize> UdpLidar<CAP> {
             local,
             buf: Box::new([0; RECV_BUF_LEN]),
             assembler: FrameAssembler::new_boxed(),
-            latest: sensor_io::livox::boxed_point_frame(),
             fresh: false,
             counters: UdpLidarCounters::default(),
         })
@@ -147,8 +147,7 @@ impl<const CAP: usize> UdpLidar<CAP> {
                 continue;
             }
             match self.assembler.push(&self.buf[..n]) {
-                Ok(Some(frame)) => {
-                    self.latest.copy_from(frame);
+                Ok(Some(_)) => {
                     self.fresh = true;
                     self.counters.frames += 1;
                 }
@@ -169,8 +168,13 @@ impl<const CAP: usize> hal::Lidar<CAP> for UdpLidar<CAP> {
         if !self.fresh {
             return Ok(false);
         }
-        out.copy_from(&self.latest);
+        out.copy_from(self.assembler.last_frame());
         self.fresh = false;
         Ok(true)
+    }
+
+    /// Drains the socket into the assembler (`g1fw run` calls it every tick).
+    fn receive(&mut self) -> Result<(), UdpLidarError> {
+        self.poll().map(|_| ())
     }
 }

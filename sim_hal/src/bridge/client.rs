@@ -23,7 +23,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, PointFrame, TickTime, TimeBase};
-use sensor_io::livox::{boxed_point_frame, AssemblerStats, FrameAssembler};
+use sensor_io::livox::{AssemblerStats, FrameAssembler};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::protocol::{
@@ -118,8 +118,9 @@ impl From<bool> for Wants {
 
 /// The lidar side of the bridge: datagrams → Livox decoder → frames.
 struct LidarIn {
+    /// Its last completed frame stays put until the next completes: that is the frame handed over.
     assembler: FrameAssembler<LIDAR_FRAME_CAP>,
-    latest: Box<PointFrame<LIDAR_FRAME_CAP>>,
+    /// A frame completed since the last hand-over.
     fresh: bool,
     /// Bridge payloads whose datagram framing was inconsistent (rest of the payload dropped).
     framing_errors: u64,
@@ -236,11 +237,8 @@ impl BridgeHal {
             welcome,
             want_truth,
             lidar: want.lidar.then(|| {
-                let mut latest = boxed_point_frame();
-                latest.clear(0);
                 Box::new(LidarIn {
                     assembler: FrameAssembler::new_boxed(),
-                    latest,
                     fresh: false,
                     framing_errors: 0,
                     payload: Vec::with_capacity(64 * 1024),
@@ -312,8 +310,7 @@ impl BridgeHal {
                     break;
                 };
                 // Malformed packets are counted by the assembler and skipped.
-                if let Ok(Some(frame)) = l.assembler.push(d) {
-                    l.latest.copy_from(frame);
+                if let Ok(Some(_)) = l.assembler.push(d) {
                     l.fresh = true;
                 }
             }
@@ -438,7 +435,7 @@ impl hal::Lidar<LIDAR_FRAME_CAP> for BridgeHal {
     fn read_frame(&mut self, out: &mut PointFrame<LIDAR_FRAME_CAP>) -> Result<bool, BridgeError> {
         match self.lidar.as_deref_mut() {
             Some(l) if l.fresh => {
-                out.copy_from(&l.latest);
+                out.copy_from(l.assembler.last_frame());
                 l.fresh = false;
                 Ok(true)
             }
