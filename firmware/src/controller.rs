@@ -45,6 +45,15 @@ pub struct TickInfo {
     pub policy_step: bool,
 }
 
+/// One slot's gains in each phase (kp, kd).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlotGains {
+    pub startup: (f32, f32),
+    pub policy: (f32, f32),
+    /// Damping is kp 0 with this kd.
+    pub damping_kd: f32,
+}
+
 pub struct Controller {
     spec: DeploySpec,
     /// `None`: hold-only mode (no policy loaded; ramp to the default pose and stay there).
@@ -277,6 +286,18 @@ impl Controller {
         }
         self.clamped_targets += self.io.apply_action(&self.action, &mut self.target_q);
         Ok(())
+    }
+
+    /// The gains each slot is commanded with, per phase: what a peer on the wire may check the
+    /// commands against. `None` for slots the controller leaves disabled.
+    pub fn gain_table(&self) -> [Option<SlotGains>; NUM_MOTORS] {
+        std::array::from_fn(|s| {
+            self.enabled[s].then(|| SlotGains {
+                startup: (self.startup_kp[s], self.startup_kd[s]),
+                policy: (self.kp[s], self.kd[s]),
+                damping_kd: self.spec.safety.damping_kd,
+            })
+        })
     }
 
     /// Writes the damping command (kp = 0, configured kd on every enabled motor) into `out`.

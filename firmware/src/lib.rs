@@ -16,7 +16,6 @@
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 pub mod alloc_probe;
 pub mod bev_render;
-pub mod can_run;
 pub mod controller;
 pub mod eval;
 pub mod lidar_source;
@@ -31,6 +30,7 @@ pub mod policy_io;
 pub mod profile_plot;
 pub mod replay;
 pub mod robot;
+pub mod robot_run;
 pub mod rt;
 pub mod runtime;
 pub mod sim_run;

@@ -19,7 +19,10 @@ use std::time::Instant;
 use crate::nn::sha256_hex;
 use anyhow::{bail, Context, Result};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
-use sensor_io::unitree_hg::{decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, LOW_CMD_LEN};
+use sensor_io::unitree_hg::cdr::{low_state_from_cdr, CdrError};
+use sensor_io::unitree_hg::{
+    decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN,
+};
 
 use crate::controller::Controller;
 use crate::log::channels as ch;
@@ -43,6 +46,11 @@ pub mod key {
     pub const FROZEN_CHECK: &str = "frozen_check";
     /// `cnn`, `geometric`, `truth` or `none` (`g1fw sim --terrain-source`); absent in older logs.
     pub const TERRAIN_SOURCE: &str = "terrain_source";
+    /// How `/hal/low_state` frames are encoded: absent = unitree_hg's C layout (bridge, CAN);
+    /// `cdr` = the DDS sample as it was on the wire (`g1fw run --dds`), converted by
+    /// `sensor_io::unitree_hg::cdr` before decoding.
+    pub const FRAME_ENCODING: &str = "frame_encoding";
+    pub const FRAME_ENCODING_CDR: &str = "cdr";
 }
 
 #[derive(Clone, Debug, Default)]
@@ -362,6 +370,8 @@ fn load(log: &LogFile) -> Result<Recording> {
 pub enum ReplayHalError {
     #[error("recorded frame: {0}")]
     Decode(#[from] DecodeError),
+    #[error("recorded frame: {0}")]
+    Cdr(#[from] CdrError),
     #[error("recorded HAL failure ({0:?})")]
     Recorded(ErrorKind),
     #[error("end of the recording")]
@@ -372,6 +382,7 @@ impl hal::Error for ReplayHalError {
     fn kind(&self) -> ErrorKind {
         match self {
             ReplayHalError::Decode(e) => hal::Error::kind(e),
+            ReplayHalError::Cdr(e) => hal::Error::kind(e),
             ReplayHalError::Recorded(k) => *k,
             ReplayHalError::End => ErrorKind::Disconnected,
         }
@@ -388,6 +399,9 @@ struct ReplayHal<'a> {
     unread: bool,
     /// Recorded lidar frames handed out.
     lidar_fed: u64,
+    /// Frames are DDS samples (CDR), converted to the C layout before decoding.
+    cdr_frames: bool,
+    c_frame: [u8; LOW_STATE_LEN],
 }
 
 impl TimeBase for ReplayHal<'_> {
@@ -411,14 +425,31 @@ impl LowLevel for ReplayHal<'_> {
     type Error = ReplayHalError;
     fn read_state(&mut self, out: &mut LowState) -> Result<bool, ReplayHalError> {
         let t = &self.rec.ticks[self.cur];
-        let fresh = std::mem::take(&mut self.unread) && t.received;
+        let unread = std::mem::take(&mut self.unread);
+        // A link fault the HAL reported instead of a frame (a second `rt/lowcmd` writer): decoding
+        // cannot give it back, the record can.
+        if let Some(FrameStatus::Bad(kind)) = FrameStatus::from_code(t.status) {
+            if unread && matches!(kind, ErrorKind::Other | ErrorKind::Timeout | ErrorKind::Disconnected) {
+                *out = self.state;
+                return Err(ReplayHalError::Recorded(kind));
+            }
+        }
+        let fresh = unread && t.received;
         let result = if fresh {
-            match decode_low_state(&self.rec.frames[t.frame.clone()], &mut self.scratch) {
+            let frame = &self.rec.frames[t.frame.clone()];
+            let decoded = if self.cdr_frames {
+                low_state_from_cdr(frame, &mut self.c_frame)
+                    .map_err(ReplayHalError::from)
+                    .and_then(|()| Ok(decode_low_state(&self.c_frame, &mut self.scratch)?))
+            } else {
+                decode_low_state(frame, &mut self.scratch).map_err(ReplayHalError::from)
+            };
+            match decoded {
                 Ok(()) => {
                     self.state = self.scratch;
                     Ok(true)
                 }
-                Err(e) => Err(e.into()),
+                Err(e) => Err(e),
             }
         } else {
             Ok(false)
@@ -607,6 +638,10 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         scratch: LowState::default(),
         unread: false,
         lidar_fed: 0,
+        cdr_frames: meta
+            .get(key::FRAME_ENCODING)
+            .is_some_and(|v| v == key::FRAME_ENCODING_CDR),
+        c_frame: [0; LOW_STATE_LEN],
     };
     let mut op = RecordedOperator { rec: &rec, i: 0 };
     let last = rec.ticks.last().expect("non-empty");

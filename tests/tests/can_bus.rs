@@ -7,8 +7,8 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use firmware::can_run::{run_on, CanReport, CanRunOptions};
 use firmware::operator::CommandSchedule;
+use firmware::robot_run::{run_on, RunOptions, RunReport};
 use firmware::spec::DeploySpec;
 use integration_tests::*;
 use sensor_io::can::{decode_motor_rx, BusLayout, CanFrame, MotorRx, IMU_ACCEL_ID};
@@ -109,7 +109,7 @@ fn start_peer(
 }
 
 struct Run {
-    fw: CanReport,
+    fw: RunReport,
     emu: EmuReport,
     sniffed: Vec<(usize, CanFrame, u64)>,
     injected_at_tick: Option<u64>,
@@ -182,7 +182,7 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
         None => DeploySpec::load(&peer_spec_path()).expect("peer spec"),
         Some(_) => DeploySpec::load(&repo_root().join("specs/stairs/g1_stairs_lstm.toml")).expect("stair spec"),
     };
-    let opts = CanRunOptions {
+    let opts = RunOptions {
         schedule: CommandSchedule::constant(sc.cmd),
         duration_s: Some(sc.duration_s),
         startup_timeout: Duration::from_secs(60),
@@ -192,7 +192,7 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
             lidar: Some([127, 0, 0, 1].into()),
             ..Default::default()
         }),
-        ..CanRunOptions::default()
+        ..RunOptions::default()
     };
     let mut fw_layout = layout();
     if let Some(ms) = sc.tick_timeout_ms {
@@ -208,7 +208,7 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
     };
     eprintln!(
         "{name}: fw {} ticks, mode {}, trip {:?}, can {:?}; emulator {} ticks, fell {}, z_min {:.3}, x {:.2} m, {:.1} s wall",
-        fw.ticks, fw.final_mode, fw.trip, fw.can, emu.ticks, emu.fell, emu.base_z_min, emu.distance_x_m, emu.wall_s
+        fw.ticks, fw.final_mode, fw.trip, fw.can.expect("CAN counters"), emu.ticks, emu.fell, emu.base_z_min, emu.distance_x_m, emu.wall_s
     );
     Run {
         fw,
@@ -254,7 +254,7 @@ fn walks_ten_seconds_over_can() {
     assert_eq!(r.fw.final_mode, "Policy");
     assert!(r.fw.policy_steps >= 500, "{}", r.fw.policy_steps);
     assert!(r.emu.distance_x_m > 2.0, "walked {:.2} m", r.emu.distance_x_m);
-    let c = r.fw.can;
+    let c = r.fw.can.expect("CAN counters");
     assert_eq!(
         (c.malformed, c.foreign, c.missing_replies, c.imu_gaps),
         (0, 0, 0, 0),
@@ -418,7 +418,8 @@ fn a_motor_that_stops_answering_ends_in_damping() {
         "tripped at {}",
         trip.tick
     );
-    assert!(r.fw.can.missing_replies >= 1000 - 701, "{:?}", r.fw.can);
+    let can = r.fw.can.expect("CAN counters");
+    assert!(can.missing_replies >= 1000 - 701, "{can:?}");
     let after = commands_after(&r, trip.tick + 2);
     assert!(!after.is_empty() && after.iter().all(|&(_, kp, kd)| kp == 0.0 && kd > 0.0));
     assert_eq!(r.emu.motors_at_rest, ["right_knee"]);

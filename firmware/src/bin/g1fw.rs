@@ -34,10 +34,11 @@ enum Cmd {
     /// its reason, stalled, timeout, short) and a table per step height and kind; writes a JSON
     /// report with every episode.
     Eval(Box<EvalArgs>),
-    /// Run the firmware on the robot's CAN buses (docs/can.md): the motors (MIT protocol) and the
-    /// IMU per the bus layout, until --duration or SIGINT/SIGTERM (which damp the motors). On a
-    /// bench, `g1-can-emu` plays the robot on vcan. Prints a JSON report; exit 0 when no safety trip
-    /// latched, 3 when one did, 2 on errors.
+    /// Run the firmware on a robot: `--dds IFACE[,DOMAIN]` speaks the G1's own DDS topics
+    /// (rt/lowstate, rt/lowcmd; the real robot on domain 0, unitree_mujoco or `g1-sim --dds` on
+    /// `lo,1`); `--can-config` drives motors on CAN buses (docs/can.md; the vcan bench against
+    /// `g1-can-emu`). Runs until --duration or SIGINT/SIGTERM (which damp the motors). Prints a
+    /// JSON report; exit 0 when no safety trip latched, 3 when one did, 2 on errors.
     Run(Box<RunArgs>),
     /// Load and validate a deploy spec and its weights, print a summary, exit non-zero on any error.
     CheckSpec {
@@ -268,11 +269,26 @@ struct RunArgs {
     /// Deploy spec (TOML).
     #[arg(long, default_value = "specs/peer/unitree_g1_lstm.toml")]
     spec: PathBuf,
-    /// Bus layout: motor slots, node ids and ranges, the IMU's bus, timeouts (specs/can/*.toml).
+    /// The G1's DDS interface: the network interface the robot is on and the domain, e.g.
+    /// `eth0` (domain 0, the robot's) or `lo,1` (unitree_mujoco's default, and `g1-sim --dds lo,1`).
+    /// Refuses to start while another program publishes rt/lowcmd.
+    #[arg(
+        long,
+        value_name = "IFACE[,DOMAIN]",
+        required_unless_present = "can_config",
+        conflicts_with = "can_config"
+    )]
+    dds: Option<robot_io::dds::Endpoint>,
+    /// With --dds: a tick without a new rt/lowstate runs after this long (default 10 periods),
+    /// so the safety supervisor sees the silence and damping keeps going out.
+    #[arg(long, value_name = "MS", requires = "dds")]
+    dds_tick_timeout_ms: Option<u32>,
+    /// Bus layout for motors on CAN (the vcan bench): motor slots, node ids and ranges, the IMU's
+    /// bus, timeouts (specs/can/*.toml).
     #[arg(long, value_name = "FILE")]
-    can_config: PathBuf,
+    can_config: Option<PathBuf>,
     /// Interface names, comma-separated, in the layout's bus order (default: the layout's own).
-    #[arg(long, value_name = "IF[,IF…]", value_delimiter = ',')]
+    #[arg(long, value_name = "IF[,IF…]", value_delimiter = ',', requires = "can_config")]
     can: Vec<String>,
     /// Seconds of control ticks to run (default: until SIGINT/SIGTERM).
     #[arg(long)]
@@ -300,7 +316,7 @@ struct RunArgs {
     startup_timeout: f64,
     /// Override the layout's `tick_timeout_ms` (no IMU sample for this long ends the run with
     /// damping); e.g. for emulated buses on a loaded machine.
-    #[arg(long, value_name = "MS")]
+    #[arg(long, value_name = "MS", requires = "can_config")]
     tick_timeout_ms: Option<u32>,
     /// Receive the MID-360's point packets (Livox SDK2 over UDP) on this local address, e.g.
     /// 0.0.0.0:56301 (the G1's host port); the spec's perception then runs on them as under
@@ -357,7 +373,10 @@ fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        // rustdds narrates discovery and shutdown at info level: keep it to warnings.
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,rustdds=warn".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match run(Cli::parse()) {
@@ -388,7 +407,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Cmd::Sim(a) => sim(*a),
         Cmd::Eval(a) => eval(*a),
-        Cmd::Run(a) => run_can(*a),
+        Cmd::Run(a) => run_robot(*a),
         Cmd::Replay(a) => {
             let report = replay(
                 &a.log,
@@ -635,29 +654,38 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn run_can(a: RunArgs) -> Result<ExitCode> {
+fn run_robot(a: RunArgs) -> Result<ExitCode> {
     if a.duration.is_some_and(|d| !(d > 0.0 && d.is_finite())) {
         bail!("--duration must be a positive number of seconds");
     }
     if !(a.startup_timeout > 0.0 && a.startup_timeout.is_finite()) {
         bail!("--startup-timeout must be a positive number of seconds");
     }
+    if a.dds_tick_timeout_ms == Some(0) {
+        bail!("--dds-tick-timeout-ms must be at least 1");
+    }
     let spec = DeploySpec::load(&a.spec)?;
-    let mut layout = sensor_io::can::BusLayout::load(&a.can_config)?;
-    if !a.can.is_empty() {
-        layout.rename_interfaces(&a.can)?;
-    }
-    if let Some(ms) = a.tick_timeout_ms {
-        if ms == 0 {
-            bail!("--tick-timeout-ms must be at least 1");
+    let layout = match &a.can_config {
+        Some(path) => {
+            let mut layout = sensor_io::can::BusLayout::load(path)?;
+            if !a.can.is_empty() {
+                layout.rename_interfaces(&a.can)?;
+            }
+            if let Some(ms) = a.tick_timeout_ms {
+                if ms == 0 {
+                    bail!("--tick-timeout-ms must be at least 1");
+                }
+                layout.tick_timeout_ms = ms;
+            }
+            Some(layout)
         }
-        layout.tick_timeout_ms = ms;
-    }
+        None => None,
+    };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
     }
-    let opts = firmware::can_run::CanRunOptions {
+    let opts = firmware::robot_run::RunOptions {
         schedule: match &a.cmd_schedule {
             Some(p) => CommandSchedule::load(p)?,
             None => CommandSchedule::constant(a.cmd),
@@ -684,12 +712,26 @@ fn run_can(a: RunArgs) -> Result<ExitCode> {
             }),
         },
     };
-    tracing::info!(
-        interfaces = layout.interfaces.join(","),
-        motors = layout.motors.len(),
-        "starting on CAN"
-    );
-    let report = firmware::can_run::run_can(spec, layout, &opts)?;
+    let report = match (layout, a.dds) {
+        (Some(layout), _) => {
+            tracing::info!(
+                interfaces = layout.interfaces.join(","),
+                motors = layout.motors.len(),
+                "starting on CAN"
+            );
+            firmware::robot_run::run_can(spec, layout, &opts)?
+        }
+        (None, Some(endpoint)) => {
+            tracing::info!(%endpoint, "starting on DDS (listening for peers first)");
+            let tick_timeout = a
+                .dds_tick_timeout_ms
+                .map(|ms| std::time::Duration::from_millis(ms as u64));
+            firmware::robot_run::run_dds(spec, endpoint, &opts, tick_timeout)?
+        }
+        (None, None) => {
+            bail!("name the robot's transport: --dds IFACE[,DOMAIN] (the G1) or --can-config FILE (a CAN bench)")
+        }
+    };
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
     if let Some(path) = a.report {

@@ -174,6 +174,12 @@ impl RunMeta {
         self.entries.insert(key.into(), value.to_string());
         self
     }
+
+    /// Adds `other`'s entries (replacing equal keys).
+    pub fn extend(&mut self, other: RunMeta) -> &mut Self {
+        self.entries.extend(other.entries);
+        self
+    }
 }
 
 #[derive(Clone, Debug)]

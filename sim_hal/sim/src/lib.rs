@@ -34,6 +34,7 @@
 // The simulator never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 pub mod dataset;
+pub mod dds_serve;
 pub mod faults;
 pub mod lidar;
 pub mod model;

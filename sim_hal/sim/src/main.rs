@@ -37,6 +37,20 @@ struct Cli {
     #[arg(long, value_name = "ADDR")]
     tcp: Option<String>,
 
+    /// Play the robot on DDS instead of serving the bridge, as unitree_mujoco does: publish
+    /// rt/lowstate and take rt/lowcmd (unitree_hg, XCDR1) on this interface and domain, e.g.
+    /// `lo,1`; then `g1fw run --dds lo,1` drives it. Lock-stepped: one command, one tick.
+    #[arg(long, value_name = "IFACE[,DOMAIN]", conflicts_with_all = ["tcp", "faults", "bench_bare"])]
+    dds: Option<robot_io::dds::Endpoint>,
+
+    /// With --dds: exit when no command came for this many seconds after the first.
+    #[arg(long, value_name = "S", default_value_t = 2.0, requires = "dds")]
+    dds_idle_exit: f64,
+
+    /// With --dds: stop after this many simulated seconds.
+    #[arg(long, value_name = "S", requires = "dds")]
+    dds_max_time: Option<f64>,
+
     /// Model: `g1-29dof` (mjlab 29-dof G1 from .deps, home pose; $G1_DEPS_DIR overrides .deps),
     /// `g1-12dof` (unitree_rl_gym legs-only G1 from ../shared, at qpos0; $G1_SHARED_DIR
     /// overrides ../shared), or a path to any MJCF with G1 joint names.
@@ -192,6 +206,35 @@ fn run(cli: Cli) -> Result<ExitCode> {
         config.physics_dt,
         sim.substeps()
     );
+    if let Some(endpoint) = cli.dds.clone() {
+        if !(cli.dds_idle_exit.is_finite() && cli.dds_idle_exit > 0.0) {
+            bail!("--dds-idle-exit must be a positive number of seconds");
+        }
+        let opts = g1_sim::dds_serve::DdsServeOptions {
+            endpoint: endpoint.clone(),
+            resend_after: Duration::from_millis(20),
+            idle_exit: Some(Duration::from_secs_f64(cli.dds_idle_exit)),
+            max_sim_s: cli.dds_max_time,
+            quiet,
+        };
+        let s = g1_sim::dds_serve::serve_dds(&mut sim, &opts, || {
+            if !quiet {
+                eprintln!("g1-sim: {info}; the robot on DDS {endpoint} (rt/lowstate out, rt/lowcmd in)");
+            }
+        })?;
+        if !quiet {
+            eprintln!(
+                "g1-sim: DDS session ended after {} ticks ({:.3} s simulated; {} commands rejected, {} states resent)",
+                s.ticks, s.sim_time_s, s.rejected_commands, s.resent_states
+            );
+        }
+        // One JSON line on stdout: what a harness scores the session by.
+        println!(
+            "{{\"ticks\": {}, \"sim_time_s\": {:.4}, \"rejected_commands\": {}, \"resent_states\": {}, \"base_travel_m\": [{:.4}, {:.4}], \"base_z_min_m\": {:.4}, \"fell\": {}}}",
+            s.ticks, s.sim_time_s, s.rejected_commands, s.resent_states, s.base_travel_m[0], s.base_travel_m[1], s.base_z_min_m, s.fell
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let result = match &cli.tcp {
         Some(addr) => server::serve_tcp(addr, &mut sim, &opts, |a| {
             if !quiet {

@@ -1,12 +1,15 @@
-//! `g1fw run`: the firmware on the robot's CAN buses (docs/can.md), or on vcan against
-//! `g1-can-emu`. The same `run_loop`, controller and logger as `g1fw sim`; only the HAL differs.
-//! There is no ground truth here: the report says what the firmware saw and did.
+//! `g1fw run`: the firmware on a robot's own transport. `--dds`: the G1's DDS topics `rt/lowstate` /
+//! `rt/lowcmd` (the real robot, unitree_mujoco, or `g1-sim --dds`); `--can-config`: the motors on
+//! CAN buses (docs/can.md), the vcan hardware-in-the-loop bench against `g1-can-emu`. The same
+//! `run_loop`, controller and logger as `g1fw sim`; only the HAL differs. There is no ground truth
+//! here: the report says what the firmware saw and did.
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use robot_io::{DdsHal, DdsHalConfig, DdsHalCounters};
 use serde::Serialize;
 use sim_hal::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
 
@@ -15,12 +18,22 @@ use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::controller::Controller;
 use crate::lidar_source::WithLidar;
+use crate::log::RunMeta;
 use crate::log::{LogOptions, LogStats, Logger};
 use crate::operator::CommandSchedule;
 use crate::replay::key;
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
 use crate::sim_run::{SafetyReport, TripReport};
 use crate::spec::DeploySpec;
+use hal::{LowLevel, TimeBase};
+
+impl FrameSource for DdsHal {
+    /// The `LowState_` sample as it was on the wire (CDR); the log's metadata says so
+    /// (`frame_encoding = cdr`) and replay decodes it with the same codec.
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.received_sample()
+    }
+}
 
 impl<B: CanBuses> FrameSource for CanHal<B> {
     /// The assembled state as unitree_hg bytes: the log records them and replay decodes them with
@@ -31,13 +44,14 @@ impl<B: CanBuses> FrameSource for CanHal<B> {
 }
 
 #[derive(Clone, Debug)]
-pub struct CanRunOptions {
+pub struct RunOptions {
     pub schedule: CommandSchedule,
     /// Stop after this many seconds of control ticks; `None`: until SIGINT/SIGTERM.
     pub duration_s: Option<f64>,
     pub ramp_override: Option<(f64, f64)>,
     pub hold_only: bool,
-    /// How long start-up waits for every motor to answer and the IMU's first sample.
+    /// How long start-up waits for the first state (CAN: every motor's answer and the IMU's first
+    /// sample; DDS: the first `rt/lowstate`).
     pub startup_timeout: Duration,
     pub log: Option<PathBuf>,
     pub log_options: LogOptions,
@@ -48,7 +62,7 @@ pub struct CanRunOptions {
     pub lidar: Option<robot_io::UdpLidarConfig>,
 }
 
-impl Default for CanRunOptions {
+impl Default for RunOptions {
     fn default() -> Self {
         Self {
             schedule: CommandSchedule::constant([0.0; 3]),
@@ -66,8 +80,9 @@ impl Default for CanRunOptions {
 }
 
 #[derive(Clone, Debug, Serialize)]
-pub struct CanReport {
-    pub interfaces: Vec<String>,
+pub struct RunReport {
+    /// `dds IFACE,DOMAIN` or `can IF,IF…`.
+    pub transport: String,
     pub ticks: u64,
     pub time_s: f64,
     pub policy_steps: u64,
@@ -76,7 +91,10 @@ pub struct CanReport {
     /// `completed`, `stopped` (signal) or the HAL failure.
     pub end: String,
     pub safety: SafetyReport,
-    pub can: CanCounters,
+    /// The CAN HAL's counters (CAN runs only).
+    pub can: Option<CanCounters>,
+    /// The DDS HAL's counters (DDS runs only).
+    pub dds: Option<DdsHalCounters>,
     /// The UDP lidar's counters (absent without `--lidar-udp`).
     pub lidar: Option<LidarReport>,
     pub spec: String,
@@ -100,24 +118,18 @@ pub struct LidarReport {
 }
 
 /// Opens the layout's interfaces and runs.
-pub fn run_can(spec: DeploySpec, layout: sensor_io::can::BusLayout, opts: &CanRunOptions) -> Result<CanReport> {
+pub fn run_can(spec: DeploySpec, layout: sensor_io::can::BusLayout, opts: &RunOptions) -> Result<RunReport> {
     let buses = SocketCanBuses::open(&layout.interfaces)?;
     run_on(spec, layout, buses, opts)
 }
 
-/// Runs over any buses (SocketCAN, or the in-process bus in tests).
+/// Runs over any CAN buses (SocketCAN, or the in-process bus in tests).
 pub fn run_on<B: CanBuses>(
-    mut spec: DeploySpec,
+    spec: DeploySpec,
     layout: sensor_io::can::BusLayout,
     buses: B,
-    opts: &CanRunOptions,
-) -> Result<CanReport> {
-    if let Some((ramp, hold)) = opts.ramp_override {
-        spec.startup.ramp_s = ramp;
-        spec.startup.hold_s = hold;
-    }
-    let spec_name = spec.path.display().to_string();
-    let control_dt = spec.control_dt();
+    opts: &RunOptions,
+) -> Result<RunReport> {
     let on_bus = layout.slot_mask();
     let missing: Vec<&str> = spec
         .policy
@@ -132,11 +144,63 @@ pub fn run_on<B: CanBuses>(
             missing.join(", ")
         );
     }
-    let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
+    let mut meta = RunMeta::default();
     meta.set("hal", "can")
         // Quantized readings repeat exactly while a joint rests; a dead motor is a missing reply.
         .set(key::FROZEN_CHECK, false)
         .set("can_interfaces", layout.interfaces.join(","));
+    let transport = format!("can {}", layout.interfaces.join(","));
+    let startup = opts.startup_timeout;
+    let (mut report, hal) = run_hal(spec, opts, meta, false, transport, |period_ns| {
+        Ok(CanHal::open(buses, layout, period_ns, startup)?)
+    })?;
+    report.can = Some(hal.counters());
+    Ok(report)
+}
+
+/// Joins the DDS domain on `cfg`'s interface and runs, ticking on `rt/lowstate`.
+pub fn run_dds(
+    spec: DeploySpec,
+    endpoint: robot_io::dds::Endpoint,
+    opts: &RunOptions,
+    tick_timeout: Option<Duration>,
+) -> Result<RunReport> {
+    let mut meta = RunMeta::default();
+    meta.set("hal", "dds")
+        .set(key::FRAME_ENCODING, key::FRAME_ENCODING_CDR)
+        .set("dds_endpoint", &endpoint);
+    let transport = format!("dds {endpoint}");
+    let startup = opts.startup_timeout;
+    let (mut report, hal) = run_hal(spec, opts, meta, true, transport, |period_ns| {
+        let mut cfg = DdsHalConfig::new(endpoint, period_ns);
+        cfg.startup_timeout = startup;
+        if let Some(t) = tick_timeout {
+            cfg.tick_timeout = t;
+        }
+        Ok(DdsHal::open(cfg)?)
+    })?;
+    report.dds = Some(hal.counters());
+    Ok(report)
+}
+
+/// The loop shared by every robot transport: log, lidar, real-time set-up, the HAL (opened last,
+/// right before the first tick), signals, the report.
+fn run_hal<H: TimeBase + LowLevel + FrameSource>(
+    mut spec: DeploySpec,
+    opts: &RunOptions,
+    hal_meta: RunMeta,
+    frozen_check: bool,
+    transport: String,
+    open: impl FnOnce(u64) -> Result<H>,
+) -> Result<(RunReport, H)> {
+    if let Some((ramp, hold)) = opts.ramp_override {
+        spec.startup.ramp_s = ramp;
+        spec.startup.hold_s = hold;
+    }
+    let spec_name = spec.path.display().to_string();
+    let control_dt = spec.control_dt();
+    let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
+    meta.extend(hal_meta);
     let controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
@@ -145,11 +209,10 @@ pub fn run_on<B: CanBuses>(
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
     let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
-    let interfaces = layout.interfaces.clone();
     let period_ns = (control_dt * 1e9).round() as u64;
-    // Everything that allocates or locks memory happens before the motors enter motor mode: once
-    // `CanHal::open` has their replies and the IMU's first sample, the first command must follow
-    // at once (under the HIL VM, building these after the handshake held it back ~0.8 s).
+    // Everything that allocates or locks memory happens before the HAL opens: once CAN motors are
+    // in motor mode (or the robot's state flows), the first command must follow at once (under the
+    // HIL VM, building these after the handshake held it back ~0.8 s).
     let mut logger = match &opts.log {
         Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
         None => None,
@@ -161,8 +224,10 @@ pub fn run_on<B: CanBuses>(
     crate::rt::apply(&opts.rt)?;
     let last_tick = opts.duration_s.map_or(u64::MAX, |d| (d / control_dt).round() as u64);
     let mut runtime = Runtime::new(controller);
-    runtime.disable_frozen_check();
-    let mut hal = WithLidar::new(CanHal::open(buses, layout, period_ns, opts.startup_timeout)?, lidar);
+    if !frozen_check {
+        runtime.disable_frozen_check();
+    }
+    let mut hal = WithLidar::new(open(period_ns)?, lidar);
     let mut operator = opts.schedule.source(period_ns);
     let wall = Instant::now();
     let mut ticks = 0u64;
@@ -194,8 +259,20 @@ pub fn run_on<B: CanBuses>(
         Some(l) => Some(l.finish().context("closing the log")?),
         None => None,
     };
-    Ok(CanReport {
-        interfaces,
+    let lidar = hal.lidar.as_ref().map(|l| {
+        let (c, s) = (l.counters(), l.assembler_stats());
+        LidarReport {
+            datagrams: c.datagrams,
+            foreign: c.foreign,
+            malformed: c.malformed,
+            lost_packets: s.lost_packets,
+            frames: c.frames,
+            frames_used: hal.counters.used,
+            read_errors: hal.counters.errors,
+        }
+    });
+    let report = RunReport {
+        transport,
         ticks,
         time_s: ticks as f64 * control_dt,
         policy_steps: runtime.controller().policy_steps(),
@@ -203,22 +280,13 @@ pub fn run_on<B: CanBuses>(
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
         safety: SafetyReport::of(&runtime),
-        can: hal.hal.counters(),
-        lidar: hal.lidar.as_ref().map(|l| {
-            let (c, s) = (l.counters(), l.assembler_stats());
-            LidarReport {
-                datagrams: c.datagrams,
-                foreign: c.foreign,
-                malformed: c.malformed,
-                lost_packets: s.lost_packets,
-                frames: c.frames,
-                frames_used: hal.counters.used,
-                read_errors: hal.counters.errors,
-            }
-        }),
+        can: None,
+        dds: None,
+        lidar,
         spec: spec_name,
         weights_sha256,
         log,
         wall_s: wall.elapsed().as_secs_f64(),
-    })
+    };
+    Ok((report, hal.hal))
 }

@@ -1,0 +1,215 @@
+//! The firmware's HAL over DDS. The tick follows `rt/lowstate` arrivals, as on the robot: each
+//! new sample starts a tick. When none comes within `tick_timeout` the tick runs anyway without a
+//! frame, so the supervisor sees the silence (its state timeout damps) and damping keeps going out.
+//! Ticks are counted, and time is `index × period`: control never reads the wall clock; what the
+//! arrivals were is in the log, which replay follows.
+use std::time::Duration;
+
+use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use sensor_io::unitree_hg::cdr::{low_cmd_to_cdr, low_state_from_cdr, CdrError, LOW_CMD_CDR_LEN, LOW_STATE_CDR_LEN};
+use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, LOW_CMD_LEN, LOW_STATE_LEN};
+
+use super::{DdsError, DdsLink, Endpoint, LinkCounters, CONTROLLER, LOW_STATE_TOPIC, SAMPLE_CAP};
+
+#[derive(Clone, Debug)]
+pub struct DdsHalConfig {
+    pub endpoint: Endpoint,
+    /// Nominal control period (the robot publishes `rt/lowstate` at 500 Hz).
+    pub period_ns: u64,
+    /// How long to listen for peers before the first tick (and for another `rt/lowcmd` writer).
+    pub discovery: Duration,
+    /// How long the first `rt/lowstate` may take.
+    pub startup_timeout: Duration,
+    /// A tick without a new sample runs after this long.
+    pub tick_timeout: Duration,
+}
+
+impl DdsHalConfig {
+    pub fn new(endpoint: Endpoint, period_ns: u64) -> Self {
+        Self {
+            endpoint,
+            period_ns,
+            discovery: Duration::from_millis(1500),
+            startup_timeout: Duration::from_secs(10),
+            // Ten periods: late enough that a loaded host's scheduling hiccup is not a missing
+            // frame, early enough that damping follows a dead link within the state timeout.
+            tick_timeout: Duration::from_nanos(period_ns * 10),
+        }
+    }
+}
+
+/// What the HAL saw, beside the link's own counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DdsHalCounters {
+    #[serde(flatten)]
+    pub link: LinkCounters,
+    /// Samples replaced by a newer one before a tick took them.
+    pub skipped: u64,
+    /// Ticks that ran without a new sample (after `tick_timeout`).
+    pub silent_ticks: u64,
+    /// Samples rejected: wrong size or encoding, CRC, non-finite.
+    pub rejected: u64,
+}
+
+pub struct DdsHal {
+    link: DdsLink,
+    cfg: DdsHalConfig,
+    next_tick: u64,
+    last_seq: u64,
+    raw: Vec<u8>,
+    raw_len: usize,
+    /// This tick brought a sample (for the log), and `read_state` has not judged it yet.
+    arrived: bool,
+    unread: bool,
+    other_writer_present: bool,
+    c_state: [u8; LOW_STATE_LEN],
+    state: LowState,
+    cmd_c: [u8; LOW_CMD_LEN],
+    cmd_cdr: [u8; LOW_CMD_CDR_LEN],
+    counters: DdsHalCounters,
+}
+
+impl DdsHal {
+    /// Joins the domain, listens `discovery` long, and refuses to start when another program
+    /// already publishes `rt/lowcmd` (as unitree_rl_lab does).
+    pub fn open(cfg: DdsHalConfig) -> Result<Self, DdsError> {
+        let link = DdsLink::open(&cfg.endpoint, CONTROLLER, cfg.discovery, true)?;
+        Ok(Self {
+            link,
+            cfg,
+            next_tick: 0,
+            last_seq: 0,
+            raw: vec![0; SAMPLE_CAP],
+            raw_len: 0,
+            arrived: false,
+            unread: false,
+            other_writer_present: false,
+            c_state: [0; LOW_STATE_LEN],
+            state: LowState::default(),
+            cmd_c: [0; LOW_CMD_LEN],
+            cmd_cdr: [0; LOW_CMD_CDR_LEN],
+            counters: DdsHalCounters::default(),
+        })
+    }
+
+    pub fn endpoint(&self) -> &Endpoint {
+        self.link.endpoint()
+    }
+
+    pub fn counters(&self) -> DdsHalCounters {
+        DdsHalCounters {
+            link: self.link.counters(),
+            ..self.counters
+        }
+    }
+
+    /// The sample this tick brought, exactly as it was on the wire (header included), if any.
+    pub fn received_sample(&self) -> Option<&[u8]> {
+        self.arrived.then(|| &self.raw[..self.raw_len.min(self.raw.len())])
+    }
+
+    fn judge(&mut self) -> Result<(), DdsError> {
+        if self.raw_len > self.raw.len() {
+            return Err(CdrError::Length {
+                message: "LowState_",
+                expected: LOW_STATE_CDR_LEN,
+                got: self.raw_len,
+            }
+            .into());
+        }
+        low_state_from_cdr(&self.raw[..self.raw_len], &mut self.c_state)?;
+        let mut s = LowState::default();
+        decode_low_state(&self.c_state, &mut s)?;
+        self.state = s;
+        Ok(())
+    }
+}
+
+impl TimeBase for DdsHal {
+    type Error = DdsError;
+
+    fn wait_tick(&mut self) -> Result<TickTime, DdsError> {
+        let first = self.next_tick == 0;
+        let timeout = if first {
+            self.cfg.startup_timeout
+        } else {
+            self.cfg.tick_timeout
+        };
+        match self.link.wait_newer(self.last_seq, timeout, &mut self.raw)? {
+            Some((seq, len)) => {
+                if !first {
+                    self.counters.skipped += seq - self.last_seq - 1;
+                }
+                self.last_seq = seq;
+                self.raw_len = len;
+                self.arrived = true;
+                self.unread = true;
+            }
+            None if first => {
+                return Err(DdsError::Timeout {
+                    topic: LOW_STATE_TOPIC,
+                    waited_ms: timeout.as_millis() as u64,
+                    endpoint: self.cfg.endpoint.clone(),
+                    hint: "is the robot (or g1-sim --dds / unitree_mujoco) running on this interface and domain? \
+                           On the robot the domain is 0 and the interface the one in 192.168.123.0/24",
+                })
+            }
+            None => {
+                self.arrived = false;
+                self.unread = false;
+                self.counters.silent_ticks += 1;
+            }
+        }
+        let index = self.next_tick;
+        self.next_tick += 1;
+        Ok(TickTime {
+            index,
+            time_ns: index * self.cfg.period_ns,
+        })
+    }
+
+    fn period_ns(&self) -> u64 {
+        self.cfg.period_ns
+    }
+}
+
+impl LowLevel for DdsHal {
+    type Error = DdsError;
+
+    fn read_state(&mut self, out: &mut LowState) -> Result<bool, DdsError> {
+        *out = self.state;
+        // A second commander appearing mid-run is a fault of its own, reported once per appearance.
+        let present = self.link.other_writers_now() > 0;
+        if present != self.other_writer_present {
+            self.other_writer_present = present;
+            if present {
+                // This tick's sample is not judged: the link itself is in question.
+                self.unread = false;
+                return Err(DdsError::OtherWriter {
+                    topic: CONTROLLER.write_topic,
+                    endpoint: self.cfg.endpoint.clone(),
+                    writer: self.link.other_writer().unwrap_or_default(),
+                });
+            }
+        }
+        if !std::mem::take(&mut self.unread) {
+            return Ok(false);
+        }
+        match self.judge() {
+            Ok(()) => {
+                *out = self.state;
+                Ok(true)
+            }
+            Err(e) => {
+                self.counters.rejected += 1;
+                Err(e)
+            }
+        }
+    }
+
+    fn write_command(&mut self, cmd: &LowCommand) -> Result<(), DdsError> {
+        encode_low_cmd(cmd, &mut self.cmd_c);
+        low_cmd_to_cdr(&self.cmd_c, &mut self.cmd_cdr);
+        self.link.send(&self.cmd_cdr)
+    }
+}

@@ -1,0 +1,121 @@
+//! `g1-sim --dds IFACE[,DOMAIN]`: the simulator as the robot on DDS, as unitree_mujoco plays it:
+//! publishes `rt/lowstate`, subscribes `rt/lowcmd`. The same `g1fw run --dds` binary that runs on
+//! the G1 then runs against it.
+//!
+//! Lock-stepped: one `rt/lowcmd` sample in → one control tick → one `rt/lowstate` out. Until the
+//! first command, and whenever none follows a state within `resend_after`, the current state is
+//! sent again (discovery may swallow the first samples; a BEST_EFFORT reader may drop one). What
+//! changes in determinism against the socket bridge: the simulation itself is the same, but which
+//! command meets which tick now depends on delivery — a lost or late sample, or a controller tick
+//! that ran on its own timeout, shifts the pairing. Without loss the run repeats; with it, the
+//! firmware's log still records exactly what it saw, and replay reproduces that bit for bit.
+//! unitree_mujoco instead steps in wall-clock time and never waits for the controller.
+use std::time::{Duration, Instant};
+
+use hal::{LowCommand, LowState};
+use robot_io::dds::{DdsLink, Endpoint, ROBOT, SAMPLE_CAP};
+use sensor_io::unitree_hg::cdr::{low_cmd_from_cdr, low_state_to_cdr, LOW_STATE_CDR_LEN};
+use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, LOW_CMD_LEN, LOW_STATE_LEN};
+
+use crate::Simulator;
+
+/// Base height under which the session counts the robot as fallen.
+pub const FELL_BELOW_M: f64 = 0.45;
+
+#[derive(Clone, Debug)]
+pub struct DdsServeOptions {
+    pub endpoint: Endpoint,
+    /// Send the state again when no command follows it within this long.
+    pub resend_after: Duration,
+    /// End when no command came for this long after the first one (`None`: run until killed).
+    pub idle_exit: Option<Duration>,
+    /// End after this much simulated time (`None`: no limit).
+    pub max_sim_s: Option<f64>,
+    pub quiet: bool,
+}
+
+/// What a DDS session did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DdsSummary {
+    pub ticks: u64,
+    pub sim_time_s: f64,
+    /// Commands that failed to decode (wrong size or encoding, CRC, non-finite): not applied.
+    pub rejected_commands: u64,
+    /// States sent again for lack of a command.
+    pub resent_states: u64,
+    /// Ground truth for the operator (never sent to the controller): base travel from the start
+    /// (x, y, m), the lowest base height, and whether the robot fell (base below 0.45 m; the
+    /// G1's pelvis stands at ~0.75 m).
+    pub base_travel_m: [f64; 2],
+    pub base_z_min_m: f64,
+    pub fell: bool,
+}
+
+/// Serves until idle, the time limit, or a DDS failure.
+pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce()) -> anyhow::Result<DdsSummary> {
+    // Another robot on the same domain would interleave its states with ours: refuse.
+    let link = DdsLink::open(&opts.endpoint, ROBOT, Duration::from_millis(500), true)?;
+    ready();
+    let mut state = LowState::default();
+    let mut c_state = [0u8; LOW_STATE_LEN];
+    let mut cdr_state = [0u8; LOW_STATE_CDR_LEN];
+    let mut raw = vec![0u8; SAMPLE_CAP];
+    let mut c_cmd = [0u8; LOW_CMD_LEN];
+    let mut cmd = LowCommand::default();
+    let mut summary = DdsSummary::default();
+    let mut publish = |sim: &Simulator, link: &DdsLink| -> anyhow::Result<()> {
+        sim.low_state(&mut state);
+        encode_low_state(&state, &mut c_state);
+        low_state_to_cdr(&c_state, &mut cdr_state);
+        Ok(link.send(&cdr_state)?)
+    };
+    publish(sim, &link)?;
+    let start = sim.truth().base_pos;
+    summary.base_z_min_m = start[2];
+    let mut seen = 0u64;
+    let mut last_command: Option<Instant> = None;
+    loop {
+        match link.wait_newer(seen, opts.resend_after, &mut raw)? {
+            Some((seq, len)) => {
+                seen = seq;
+                last_command = Some(Instant::now());
+                let decoded = low_cmd_from_cdr(&raw[..len.min(raw.len())], &mut c_cmd)
+                    .map_err(|e| e.to_string())
+                    .and_then(|()| decode_low_cmd(&c_cmd, &mut cmd).map_err(|e| e.to_string()));
+                if let Err(e) = decoded {
+                    // A robot ignores a command it cannot read; the controller's next one counts.
+                    if summary.rejected_commands == 0 && !opts.quiet {
+                        eprintln!("g1-sim: rejected rt/lowcmd sample: {e}");
+                    }
+                    summary.rejected_commands += 1;
+                    summary.resent_states += 1;
+                    publish(sim, &link)?;
+                    continue;
+                }
+                sim.apply_command(&cmd)?;
+                sim.step_control_tick();
+                summary.ticks += 1;
+                let z = sim.truth().base_pos[2];
+                summary.base_z_min_m = summary.base_z_min_m.min(z);
+                publish(sim, &link)?;
+            }
+            None => {
+                if let (Some(t), Some(idle)) = (last_command, opts.idle_exit) {
+                    if t.elapsed() >= idle {
+                        break;
+                    }
+                }
+                summary.resent_states += 1;
+                publish(sim, &link)?;
+            }
+        }
+        if opts.max_sim_s.is_some_and(|m| sim.time() >= m) {
+            break;
+        }
+    }
+    summary.sim_time_s = sim.time();
+    let end = sim.truth().base_pos;
+    summary.base_travel_m = [end[0] - start[0], end[1] - start[1]];
+    summary.fell = summary.base_z_min_m < FELL_BELOW_M;
+    Ok(summary)
+}

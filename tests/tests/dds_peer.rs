@@ -1,0 +1,380 @@
+//! `g1fw run --dds` against an independent peer: Debian's CycloneDDS 0.10.2 (the robot's version),
+//! driven by `tests/dds_peer/g1_dds_peer.c` with its own IDL (compiled here by Debian's `idlc`) and
+//! its own CRC. The peer relays between `g1-sim --dds` (the robot, domain 2) and `g1fw` (domain 1):
+//! it republishes every LowState_ with a CRC it computes itself, checks every LowCmd_'s CRC, its
+//! `mode_machine` echo and its gains against the spec's, and injects faults. Each scenario runs in
+//! its own network namespace with multicast on `lo`, so nothing leaves this machine and parallel
+//! tests do not hear each other.
+#![allow(clippy::disallowed_methods)]
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::OnceLock;
+
+use integration_tests::{built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_or_fail};
+
+/// Loud skip outside CI, failure in CI (where install.sh put the tools and the tests run as root).
+fn missing(what: &str) {
+    let msg = format!("SKIP: the DDS peer test needs {what}");
+    if std::env::var_os("CI").is_some() {
+        panic!("{msg} — and CI must have it (scripts/install.sh installs cyclonedds-dev and cyclonedds-tools)");
+    }
+    eprintln!("\n!!!!!!!! {msg} !!!!!!!!\n");
+}
+
+fn have(cmd: &str, arg: &str) -> bool {
+    Command::new(cmd)
+        .arg(arg)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Builds the peer once per test binary: idlc → C, the short type renamed to LowState_'s wire
+/// name (for the wrong-size injection), gcc against Debian's libddsc.
+fn peer_binary() -> Option<&'static Path> {
+    static PEER: OnceLock<Option<PathBuf>> = OnceLock::new();
+    PEER.get_or_init(|| {
+        if !have("idlc", "-v") || !Path::new("/usr/include/dds/dds.h").exists() {
+            missing("Debian's CycloneDDS 0.10.2 (cyclonedds-dev, cyclonedds-tools: idlc)");
+            return None;
+        }
+        let src = repo_root().join("tests/dds_peer");
+        let out = built_bin("g1fw").parent().unwrap().join("dds_peer");
+        std::fs::create_dir_all(&out).unwrap();
+        for idl in ["unitree_hg.idl", "short_state.idl"] {
+            let st = Command::new("idlc")
+                .arg("-o")
+                .arg(&out)
+                .arg(src.join(idl))
+                .status()
+                .expect("idlc runs");
+            assert!(st.success(), "idlc {idl} failed");
+        }
+        let short = out.join("short_state.c");
+        let text = std::fs::read_to_string(&short).unwrap();
+        assert!(text.contains("\"short_state::LowState_\""), "idlc output changed");
+        std::fs::write(
+            &short,
+            text.replace("\"short_state::LowState_\"", "\"unitree_hg::msg::dds_::LowState_\""),
+        )
+        .unwrap();
+        let bin = out.join("g1_dds_peer");
+        let st = Command::new("gcc")
+            .args(["-O2", "-Wall", "-Werror", "-I"])
+            .arg(&out)
+            .arg(src.join("g1_dds_peer.c"))
+            .arg(out.join("unitree_hg.c"))
+            .arg(&short)
+            .args(["-lddsc", "-o"])
+            .arg(&bin)
+            .status()
+            .expect("gcc runs");
+        assert!(st.success(), "building the peer failed");
+        Some(bin)
+    })
+    .as_deref()
+}
+
+/// A network namespace with multicast on `lo`, deleted on drop.
+struct Netns(String);
+
+impl Netns {
+    fn new(tag: &str) -> Option<Netns> {
+        let name = format!("g1dds-{tag}-{}", std::process::id());
+        let _ = Command::new("ip")
+            .args(["netns", "del", &name])
+            .stderr(Stdio::null())
+            .status();
+        let steps: [&[&str]; 4] = [
+            &["netns", "add", &name],
+            &["-n", &name, "link", "set", "lo", "up"],
+            &["-n", &name, "link", "set", "lo", "multicast", "on"],
+            &["-n", &name, "route", "add", "224.0.0.0/4", "dev", "lo"],
+        ];
+        for args in steps {
+            let ok = Command::new("ip")
+                .args(args)
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success());
+            if !ok {
+                let _ = Command::new("ip").args(["netns", "del", &name]).status();
+                missing("a network namespace (`ip netns add`, as root) for a private multicast lo");
+                return None;
+            }
+        }
+        Some(Netns(name))
+    }
+
+    fn command(&self, program: &Path) -> Command {
+        let mut c = Command::new("ip");
+        c.args(["netns", "exec", &self.0]).arg(program);
+        c
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
+    }
+}
+
+/// Kills a child left behind by a failing test.
+struct Reaped(Option<Child>);
+
+impl Reaped {
+    fn wait_json(mut self, what: &str) -> serde_json::Value {
+        let out = self.0.take().unwrap().wait_with_output().expect("wait");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let line = text.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| {
+            panic!(
+                "{what} printed no JSON (status {}): stdout {text} stderr {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+        serde_json::from_str(line).unwrap_or_else(|e| panic!("{what}: {e}: {line}"))
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Some(c) = self.0.as_mut() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
+}
+
+struct Outcome {
+    fw: serde_json::Value,
+    fw_status: std::process::ExitStatus,
+    fw_stderr: String,
+    peer: serde_json::Value,
+    sim: serde_json::Value,
+    log: PathBuf,
+    _dir: integration_tests::ScratchDir,
+}
+
+/// The spec's gains per enabled slot, as the peer reads them.
+fn gains_file(dir: &Path) -> PathBuf {
+    let spec = firmware::spec::DeploySpec::load(&peer_spec_path()).expect("spec");
+    let controller = firmware::controller::Controller::new(spec).expect("controller");
+    let mut text = String::new();
+    for (slot, g) in controller.gain_table().iter().enumerate() {
+        if let Some(g) = g {
+            text += &format!(
+                "{slot} {:.9e} {:.9e} {:.9e} {:.9e} {:.9e}\n",
+                g.startup.0, g.startup.1, g.policy.0, g.policy.1, g.damping_kd
+            );
+        }
+    }
+    let p = dir.join("gains.txt");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// One scenario: g1-sim (robot, domain 2) ⇄ peer ⇄ g1fw (domain 1), for `duration` seconds.
+fn scenario(tag: &str, faults: &[&str], duration: f64, expect_run: bool) -> Option<Outcome> {
+    if shared_dir().is_none() {
+        skip_or_fail("the DDS peer test (the peer policy and the 12-dof model)");
+        return None;
+    }
+    let peer = peer_binary()?;
+    let ns = Netns::new(tag)?;
+    let dir = scratch_dir(&format!("dds-{tag}"));
+    let gains = gains_file(&dir);
+    let sim = Reaped(Some(
+        ns.command(&built_bin("g1-sim"))
+            .args([
+                "--dds",
+                "lo,2",
+                "--model",
+                "g1-12dof",
+                "--quiet",
+                "--dds-idle-exit",
+                "1",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("g1-sim"),
+    ));
+    let mut pc = ns.command(peer);
+    pc.args([
+        "--robot-domain",
+        "2",
+        "--controller-domain",
+        "1",
+        "--idle-exit",
+        "1",
+        "--gains",
+    ])
+    .arg(&gains);
+    for f in faults {
+        pc.args(["--fault", f]);
+    }
+    let peer_child = Reaped(Some(
+        pc.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("peer"),
+    ));
+    let report = dir.join("report.json");
+    let log = dir.join("run.mcap");
+    let fw = ns
+        .command(&built_bin("g1fw"))
+        .current_dir(repo_root())
+        .args(["run", "--dds", "lo,1", "--spec"])
+        .arg(peer_spec_path())
+        .args(["--cmd", "0.5,0,0", "--duration", &duration.to_string(), "--report"])
+        .arg(&report)
+        .arg("--log")
+        .arg(&log)
+        // A silent link ticks every 4 ms: the supervisor's 20 ms state timeout still sees it.
+        .args(["--dds-tick-timeout-ms", "4"])
+        .output()
+        .expect("g1fw runs");
+    let fw_stderr = String::from_utf8_lossy(&fw.stderr).to_string();
+    let fw_json = if report.exists() {
+        read_json(&report)
+    } else {
+        serde_json::Value::Null
+    };
+    // A run that never started leaves the peer and the simulator waiting: they are killed.
+    let (peer_json, sim_json) = if expect_run {
+        (peer_child.wait_json("the peer"), sim.wait_json("g1-sim --dds"))
+    } else {
+        (serde_json::Value::Null, serde_json::Value::Null)
+    };
+    Some(Outcome {
+        fw: fw_json,
+        fw_status: fw.status,
+        fw_stderr,
+        peer: peer_json,
+        sim: sim_json,
+        log,
+        _dir: dir,
+    })
+}
+
+fn u(v: &serde_json::Value) -> u64 {
+    v.as_u64().unwrap_or_else(|| panic!("not a count: {v}"))
+}
+
+#[test]
+fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
+    let Some(o) = scenario("walk", &[], 10.0, true) else {
+        return;
+    };
+    let (fw, peer, sim) = (&o.fw, &o.peer, &o.sim);
+    eprintln!("g1fw: {fw}\npeer: {peer}\nsim: {sim}");
+    assert!(o.fw_status.success(), "g1fw failed: {}", o.fw_stderr);
+    assert_eq!(fw["end"], "completed");
+    assert!(fw["trip"].is_null(), "trip over DDS: {}", fw["trip"]);
+    assert_eq!(u(&fw["ticks"]), 5000);
+    assert!(u(&fw["policy_steps"]) >= 450, "{}", fw["policy_steps"]);
+    assert_eq!(u(&fw["dds"]["rejected"]), 0);
+    // The peer: every command's CRC is right, echoes mode_machine, and carries the spec's gains.
+    let cmds = u(&peer["cmds"]);
+    assert!(cmds >= 5000, "the peer saw {cmds} commands");
+    assert_eq!(u(&peer["cmd_crc_bad"]), 0);
+    assert_eq!(u(&peer["cmd_crc_ok"]), cmds);
+    assert_eq!(u(&peer["mode_machine_mismatch"]), 0);
+    assert_eq!(u(&peer["frames"]["mismatch"]), 0, "{}", peer["first_mismatch"]);
+    assert!(u(&peer["frames"]["startup"]) >= 250, "{}", peer["frames"]);
+    assert!(u(&peer["frames"]["policy"]) >= 4500, "{}", peer["frames"]);
+    assert_eq!(u(&peer["frames"]["damping"]), 0);
+    // Our g1-sim's LowState_ CRC, checked by the peer's own implementation.
+    assert_eq!(u(&peer["state_crc_bad_from_robot"]), 0);
+    assert!(u(&peer["states_out"]) >= 5000);
+    // It walked: 0.5 m/s for ~9.4 s under the policy, no fall.
+    assert_eq!(sim["fell"], false, "{sim}");
+    let x = sim["base_travel_m"][0].as_f64().unwrap();
+    assert!(x >= 3.5, "walked only {x:.2} m in 10 s at 0.5 m/s: {sim}");
+    // The log replays bit-exact from the CDR samples it recorded.
+    let out = integration_tests::g1fw(&["replay", o.log.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "replay of the DDS log: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// A fault injected by the peer at 2.5 s (policy running): damping latches for `reason`, and the
+/// peer sees the damping commands (except when it is the one that died).
+fn fault_latches(tag: &str, fault: &str, reason: &str) {
+    let Some(o) = scenario(tag, &[fault], 4.0, true) else {
+        return;
+    };
+    let (fw, peer) = (&o.fw, &o.peer);
+    eprintln!("g1fw: {fw}\npeer: {peer}\nsim: {}", o.sim);
+    assert_eq!(o.fw_status.code(), Some(3), "exit 3 = a trip latched: {}", o.fw_stderr);
+    let trip = &fw["trip"];
+    assert_eq!(trip["reason"], reason, "{trip}");
+    let at = trip["time_s"].as_f64().unwrap();
+    assert!((2.4..3.0).contains(&at), "tripped at {at} s, the fault began at 2.5 s");
+    assert!(
+        fw["final_mode"].as_str().unwrap().starts_with("Damping"),
+        "{}",
+        fw["final_mode"]
+    );
+    assert!(
+        !peer["faults_fired"].as_array().unwrap().is_empty(),
+        "the fault never fired: {peer}"
+    );
+    assert_eq!(u(&peer["cmd_crc_bad"]), 0);
+    assert_eq!(u(&peer["frames"]["mismatch"]), 0, "{}", peer["first_mismatch"]);
+    if peer["end"] != "died" {
+        assert!(
+            u(&peer["frames"]["damping"]) > 0,
+            "the peer saw no damping command: {peer}"
+        );
+    }
+    // Replay reproduces the run, fault included.
+    let out = integration_tests::g1fw(&["replay", o.log.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "replay: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn stale_states_latch_damping() {
+    fault_latches("stale", "stale@2.5+1", "state_timeout");
+}
+
+#[test]
+fn a_bad_crc_latches_damping() {
+    fault_latches("crc", "crc@2.5+1", "crc_streak");
+}
+
+#[test]
+fn a_wrong_size_sample_latches_damping() {
+    fault_latches("size", "size@2.5+1", "malformed_frame");
+}
+
+#[test]
+fn a_second_lowcmd_publisher_latches_damping() {
+    fault_latches("writer", "writer@2.5", "hal_fault");
+}
+
+#[test]
+fn a_peer_that_dies_latches_damping() {
+    fault_latches("die", "die@2.5", "state_timeout");
+}
+
+#[test]
+fn g1fw_refuses_to_start_while_another_program_publishes_lowcmd() {
+    let Some(o) = scenario("refuse", &["writer@0"], 2.0, false) else {
+        return;
+    };
+    assert_eq!(o.fw_status.code(), Some(2), "g1fw should refuse: {}", o.fw_stderr);
+    assert!(
+        o.fw_stderr.contains("another program publishes rt/lowcmd"),
+        "{}",
+        o.fw_stderr
+    );
+    assert!(o.fw.is_null(), "no report for a run that never started");
+}
