@@ -25,6 +25,7 @@ pub mod nn;
 pub mod obs;
 pub mod operator;
 pub mod perception;
+pub mod perception_worker;
 pub mod plot;
 pub mod policy_io;
 pub mod profile_plot;

@@ -129,6 +129,10 @@ pub struct PerceptionSummary {
     pub held: bool,
     /// Frames seen so far.
     pub frames: u64,
+    /// The tick whose frame this step used (threaded perception hands its result back later).
+    pub step_tick: u64,
+    /// Threaded: the result was not ready when due, and its token was not used.
+    pub late: bool,
 }
 
 /// Ticks of pose history (512 ms at 500 Hz: a frame plus the wait for the next perception tick).
@@ -308,6 +312,8 @@ impl Perception {
             token: if ok { estimate } else { self.last.token },
             held: !ok,
             frames: self.last.frames + 1,
+            step_tick: 0,
+            late: false,
         };
         self.last
     }

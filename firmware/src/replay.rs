@@ -51,6 +51,9 @@ pub mod key {
     /// `sensor_io::unitree_hg::cdr` before decoding.
     pub const FRAME_ENCODING: &str = "frame_encoding";
     pub const FRAME_ENCODING_CDR: &str = "cdr";
+    /// `inline` or `threaded:L` (the perception step on a worker thread, its result consumed L
+    /// ticks after the frame); absent in older logs (inline).
+    pub const PERCEPTION_EXEC: &str = "perception_exec";
 }
 
 #[derive(Clone, Debug, Default)]
@@ -154,6 +157,9 @@ struct RecToken {
 #[derive(Clone, Debug, serde::Deserialize)]
 struct RecTerrain {
     tick: u64,
+    /// Threaded perception: the result was not ready when due (its token was not used).
+    #[serde(default)]
+    late: bool,
     #[serde(flatten)]
     token: RecToken,
     held: bool,
@@ -630,6 +636,19 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     if meta.get(key::FROZEN_CHECK).is_some_and(|v| v == "false") {
         rt.disable_frozen_check();
     }
+    match meta.get(key::PERCEPTION_EXEC).map(String::as_str) {
+        None | Some("inline") => {}
+        Some(label) => match crate::perception_worker::PerceptionExec::parse(label, true) {
+            Ok(crate::perception_worker::PerceptionExec::Threaded { consume_after, .. }) => {
+                let late: Vec<u64> = rec.terrain.iter().filter(|(_, r)| r.late).map(|(t, _)| *t).collect();
+                rt.set_perception_replay(consume_after, late);
+            }
+            _ => bail!(
+                "the log's {} '{label}' is not one this g1fw knows",
+                key::PERCEPTION_EXEC
+            ),
+        },
+    }
     let mut hal = ReplayHal {
         rec: &rec,
         next: 0,
@@ -803,11 +822,16 @@ impl Comparator<'_> {
             return self.diverge(t, ch::LOW_STATE, "status".into(), rec, format!("{:?}", v.summary.frame));
         }
         if let Some(p) = v.summary.perception.filter(|_| self.compare_perception) {
+            // Keyed by the step's tick (a threaded step's result comes back later).
+            let step = p.step_tick;
             let terrain = &self.rec.terrain;
-            while self.terrain_i < terrain.len() && terrain[self.terrain_i].0 < k {
+            while self.terrain_i < terrain.len() && terrain[self.terrain_i].0 < step {
                 self.terrain_i += 1;
             }
-            let recorded = terrain.get(self.terrain_i).filter(|(tk, _)| *tk == k).map(|(_, r)| r);
+            let recorded = terrain
+                .get(self.terrain_i)
+                .filter(|(tk, _)| *tk == step)
+                .map(|(_, r)| r);
             match recorded {
                 Some(r) if p.fresh => {
                     if let Some((field, a, b)) = first_perception_difference(r, &p) {

@@ -21,6 +21,7 @@ use crate::lidar_source::WithLidar;
 use crate::log::RunMeta;
 use crate::log::{LogOptions, LogStats, Logger};
 use crate::operator::CommandSchedule;
+use crate::perception_worker::{PerceptionExec, DEFAULT_CONSUME_AFTER};
 use crate::replay::key;
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
 use crate::sim_run::{SafetyReport, TripReport};
@@ -60,6 +61,9 @@ pub struct RunOptions {
     pub stop: Arc<AtomicBool>,
     /// The MID-360 over UDP (`None`: no lidar; perception, if the spec has it, sees no frames).
     pub lidar: Option<robot_io::UdpLidarConfig>,
+    /// Perception off the tick thread by default: its result is used a fixed number of ticks after
+    /// the frame, or counted late and not used (never waited for on a robot).
+    pub perception: PerceptionExec,
 }
 
 impl Default for RunOptions {
@@ -75,6 +79,10 @@ impl Default for RunOptions {
             rt: crate::rt::RtOptions::default(),
             stop: Arc::new(AtomicBool::new(false)),
             lidar: None,
+            perception: PerceptionExec::Threaded {
+                consume_after: DEFAULT_CONSUME_AFTER,
+                wait: false,
+            },
         }
     }
 }
@@ -97,10 +105,20 @@ pub struct RunReport {
     pub dds: Option<DdsHalCounters>,
     /// The UDP lidar's counters (absent without `--lidar-udp`).
     pub lidar: Option<LidarReport>,
+    pub perception: PerceptionReport,
     pub spec: String,
     pub weights_sha256: String,
     pub log: Option<LogStats>,
     pub wall_s: f64,
+}
+
+/// How perception ran: `inline` or `threaded:L`; threaded steps whose result was late (token not
+/// used), and perception ticks skipped because a late step still had perception.
+#[derive(Clone, Debug, Serialize)]
+pub struct PerceptionReport {
+    pub exec: String,
+    pub late_steps: u64,
+    pub skipped_ticks: u64,
 }
 
 /// What the lidar delivered over the run.
@@ -201,6 +219,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let control_dt = spec.control_dt();
     let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
     meta.extend(hal_meta);
+    meta.set(key::PERCEPTION_EXEC, opts.perception.label());
     let controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
@@ -227,6 +246,9 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     if !frozen_check {
         runtime.disable_frozen_check();
     }
+    runtime
+        .set_perception_exec(opts.perception)
+        .context("starting the perception thread")?;
     let mut hal = WithLidar::new(open(period_ns)?, lidar);
     let mut operator = opts.schedule.source(period_ns);
     let wall = Instant::now();
@@ -271,7 +293,13 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             read_errors: hal.counters.errors,
         }
     });
+    let (late_steps, skipped_ticks) = runtime.perception_late();
     let report = RunReport {
+        perception: PerceptionReport {
+            exec: opts.perception.label(),
+            late_steps,
+            skipped_ticks,
+        },
         transport,
         ticks,
         time_s: ticks as f64 * control_dt,

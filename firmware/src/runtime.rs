@@ -27,6 +27,7 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
 use crate::perception::{LidarFrame, Perception, PerceptionSummary, TerrainSource};
+use crate::perception_worker::{PerceptionExec, PerceptionWorker};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use estimator::StateEstimator;
 
@@ -100,6 +101,30 @@ pub struct Overruns {
     pub policy: u64,
 }
 
+/// Poses kept while perception is with the worker (a late step can be away past one period).
+const AWAY_POSES: usize = 256;
+
+#[derive(Clone, Copy, Debug)]
+struct PendingStep {
+    step_tick: u64,
+    consume_tick: u64,
+    /// Not ready at `consume_tick` (live): its token will not be used.
+    late: bool,
+    /// Replay: the result computed at `step_tick`.
+    ready: Option<PerceptionSummary>,
+}
+
+impl PendingStep {
+    fn new(step_tick: u64, consume_tick: u64, ready: Option<PerceptionSummary>) -> Self {
+        Self {
+            step_tick,
+            consume_tick,
+            late: false,
+            ready,
+        }
+    }
+}
+
 pub struct Runtime {
     controller: Controller,
     supervisor: Supervisor,
@@ -108,7 +133,21 @@ pub struct Runtime {
     overruns: Overruns,
     trip: Option<(u64, DampingReason)>,
     estimator: StateEstimator,
-    perception: Perception,
+    /// `None` while the worker thread has it (threaded perception).
+    perception: Option<Box<Perception>>,
+    exec: PerceptionExec,
+    worker: Option<PerceptionWorker>,
+    /// Replay of a threaded run: steps are computed at once, and consumed or not as the log says.
+    replayed_late_steps: Option<Vec<u64>>,
+    /// The step handed over (or, in replay, computed ahead) and not yet consumed.
+    pending: Option<PendingStep>,
+    /// Poses recorded while perception was away, added to its history when it comes home.
+    away_poses: Box<[(u64, Estimate); AWAY_POSES]>,
+    away_len: usize,
+    /// The token the policy reads (perception's newest consumed one).
+    policy_token: hal::TerrainToken,
+    perception_late: u64,
+    perception_skipped: u64,
     /// A new lidar frame is in `perception`'s buffer for this tick's perception step.
     lidar_fresh: bool,
     stats: TimingStats,
@@ -129,7 +168,16 @@ impl Runtime {
             overruns: Overruns::default(),
             trip: None,
             estimator: StateEstimator::new(spec.kinematics.clone(), spec.estimator.config(), spec.control_dt()),
-            perception: Perception::new(&spec.perception, &spec.base_dir),
+            perception: Some(Box::new(Perception::new(&spec.perception, &spec.base_dir))),
+            exec: PerceptionExec::Inline,
+            worker: None,
+            replayed_late_steps: None,
+            pending: None,
+            away_poses: Box::new([(0, Estimate::default()); AWAY_POSES]),
+            away_len: 0,
+            policy_token: hal::TerrainToken::FLAT,
+            perception_late: 0,
+            perception_skipped: 0,
             lidar_fresh: false,
             stats: TimingStats::new(),
             terrain_source: TerrainSource::of_spec(&spec.perception),
@@ -155,6 +203,10 @@ impl Runtime {
 
     pub fn controller(&self) -> &Controller {
         &self.controller
+    }
+    /// The control period the spec asks for, ns.
+    pub fn period_ns(&self) -> u64 {
+        (self.controller.spec().control_dt() * 1e9).round() as u64
     }
     pub fn mode(&self) -> Mode {
         self.controller.mode()
@@ -183,8 +235,124 @@ impl Runtime {
     pub fn estimator(&self) -> &StateEstimator {
         &self.estimator
     }
-    pub fn perception(&self) -> &Perception {
-        &self.perception
+    /// Perception, unless the worker thread has it right now (threaded, between a perception
+    /// tick and its result).
+    pub fn perception(&self) -> Option<&Perception> {
+        self.perception.as_deref()
+    }
+
+    /// Runs the perception step inline (default) or on a worker thread, consumed a fixed number
+    /// of ticks after the frame (see [`crate::perception_worker`]). Call before the first tick.
+    pub fn set_perception_exec(&mut self, exec: PerceptionExec) -> std::io::Result<()> {
+        if let PerceptionExec::Threaded { consume_after, .. } = exec {
+            if consume_after as u64 >= self.perception_decimation {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidInput,
+                    format!(
+                        "threaded perception must consume its result before the next perception tick: \
+                         {consume_after} ticks is not less than the perception period of {} ticks",
+                        self.perception_decimation
+                    ),
+                ));
+            }
+            self.worker = Some(PerceptionWorker::start()?);
+        }
+        self.exec = exec;
+        Ok(())
+    }
+
+    pub fn perception_exec(&self) -> PerceptionExec {
+        self.exec
+    }
+
+    /// Replays a threaded run: each step is computed at its tick and consumed `consume_after`
+    /// ticks later unless the log marks it late (`late_steps`: step ticks, sorted).
+    pub fn set_perception_replay(&mut self, consume_after: u32, late_steps: Vec<u64>) {
+        self.exec = PerceptionExec::Threaded {
+            consume_after,
+            wait: true,
+        };
+        self.worker = None;
+        self.replayed_late_steps = Some(late_steps);
+    }
+
+    /// Threaded steps whose result was not ready when due (their token was not used), and
+    /// perception ticks skipped because a late step still had perception.
+    pub fn perception_late(&self) -> (u64, u64) {
+        (self.perception_late, self.perception_skipped)
+    }
+
+    fn record_pose(&mut self, time_ns: u64) {
+        let est = *self.estimator.estimate();
+        match self.perception.as_deref_mut() {
+            Some(p) => p.record_pose(time_ns, &est),
+            None => {
+                // The history holds only the last HISTORY poses anyway: keep the newest.
+                if self.away_len == AWAY_POSES {
+                    self.away_poses.copy_within(1.., 0);
+                    self.away_len -= 1;
+                }
+                self.away_poses[self.away_len] = (time_ns, est);
+                self.away_len += 1;
+            }
+        }
+    }
+
+    fn come_home(&mut self, mut p: Box<Perception>) {
+        for (t, est) in &self.away_poses[..self.away_len] {
+            p.record_pose(*t, est);
+        }
+        self.away_len = 0;
+        self.perception = Some(p);
+    }
+
+    /// Threaded: takes the pending step's result back at its tick (before the policy group), or
+    /// a late one whenever it comes.
+    fn collect(&mut self, k: u64, s: &mut TickSummary) {
+        let Some(mut pend) = self.pending else { return };
+        let PerceptionExec::Threaded { wait, .. } = self.exec else {
+            return;
+        };
+        if !pend.late && k < pend.consume_tick {
+            return;
+        }
+        let (result, late) = if let Some(late_steps) = &self.replayed_late_steps {
+            // Computed at its tick; the log says whether it was on time.
+            (pend.ready.take(), late_steps.binary_search(&pend.step_tick).is_ok())
+        } else {
+            let Some(w) = self.worker.as_ref() else { return };
+            let got = if wait && !pend.late {
+                Some(w.take())
+            } else {
+                w.try_take()
+            };
+            match got {
+                Some((p, sum)) => {
+                    self.come_home(p);
+                    (Some(sum), pend.late)
+                }
+                None => {
+                    if !pend.late {
+                        pend.late = true;
+                        self.perception_late += 1;
+                    }
+                    self.pending = Some(pend);
+                    return;
+                }
+            }
+        };
+        self.pending = None;
+        let Some(mut sum) = result else { return };
+        sum.step_tick = pend.step_tick;
+        sum.late = late;
+        if late {
+            if self.replayed_late_steps.is_some() {
+                self.perception_late += 1;
+            }
+        } else {
+            self.policy_token = sum.token;
+        }
+        s.perception = Some(sum);
     }
     /// Tick `k` runs the perception group.
     pub fn perception_due(&self, k: u64) -> bool {
@@ -192,8 +360,50 @@ impl Runtime {
     }
     /// On a perception tick, lets `source` put its newest lidar frame into the perception buffer
     /// (before [`Runtime::tick`]).
+    /// While a late threaded step still has perception, no frame is taken (it stays in the HAL).
     pub fn load_lidar<S: FrameSource + ?Sized>(&mut self, k: u64, source: &mut S) {
-        self.lidar_fresh = self.perception_due(k) && source.read_lidar(self.perception.frame_mut());
+        self.lidar_fresh = self.perception_due(k)
+            && match self.perception.as_deref_mut() {
+                Some(p) => source.read_lidar(p.frame_mut()),
+                None => false,
+            };
+    }
+
+    /// The perception group of tick `k`: inline, the step itself; threaded, the hand-over.
+    fn perception_step(&mut self, k: u64, now_ns: u64, fresh: bool, s: &mut TickSummary) {
+        let est = *self.estimator.estimate();
+        let Some(mut p) = self.perception.take() else {
+            // A late step still runs: this tick's frame was left in the HAL.
+            self.perception_skipped += 1;
+            return;
+        };
+        match self.exec {
+            PerceptionExec::Threaded { consume_after, .. } if fresh => {
+                let consume_tick = k + consume_after as u64;
+                if self.replayed_late_steps.is_some() {
+                    let sum = p.step(now_ns, true, &est);
+                    self.perception = Some(p);
+                    self.pending = Some(PendingStep::new(k, consume_tick, Some(sum)));
+                } else if let Some(w) = self.worker.as_ref() {
+                    w.submit(p, now_ns, est);
+                    self.pending = Some(PendingStep::new(k, consume_tick, None));
+                } else {
+                    self.perception = Some(p);
+                }
+            }
+            _ => {
+                // Inline, or no new frame (nothing to compute: the last summary, marked not fresh).
+                let mut sum = p.step(now_ns, fresh, &est);
+                self.perception = Some(p);
+                sum.step_tick = k;
+                if s.perception.is_none() {
+                    if self.exec == PerceptionExec::Inline {
+                        self.policy_token = sum.token;
+                    }
+                    s.perception = Some(sum);
+                }
+            }
+        }
     }
 
     fn latch(&mut self, k: u64, reason: DampingReason, summary: &mut TickSummary) {
@@ -252,7 +462,7 @@ impl Runtime {
         if frame == FrameStatus::Fresh {
             self.estimator.update(k, state);
         }
-        self.perception.record_pose(tick.time_ns, self.estimator.estimate());
+        self.record_pose(tick.time_ns);
 
         // 3. safety and operator
         if let Some(reason) = self.supervisor.check_frame(k, frame, state) {
@@ -271,12 +481,16 @@ impl Runtime {
         self.controller.advance(k, state);
         let t1 = Instant::now();
 
+        // Threaded perception: a step's result comes back at its fixed tick, before the policy.
+        self.collect(k, &mut s);
+        let t1c = Instant::now();
+
         // 4. policy group (the token of the newest perception step before this tick's)
-        let mut t2 = t1;
+        let mut t2 = t1c;
         if self.controller.policy_due(k) {
             s.policy_step = true;
             let terrain = match self.terrain_source {
-                TerrainSource::Cnn | TerrainSource::Geometric => self.perception.last().token,
+                TerrainSource::Cnn | TerrainSource::Geometric => self.policy_token,
                 TerrainSource::Truth => self.truth_token,
                 TerrainSource::None => hal::TerrainToken::FLAT,
             };
@@ -296,10 +510,7 @@ impl Runtime {
         let lidar_fresh = std::mem::take(&mut self.lidar_fresh);
         if sent.is_ok() && k.is_multiple_of(self.perception_decimation) {
             s.perception_step = true;
-            s.perception = Some(
-                self.perception
-                    .step(tick.time_ns, lidar_fresh, self.estimator.estimate()),
-            );
+            self.perception_step(k, tick.time_ns, lidar_fresh, &mut s);
         }
         let t5 = Instant::now();
 
@@ -310,8 +521,12 @@ impl Runtime {
         // The HAL's own write time (t3..t4) belongs to no group.
         s.timing = TickTiming {
             fast_ns: ns(t1 - t0) + ns(t3 - t2),
-            perception_ns: if s.perception_step { ns(t5 - t4) } else { 0 },
-            policy_ns: if s.policy_step { ns(t2 - t1) } else { 0 },
+            perception_ns: if s.perception_step || s.perception.is_some() {
+                ns(t5 - t4) + ns(t1c - t1)
+            } else {
+                0
+            },
+            policy_ns: if s.policy_step { ns(t2 - t1c) } else { 0 },
         };
         let times = [s.timing.fast_ns, s.timing.perception_ns, s.timing.policy_ns];
         let counts = [

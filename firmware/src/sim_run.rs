@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context as _, Result};
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 use sim_hal::bridge::{BridgeHal, SimLaunch, SimProcess, StairProgress, Truth, Wants};
@@ -66,6 +66,9 @@ pub struct SimOptions {
     pub rt: crate::rt::RtOptions,
     /// Where the policy's terrain token comes from (`None`: the spec's estimator).
     pub terrain_source: Option<TerrainSource>,
+    /// Perception inline (default) or on a worker thread (waited for when late: simulation time
+    /// does not run on while it computes, so the run stays deterministic).
+    pub perception: crate::perception_worker::PerceptionExec,
     /// Heading correction: the schedule's vx with [`crate::operator::heading_command`] towards
     /// this target every tick (`None`: the schedule's commands as they are).
     pub heading: Option<Heading>,
@@ -128,6 +131,7 @@ impl Default for SimOptions {
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
             terrain_source: None,
+            perception: crate::perception_worker::PerceptionExec::Inline,
             heading: None,
             stop_after_landing_s: None,
         }
@@ -520,6 +524,9 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let mut policy_ticks = 0u64;
     let mut runtime = Runtime::new(controller);
     runtime.set_terrain_source(terrain_source);
+    runtime
+        .set_perception_exec(opts.perception)
+        .context("starting the perception thread")?;
     let mut operator = match heading_target {
         None => SimOperator::Plain(opts.schedule.source(welcome.control_dt_ns)),
         Some(target_yaw) => SimOperator::Heading(HeadingSource {
@@ -679,6 +686,9 @@ pub(crate) fn spec_meta(spec: &DeploySpec, hold_only: bool) -> RunMeta {
 
 fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
     let mut m = spec_meta(spec, opts.hold_only);
+    if opts.perception != crate::perception_worker::PerceptionExec::Inline {
+        m.set(key::PERCEPTION_EXEC, opts.perception.label());
+    }
     m.set("model", &opts.model)
         .set("seed", opts.seed)
         .set("physics_dt", opts.physics_dt)

@@ -10,6 +10,7 @@ use std::path::Path;
 use firmware::controller::{Controller, Mode};
 use firmware::log::{LogOptions, Logger, RunMeta};
 use firmware::operator::{CommandSchedule, OperatorSource};
+use firmware::perception_worker::PerceptionExec;
 use firmware::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
 use firmware::spec::DeploySpec;
 use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
@@ -99,18 +100,33 @@ impl FrameSource for SyntheticHal {
 }
 
 fn run_ticks(spec_path: &Path) {
-    run_ticks_on(spec_path, &mut SyntheticHal::new());
+    run_ticks_on(spec_path, &mut SyntheticHal::new(), PerceptionExec::Inline);
 }
 
-fn run_ticks_on<H: TimeBase + LowLevel + FrameSource>(spec_path: &Path, hal: &mut H) {
+/// What perception did over the counted ticks.
+#[derive(Debug, Default)]
+struct PerceptionSeen {
+    /// Fresh-frame results (consumed or late).
+    results: u64,
+    late: u64,
+}
+
+fn run_ticks_on<H: TimeBase + LowLevel + FrameSource>(
+    spec_path: &Path,
+    hal: &mut H,
+    exec: PerceptionExec,
+) -> PerceptionSeen {
     let spec = DeploySpec::load(spec_path).expect("spec loads");
     let (obs, act) = (spec.observation_dim(), spec.num_joints());
-    // One directory per spec: the tests run in parallel, and each removes its directory at the end
+    // One directory per test: the tests run in parallel, and each removes its directory at the end
     // (a shared one was removed under the other test's open log: a flaky NotFound).
-    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-{}-{}", std::process::id(), spec.meta.name));
+    let test = std::thread::current().name().unwrap_or("main").replace("::", "-");
+    let dir = std::env::temp_dir().join(format!("g1fw-noalloc-{}-{test}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let log_path = dir.join(format!("{}.mcap", spec.meta.name));
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
+    rt.set_perception_exec(exec).expect("perception thread");
+    let mut seen = PerceptionSeen::default();
     let mut logger = Logger::create(&log_path, &RunMeta::default(), obs, act, LogOptions::default()).unwrap();
     let schedule =
         CommandSchedule::parse("0 0.5 0 0.2\n10 0.3 0 0\n21 estop\n22 reset\n", Path::new("inline")).unwrap();
@@ -127,6 +143,10 @@ fn run_ticks_on<H: TimeBase + LowLevel + FrameSource>(spec_path: &Path, hal: &mu
         policy_ticks += v.summary.policy_step as u64;
         damping_ticks += matches!(v.summary.mode, Mode::Damping(_)) as u64;
         reset_seen |= v.summary.reset;
+        if let Some(p) = v.summary.perception.filter(|p| p.fresh) {
+            seen.results += 1;
+            seen.late += p.late as u64;
+        }
         pushed += logger.push(v) as u64;
         true
     });
@@ -145,6 +165,7 @@ fn run_ticks_on<H: TimeBase + LowLevel + FrameSource>(spec_path: &Path, hal: &mu
     assert_eq!(stats.records, n + 1);
     assert_eq!(stats.dropped_records, 0);
     let _ = std::fs::remove_dir_all(&dir);
+    seen
 }
 
 #[test]
@@ -285,6 +306,23 @@ fn can_hal_tick_path_does_not_allocate() {
 /// streams Livox packets at the lidar's rate.
 #[test]
 fn udp_lidar_tick_path_does_not_allocate() {
+    udp_lidar_ticks(PerceptionExec::Inline);
+}
+
+/// The same with perception on its worker thread, as `g1fw run` does it: hand-over and collection
+/// allocate nothing. The synthetic HAL ticks far faster than 500 Hz, so most results come back
+/// late: the late path (token held, perception coming home later, ticks skipped meanwhile) is
+/// covered too.
+#[test]
+fn threaded_perception_tick_path_does_not_allocate() {
+    let seen = udp_lidar_ticks(PerceptionExec::Threaded {
+        consume_after: 10,
+        wait: false,
+    });
+    assert!(seen.results >= 3, "perception results came back: {seen:?}");
+}
+
+fn udp_lidar_ticks(exec: PerceptionExec) -> PerceptionSeen {
     use firmware::lidar_source::WithLidar;
     use robot_io::{UdpLidar, UdpLidarConfig};
     use std::sync::atomic::{AtomicBool, Ordering};
@@ -324,9 +362,10 @@ fn udp_lidar_tick_path_does_not_allocate() {
         })
     };
     let mut hal = WithLidar::new(SyntheticHal::new(), Some(lidar));
-    run_ticks_on(
+    let seen = run_ticks_on(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml"),
         &mut hal,
+        exec,
     );
     stop.store(true, Ordering::Relaxed);
     sender.join().unwrap();
@@ -336,6 +375,7 @@ fn udp_lidar_tick_path_does_not_allocate() {
         "the lidar stream reached the tick path: {c:?}"
     );
     assert_eq!(c.malformed, 0);
+    seen
 }
 
 #[test]
@@ -345,4 +385,64 @@ fn the_probe_counts_this_threads_allocations() {
     drop(v);
     let after = counts();
     assert_eq!((after.0 - before.0, after.1 - before.1), (1, 1));
+}
+
+/// The DDS HAL's tick path (`g1fw run --dds`): waiting on the transport thread's inbox, CDR →
+/// C layout → decode, command encode → CDR → outbox, with threaded perception, allocates nothing
+/// on the control thread. A robot on another thread of this process (rustdds on `lo`, a domain of
+/// its own) answers every command with the next synthetic state, lock-stepped like `g1-sim --dds`.
+#[test]
+fn dds_hal_tick_path_does_not_allocate() {
+    use robot_io::dds::{DdsLink, Endpoint, ROBOT, SAMPLE_CAP};
+    use robot_io::{DdsHal, DdsHalConfig};
+    use sensor_io::unitree_hg::cdr::{low_state_to_cdr, LOW_STATE_CDR_LEN};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    // Parallel test runs must not hear each other: a domain per process.
+    let endpoint = Endpoint {
+        interface: "lo".into(),
+        domain: 100 + (std::process::id() % 100) as u16,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let robot = {
+        let (stop, endpoint) = (stop.clone(), endpoint.clone());
+        std::thread::spawn(move || {
+            let link = DdsLink::open(&endpoint, ROBOT, std::time::Duration::from_millis(200), false).unwrap();
+            let mut synth = SyntheticHal::new();
+            let mut cdr = [0u8; LOW_STATE_CDR_LEN];
+            let mut raw = vec![0u8; SAMPLE_CAP];
+            let mut seen = 0;
+            let _ = synth.wait_tick();
+            while !stop.load(Ordering::Relaxed) {
+                low_state_to_cdr(&synth.frame, &mut cdr);
+                link.send(&cdr).unwrap();
+                if let Some((seq, _)) = link
+                    .wait_newer(seen, std::time::Duration::from_millis(20), &mut raw)
+                    .unwrap()
+                {
+                    seen = seq;
+                    let _ = synth.wait_tick();
+                }
+            }
+        })
+    };
+    let mut cfg = DdsHalConfig::new(endpoint, 2_000_000);
+    cfg.discovery = std::time::Duration::from_millis(500);
+    cfg.tick_timeout = std::time::Duration::from_millis(100);
+    let mut hal = DdsHal::open(cfg).expect("DDS HAL");
+    let seen = run_ticks_on(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml"),
+        &mut hal,
+        PerceptionExec::Threaded {
+            consume_after: 10,
+            wait: false,
+        },
+    );
+    stop.store(true, Ordering::Relaxed);
+    robot.join().unwrap();
+    let c = hal.counters();
+    assert!(c.link.samples_in >= 12_000 && c.link.samples_out >= 12_000, "{c:?}");
+    assert_eq!(c.rejected, 0, "{c:?}");
+    // No lidar here: perception ran its no-frame steps only.
+    assert_eq!(seen.results, 0);
 }

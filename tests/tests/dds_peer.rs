@@ -303,7 +303,12 @@ fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
 /// A fault injected by the peer at 2.5 s (policy running): damping latches for `reason`, and the
 /// peer sees the damping commands (except when it is the one that died).
 fn fault_latches(tag: &str, fault: &str, reason: &str) {
-    let Some(o) = scenario(tag, &[fault], 4.0, true) else {
+    fault_latches_within(tag, fault, reason, 0.5, 4.0)
+}
+
+/// As [`fault_latches`], the trip expected within `within` s of the fault at 2.5 s.
+fn fault_latches_within(tag: &str, fault: &str, reason: &str, within: f64, duration: f64) {
+    let Some(o) = scenario(tag, &[fault], duration, true) else {
         return;
     };
     let (fw, peer) = (&o.fw, &o.peer);
@@ -312,7 +317,10 @@ fn fault_latches(tag: &str, fault: &str, reason: &str) {
     let trip = &fw["trip"];
     assert_eq!(trip["reason"], reason, "{trip}");
     let at = trip["time_s"].as_f64().unwrap();
-    assert!((2.4..3.0).contains(&at), "tripped at {at} s, the fault began at 2.5 s");
+    assert!(
+        (2.4..2.5 + within).contains(&at),
+        "tripped at {at} s, the fault began at 2.5 s"
+    );
     assert!(
         fw["final_mode"].as_str().unwrap().starts_with("Damping"),
         "{}",
@@ -357,7 +365,9 @@ fn a_wrong_size_sample_latches_damping() {
 
 #[test]
 fn a_second_lowcmd_publisher_latches_damping() {
-    fault_latches("writer", "writer@2.5", "hal_fault");
+    // Seen through discovery (the new writer's announcement, then a 200 ms check): measured
+    // 0.3–1 s here, allowed 3 s on a loaded machine.
+    fault_latches_within("writer", "writer@2.5", "hal_fault", 3.0, 6.0);
 }
 
 #[test]

@@ -235,28 +235,19 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
         "the unit must not be enabled at boot"
     );
     let exec: Vec<&str> = value_of(&unit, "ExecStart").unwrap().split_whitespace().collect();
-    assert_eq!(exec.len(), 9, "{exec:?}");
+    assert_eq!(exec.len(), 7, "{exec:?}");
     assert_eq!(
-        exec[8], "--mlockall",
+        exec[6], "--mlockall",
         "the control loop must never page-fault: {exec:?}"
     );
+    // On the robot the unit speaks DDS on its Ethernet port, domain 0 (CAN is the bench).
     assert_eq!(
-        [exec[0], exec[1], exec[2], exec[3], exec[4], exec[6]],
-        [
-            "/opt/g1fw/bin/g1fw",
-            "run",
-            "--can",
-            "can0,can1",
-            "--can-config",
-            "--spec"
-        ],
+        [exec[0], exec[1], exec[2], exec[3], exec[4]],
+        ["/opt/g1fw/bin/g1fw", "run", "--dds", "eth0,0", "--spec"],
         "{exec:?}"
     );
     let in_image = |p: &str| format!("g1fw/{}", p.strip_prefix("/opt/g1fw/").expect("under /opt/g1fw"));
-    file(&in_image(exec[7]));
-    if root.join("specs/can/g1_12dof.toml").is_file() {
-        file(&in_image(exec[5]));
-    }
+    file(&in_image(exec[5]));
 
     // Unpacked: the binary runs under qemu and checks the packaged spec from inside the image.
     let unpacked = dir.join("unpacked");

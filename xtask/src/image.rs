@@ -26,9 +26,11 @@ pub const INSTALL_DIR: &str = "/opt/g1fw";
 /// The image's top-level directory.
 const PREFIX: &str = "g1fw";
 pub const UNIT_NAME: &str = "g1fw.service";
-/// The spec and bus layout the unit runs (image-relative): the peer policy drives the 12 leg motors.
+/// The spec the unit runs (image-relative): the peer policy drives the 12 leg motors.
 const UNIT_SPEC: &str = "specs/peer/unitree_g1_lstm.toml";
-const UNIT_CAN_CONFIG: &str = "specs/can/g1_12dof.toml";
+/// The robot's DDS: the onboard computer's Ethernet port (192.168.123.0/24) and domain 0.
+const UNIT_DDS: &str = "eth0,0";
+const UNIT_DDS_IFACE: &str = "eth0";
 /// Spec keys that name files, relative to the spec.
 const SPEC_PATH_KEYS: [(&str, &str); 4] = [
     ("policy", "weights"),
@@ -177,18 +179,18 @@ fn add_spec(files: &mut Files, root: &Path, shared: Option<&Path>, spec: &Path) 
 fn unit_text() -> String {
     format!(
         "\
-# g1fw on the G1: the leg motors and IMU over can0/can1 with the peer walking policy.
+# g1fw on the G1: rt/lowstate and rt/lowcmd over DDS (domain 0) on {UNIT_DDS_IFACE}, the peer walking policy.
 # Install: see {INSTALL_DIR}/README.md. Started by hand only.
 [Unit]
-Description=G1 control firmware (g1fw) on CAN
+Description=G1 control firmware (g1fw) over DDS
 Documentation=file:{INSTALL_DIR}/README.md
-Requires=sys-subsystem-net-devices-can0.device sys-subsystem-net-devices-can1.device
-After=sys-subsystem-net-devices-can0.device sys-subsystem-net-devices-can1.device
+Requires=sys-subsystem-net-devices-{UNIT_DDS_IFACE}.device
+After=sys-subsystem-net-devices-{UNIT_DDS_IFACE}.device network-online.target
 
 [Service]
 Type=simple
 WorkingDirectory={INSTALL_DIR}
-ExecStart={INSTALL_DIR}/bin/g1fw run --can can0,can1 --can-config {INSTALL_DIR}/{UNIT_CAN_CONFIG} --spec {INSTALL_DIR}/{UNIT_SPEC} --mlockall
+ExecStart={INSTALL_DIR}/bin/g1fw run --dds {UNIT_DDS} --spec {INSTALL_DIR}/{UNIT_SPEC} --mlockall
 # Never restart by itself: a robot that tripped (exit 3), failed or fell stays damped until a person
 # has looked at it and starts the service again.
 Restart=no
@@ -230,7 +232,8 @@ The G1 control firmware, built by `cargo xtask image` from commit {commit} (SOUR
 - `bin/g1fw`: the firmware, aarch64 Linux (glibc), release, stripped.
 - `{UNIT_SPEC}`: the deploy spec the service runs. The policy weights and the MJCF it reads
   the leg kinematics from are under `shared/` (Unitree, BSD-3: see the LICENSE files there).
-- `specs/can/*.toml`: CAN bus layouts (motor node ids, ranges, the IMU's bus, timeouts).
+- `specs/can/*.toml`: CAN bus layouts for the vcan bench (`g1fw run --can-config`); the G1
+  itself is reached over DDS.
 - `weights/`: the terrain CNN (the same network is built into `g1fw`).
 - `{UNIT_NAME}`: the systemd unit; `README.md`: this file.
 
@@ -240,9 +243,13 @@ The G1 control firmware, built by `cargo xtask image` from commit {commit} (SOUR
     sudo cp {INSTALL_DIR}/{UNIT_NAME} /etc/systemd/system/
     sudo systemctl daemon-reload
 
-Bring can0 and can1 up at the motors' bit rate before starting (for example
-`sudo ip link set can0 up type can bitrate 1000000`, same for can1). Check the unit's
-`CPUAffinity=` against the cores the kernel keeps free (`isolcpus=`).
+The unit talks to the robot over DDS on `{UNIT_DDS_IFACE}`, domain 0: that interface needs an
+address in 192.168.123.0/24 (the onboard computer is usually 192.168.123.164). If yours is named
+otherwise, change `--dds {UNIT_DDS}` with `sudo systemctl edit --full g1fw`. Before starting,
+release Unitree's own locomotion (the app, or MotionSwitcher `ReleaseMode`): `g1fw` refuses to
+start while another program publishes `rt/lowcmd`, and damps if one appears. Check the unit's
+`CPUAffinity=` against the cores the kernel keeps free (`isolcpus=`). For the stair policy, add
+`--lidar-udp 0.0.0.0:56301` (the MID-360's points).
 
 ## Check the configuration
 
@@ -307,7 +314,7 @@ fn collect(root: &Path, bin: &Path) -> Result<Files> {
         bail!("{UNIT_SPEC}, which the unit runs, is missing");
     }
 
-    // Whatever bus layouts exist at build time.
+    // Whatever bus layouts exist at build time (the vcan bench; the unit itself speaks DDS).
     let can_dir = root_c.join("specs/can");
     let mut cans: Vec<PathBuf> = match std::fs::read_dir(&can_dir) {
         Ok(d) => d
@@ -319,12 +326,6 @@ fn collect(root: &Path, bin: &Path) -> Result<Files> {
     cans.sort();
     for c in &cans {
         files.add_file(slash(c.strip_prefix(&root_c)?)?, c, 0o644)?;
-    }
-    if !files.0.contains_key(UNIT_CAN_CONFIG) {
-        eprintln!(
-            "\n!!!!!!!! WARNING: {UNIT_CAN_CONFIG}, which {UNIT_NAME} names, is not in the checkout: \
-             the service will not start until it is in {INSTALL_DIR} !!!!!!!!\n"
-        );
     }
 
     // The terrain CNN; its parity fixture is test data and stays behind.

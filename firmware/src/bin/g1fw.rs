@@ -184,6 +184,12 @@ struct SimArgs {
     /// Recorded in the log and the report.
     #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
     terrain_source: Option<firmware::perception::TerrainSource>,
+    /// Where the perception step runs: `inline` (in the tick, after the command) or
+    /// `threaded[:TICKS]` (on its own thread, its result used TICKS ticks after the frame, default
+    /// 10; in simulation a late result is waited for, so runs stay deterministic). `g1fw run`
+    /// defaults to threaded.
+    #[arg(long, default_value = "inline", value_parser = parse_perception_sim, value_name = "inline|threaded[:TICKS]")]
+    perception: firmware::perception_worker::PerceptionExec,
     /// Heading correction: keep this heading (degrees, world frame = relative to the start
     /// heading) by replacing the command's wz every tick with 0.5·wrap(target − IMU yaw), clamped
     /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0 or from
@@ -201,6 +207,14 @@ struct SimArgs {
 }
 
 /// Parses `--terrain-source`.
+fn parse_perception_sim(s: &str) -> Result<firmware::perception_worker::PerceptionExec, String> {
+    firmware::perception_worker::PerceptionExec::parse(s, true)
+}
+
+fn parse_perception_robot(s: &str) -> Result<firmware::perception_worker::PerceptionExec, String> {
+    firmware::perception_worker::PerceptionExec::parse(s, false)
+}
+
 fn parse_terrain_source(s: &str) -> Result<firmware::perception::TerrainSource, String> {
     s.parse()
 }
@@ -332,6 +346,11 @@ struct RunArgs {
         requires = "lidar_udp"
     )]
     lidar_from: String,
+    /// Where the perception step runs: `threaded[:TICKS]` (default: its own thread; the result is
+    /// used TICKS = 10 ticks after the frame, or counted late and not used) or `inline` (in the
+    /// tick, after the command).
+    #[arg(long, default_value = "threaded", value_parser = parse_perception_robot, value_name = "threaded[:TICKS]|inline")]
+    perception: firmware::perception_worker::PerceptionExec,
     #[command(flatten)]
     rt: RtArgs,
 }
@@ -518,6 +537,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         log_options: Default::default(),
         rt: a.rt.options(),
         terrain_source: a.terrain_source,
+        perception: a.perception,
         heading: a
             .heading
             .map(|d| firmware::sim_run::Heading::Fixed(d.to_radians() as f32)),
@@ -698,6 +718,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         log_options: Default::default(),
         rt: a.rt.options(),
         stop,
+        perception: a.perception,
         lidar: match a.lidar_udp {
             None => None,
             Some(bind) => Some(robot_io::UdpLidarConfig {

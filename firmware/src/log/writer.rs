@@ -139,11 +139,16 @@ impl PerceptionRecord {
         })
     }
 
-    fn fill(&mut self, v: &TickView, p: &PerceptionSummary) {
-        let per = v.runtime.perception();
+    /// `false` when perception is away (cannot happen for a summary that just came home).
+    fn fill(&mut self, v: &TickView, p: &PerceptionSummary) -> bool {
+        let Some(per) = v.runtime.perception() else {
+            return false;
+        };
         let pts = per.robot_points();
-        self.tick = v.summary.tick.index;
-        self.time_ns = v.summary.tick.time_ns;
+        // Keyed by the step's tick: replay feeds `/lidar/frame` back on that tick.
+        self.tick = p.step_tick;
+        let back = v.summary.tick.index.saturating_sub(p.step_tick);
+        self.time_ns = v.summary.tick.time_ns.saturating_sub(back * v.runtime.period_ns());
         self.summary = *p;
         self.truth = v.truth.and_then(|t| t.terrain);
         self.n = pts.len().min(self.points.len());
@@ -157,6 +162,7 @@ impl PerceptionRecord {
         self.frame.len = src.len;
         self.frame.timestamp_ns = src.timestamp_ns;
         self.frame.overflow = src.overflow;
+        true
     }
 }
 
@@ -322,8 +328,11 @@ impl Logger {
             };
             match prec {
                 Some(mut r) => {
-                    r.fill(view, &p);
-                    let _ = self.pfull.push(r);
+                    if r.fill(view, &p) {
+                        let _ = self.pfull.push(r);
+                    } else {
+                        let _ = self.pfree.push(r);
+                    }
                 }
                 None => self.dropped_total += 1,
             }
@@ -791,6 +800,7 @@ impl McapSink {
                     crate::spec::TerrainEstimatorKind::Geometric => "geometric",
                 },
                 held: s.held,
+                late: s.late,
                 estimate: TokenMsg {
                     class: s.estimate.class.name(),
                     step_height_m: s.estimate.step_height_m,
@@ -956,6 +966,8 @@ struct TerrainMsg {
     yaw_deg: f32,
     source: &'static str,
     held: bool,
+    /// Threaded perception: ready after its due tick, so the policy did not get this token.
+    late: bool,
     /// This frame's estimate by `source` (the token above is it, unless held).
     estimate: TokenMsg,
     /// Details of the geometric estimator (zeros when the CNN is the source).
