@@ -388,3 +388,80 @@ fn g1fw_refuses_to_start_while_another_program_publishes_lowcmd() {
     );
     assert!(o.fw.is_null(), "no report for a run that never started");
 }
+
+/// The whole robot path without CycloneDDS: `g1-sim --dds` playing the G1 on a staircase and its
+/// MID-360 over UDP, `g1fw run --dds --lidar-udp` with the stair policy and perception on its
+/// thread. Frames reach perception over UDP, its results come back on their tick, the policy walks.
+#[test]
+fn the_stair_policy_runs_over_dds_with_the_mid360_over_udp() {
+    if shared_dir().is_none() {
+        return skip_or_fail("the DDS stair run (the 12-dof model)");
+    }
+    let Some(ns) = Netns::new("stairs") else { return };
+    let dir = scratch_dir("dds-stairs");
+    let sim = Reaped(Some(
+        ns.command(&built_bin("g1-sim"))
+            .args([
+                "--dds",
+                "lo,1",
+                "--model",
+                "g1-12dof",
+                "--quiet",
+                "--dds-idle-exit",
+                "1",
+            ])
+            .args([
+                "--world",
+                "specs/worlds/stairs_up_low.toml",
+                "--lidar-udp-to",
+                "127.0.0.1:56301",
+            ])
+            .current_dir(repo_root())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("g1-sim"),
+    ));
+    let report = dir.join("report.json");
+    let log = dir.join("run.mcap");
+    let fw = ns
+        .command(&built_bin("g1fw"))
+        .current_dir(repo_root())
+        .args(["run", "--dds", "lo,1", "--spec", "specs/stairs/g1_stairs_lstm.toml"])
+        .args([
+            "--lidar-udp",
+            "127.0.0.1:56301",
+            "--lidar-from",
+            "any",
+            "--cmd",
+            "0.4,0,0",
+        ])
+        .args(["--duration", "6", "--report"])
+        .arg(&report)
+        .arg("--log")
+        .arg(&log)
+        .output()
+        .expect("g1fw runs");
+    assert!(fw.status.success(), "g1fw: {}", String::from_utf8_lossy(&fw.stderr));
+    let r = read_json(&report);
+    let sim = sim.wait_json("g1-sim --dds");
+    eprintln!("g1fw: {r}\nsim: {sim}");
+    assert!(r["trip"].is_null(), "{}", r["trip"]);
+    assert_eq!(r["perception"]["exec"], "threaded:10");
+    let lidar = &r["lidar"];
+    assert!(u(&lidar["frames_used"]) >= 50, "{lidar}");
+    assert_eq!(u(&lidar["malformed"]), 0, "{lidar}");
+    assert!(u(&sim["lidar_datagrams_sent"]) > 10_000, "{sim}");
+    assert_eq!(sim["fell"], false, "{sim}");
+    assert!(sim["base_travel_m"][0].as_f64().unwrap() > 1.0, "{sim}");
+    let out = integration_tests::g1fw(&["replay", log.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "replay: {text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // Perception was fed and compared, step for step, from the recorded frames.
+    let rep: serde_json::Value = serde_json::from_str(&text).expect("replay prints JSON");
+    assert!(u(&rep["compared_perception_steps"]) >= 50, "{rep}");
+}

@@ -1,4 +1,4 @@
-//! The G1 on CAN (docs/can.md): MIT-style motor frames (command, reply, enter/exit motor mode, set
+//! Motors on CAN, the vcan bench (docs/can.md; the G1 itself is reached over DDS): MIT-style motor frames (command, reply, enter/exit motor mode, set
 //! zero), the IMU's three frames, and the bus layout (`specs/can/*.toml`). Pure functions on a plain
 //! [`CanFrame`]; the SocketCAN transport lives in `sim_hal::can`.
 mod config;

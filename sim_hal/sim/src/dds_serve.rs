@@ -31,6 +31,9 @@ pub struct DdsServeOptions {
     pub idle_exit: Option<Duration>,
     /// End after this much simulated time (`None`: no limit).
     pub max_sim_s: Option<f64>,
+    /// Send the simulated MID-360's Livox datagrams here over UDP every tick, as the G1's lidar
+    /// sends them to port 56301 (needs a world, so the simulator has a lidar).
+    pub lidar_to: Option<std::net::SocketAddr>,
     pub quiet: bool,
 }
 
@@ -43,6 +46,9 @@ pub struct DdsSummary {
     pub rejected_commands: u64,
     /// States sent again for lack of a command.
     pub resent_states: u64,
+    /// Livox datagrams sent (`lidar_to`), and sends that failed (nobody listening yet).
+    pub lidar_datagrams_sent: u64,
+    pub lidar_send_errors: u64,
     /// Ground truth for the operator (never sent to the controller): base travel from the start
     /// (x, y, m), the lowest base height, and whether the robot fell (base below 0.45 m; the
     /// G1's pelvis stands at ~0.75 m).
@@ -54,6 +60,19 @@ pub struct DdsSummary {
 /// Serves until idle, the time limit, or a DDS failure.
 pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce()) -> anyhow::Result<DdsSummary> {
     // Another robot on the same domain would interleave its states with ours: refuse.
+    let lidar = match opts.lidar_to {
+        Some(to) => {
+            anyhow::ensure!(
+                sim.has_lidar(),
+                "--lidar-udp-to needs a simulated lidar: give g1-sim a --world"
+            );
+            let bind = if to.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" };
+            let sock = std::net::UdpSocket::bind(bind)?;
+            sock.connect(to)?;
+            Some(sock)
+        }
+        None => None,
+    };
     let link = DdsLink::open(&opts.endpoint, ROBOT, Duration::from_millis(500), true)?;
     ready();
     let mut state = LowState::default();
@@ -95,6 +114,15 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                 sim.apply_command(&cmd)?;
                 sim.step_control_tick();
                 summary.ticks += 1;
+                if let Some(sock) = &lidar {
+                    for d in sim_hal::bridge::datagrams(sim.lidar_datagrams()) {
+                        let Ok(d) = d else { break };
+                        match sock.send(d) {
+                            Ok(_) => summary.lidar_datagrams_sent += 1,
+                            Err(_) => summary.lidar_send_errors += 1,
+                        }
+                    }
+                }
                 let z = sim.truth().base_pos[2];
                 summary.base_z_min_m = summary.base_z_min_m.min(z);
                 publish(sim, &link)?;

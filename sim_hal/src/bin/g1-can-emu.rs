@@ -1,4 +1,5 @@
-//! `g1-can-emu`: the G1's motors and IMU on CAN, backed by the MuJoCo simulator.
+//! `g1-can-emu`: the G1's motors and IMU emulated on CAN buses (the vcan bench), backed by the MuJoCo
+//! simulator. (The real G1 is reached over DDS: `g1fw run --dds`, `g1-sim --dds`.)
 //!
 //! firmware ⇄ CAN (vcan0, vcan1, …) ⇄ g1-can-emu ⇄ bridge ⇄ g1-sim (MuJoCo). It speaks docs/can.md
 //! as the motors would, lock-stepped: once every motor has a command, the simulator advances one

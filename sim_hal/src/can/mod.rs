@@ -1,6 +1,7 @@
-//! The G1 on CAN (docs/can.md): the firmware-side HAL ([`CanHal`]), the motor-side emulator logic
+//! Motors on CAN, the hardware-in-the-loop bench (docs/can.md; the G1 itself is reached over DDS,
+//! `robot_io::dds`): the firmware-side HAL ([`CanHal`]), the motor-side emulator logic
 //! ([`MotorEmulator`], served by the `g1-can-emu` binary over the MuJoCo bridge), and the buses they
-//! talk over — SocketCAN ([`SocketCanBuses`]) on a robot or in the HIL VM, or an in-process bus
+//! talk over — SocketCAN ([`SocketCanBuses`]) on a CAN bench or in the HIL VM, or an in-process bus
 //! ([`mem_buses`]) so the same code is tested on a host whose kernel has no CAN.
 mod emulator;
 mod hal_impl;
