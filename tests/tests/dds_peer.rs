@@ -274,18 +274,21 @@ fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
     assert!(u(&fw["policy_steps"]) >= 450, "{}", fw["policy_steps"]);
     assert_eq!(u(&fw["dds"]["rejected"]), 0);
     // The peer: every command's CRC is right, echoes mode_machine, and carries the spec's gains.
+    // g1fw sent 5000; the peer's BEST_EFFORT KEEP_LAST 1 reader may miss one when two arrive
+    // between its takes (it did, once in a CI run: 4999).
+    assert_eq!(u(&fw["dds"]["samples_out"]), 5000);
     let cmds = u(&peer["cmds"]);
-    assert!(cmds >= 5000, "the peer saw {cmds} commands");
+    assert!(cmds >= 4990, "the peer saw {cmds} of 5000 commands");
     assert_eq!(u(&peer["cmd_crc_bad"]), 0);
     assert_eq!(u(&peer["cmd_crc_ok"]), cmds);
     assert_eq!(u(&peer["mode_machine_mismatch"]), 0);
     assert_eq!(u(&peer["frames"]["mismatch"]), 0, "{}", peer["first_mismatch"]);
     assert!(u(&peer["frames"]["startup"]) >= 250, "{}", peer["frames"]);
-    assert!(u(&peer["frames"]["policy"]) >= 4500, "{}", peer["frames"]);
+    assert!(u(&peer["frames"]["policy"]) >= 4490, "{}", peer["frames"]);
     assert_eq!(u(&peer["frames"]["damping"]), 0);
     // Our g1-sim's LowState_ CRC, checked by the peer's own implementation.
     assert_eq!(u(&peer["state_crc_bad_from_robot"]), 0);
-    assert!(u(&peer["states_out"]) >= 5000);
+    assert!(u(&peer["states_out"]) >= 4990);
     // It walked: 0.5 m/s for ~9.4 s under the policy, no fall.
     assert_eq!(sim["fell"], false, "{sim}");
     let x = sim["base_travel_m"][0].as_f64().unwrap();
