@@ -1,0 +1,780 @@
+//! An ONNX policy network → the firmware's [`NetworkDesc`] and its tensors.
+//!
+//! Parsed with prost from ONNX's own protobuf definition. The graph must be a chain from the
+//! observation input to the first graph output, of the ops rsl_rl, IsaacLab, unitree_rl_lab and mjlab
+//! exports contain:
+//! - `Gemm` (`transB` either way, `alpha`, `beta`), or `MatMul` (+ `Add` of a constant): `linear`;
+//! - `Elu`, `Relu`, `Tanh`: the same activations; `Identity`, `Squeeze`, `Unsqueeze`, `Reshape`,
+//!   `Flatten`: nothing (the executor works on flat vectors);
+//! - `Sub`/`Div`/`Mul`/`Add` with a constant before the first layer (an observation normaliser,
+//!   kept or folded by the exporter): folded into that layer's weights; after a `linear`: folded
+//!   into it (action scaling);
+//! - `LSTM` (forward, one layer, default activations; gates reordered from ONNX's i, o, f, c to the
+//!   executor's PyTorch order i, f, g, o), with its state as graph inputs (`h_in`, `c_in`: the
+//!   executor carries it between steps from zeros) or constants (the initial state).
+//!
+//! Anything else is refused by name, with the node's name and position.
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use firmware::nn::{LayerDesc, NetworkDesc};
+use prost::Message;
+
+#[allow(clippy::all, clippy::pedantic, missing_docs)]
+pub mod proto {
+    include!(concat!(env!("OUT_DIR"), "/onnx.rs"));
+}
+
+use proto::{tensor_proto::DataType, ModelProto, NodeProto, TensorProto};
+
+/// Largest ONNX file read (a policy MLP is a few MB; a larger file is not a policy).
+pub const MAX_ONNX_BYTES: u64 = 256 << 20;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ImportError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {bytes} bytes is more than the {max} an ONNX policy may have")]
+    TooLarge { path: PathBuf, bytes: u64, max: u64 },
+    #[error(
+        "{path}: not a readable ONNX model ({why}); is the file complete (a truncated download?) and an .onnx export?"
+    )]
+    Decode { path: PathBuf, why: String },
+    #[error(
+        "unsupported ONNX op '{op}' (node '{node}', #{index} of the graph); supported: Gemm, MatMul, Add, Sub, Mul, \
+         Div, Elu, Relu, Tanh, Identity, Squeeze, Unsqueeze, Reshape, Flatten, LSTM"
+    )]
+    UnsupportedOp { op: String, node: String, index: usize },
+    #[error("node '{node}' (#{index}, {op}): {why}")]
+    BadNode {
+        op: String,
+        node: String,
+        index: usize,
+        why: String,
+    },
+    #[error("{0}")]
+    Graph(String),
+    #[error("tensor '{name}': {why}")]
+    Tensor { name: String, why: String },
+}
+
+/// A constant of the graph, as f32.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Tensor {
+    pub dims: Vec<usize>,
+    pub data: Vec<f32>,
+}
+
+/// The recurrent state's graph inputs and outputs (the executor keeps the state itself).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RecurrentIo {
+    pub hidden: usize,
+    pub h_in: Option<String>,
+    pub c_in: Option<String>,
+}
+
+/// What the import produced.
+#[derive(Clone, Debug)]
+pub struct ImportedNetwork {
+    pub desc: NetworkDesc,
+    /// Tensors named by `desc`, in order of appearance.
+    pub tensors: Vec<(String, Tensor)>,
+    pub input_name: String,
+    pub output_name: String,
+    pub output_dim: usize,
+    pub recurrent: Option<RecurrentIo>,
+    /// `metadata_props` of the model (deploy data some exporters put there).
+    pub metadata: Vec<(String, String)>,
+    /// One line per graph node: what became of it.
+    pub trace: Vec<String>,
+}
+
+/// Reads and converts `path`.
+pub fn import_file(path: &Path) -> Result<ImportedNetwork, ImportError> {
+    let io = |source| ImportError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let bytes = std::fs::metadata(path).map_err(io)?.len();
+    if bytes > MAX_ONNX_BYTES {
+        return Err(ImportError::TooLarge {
+            path: path.to_path_buf(),
+            bytes,
+            max: MAX_ONNX_BYTES,
+        });
+    }
+    let data = std::fs::read(path).map_err(io)?;
+    let model = ModelProto::decode(data.as_slice()).map_err(|e| ImportError::Decode {
+        path: path.to_path_buf(),
+        why: e.to_string(),
+    })?;
+    convert(&model).map_err(|e| match e {
+        ImportError::Graph(why) => ImportError::Graph(format!("{}: {why}", path.display())),
+        e => e,
+    })
+}
+
+fn tensor_of(t: &TensorProto) -> Result<Tensor, ImportError> {
+    let name = t.name.clone().unwrap_or_default();
+    let bad = |why: String| ImportError::Tensor {
+        name: name.clone(),
+        why,
+    };
+    let dims: Vec<usize> = t
+        .dims
+        .iter()
+        .map(|&d| usize::try_from(d).map_err(|_| bad(format!("negative dimension {d}"))))
+        .collect::<Result<_, _>>()?;
+    let n = dims
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .filter(|&n| n <= (MAX_ONNX_BYTES / 4) as usize)
+        .ok_or_else(|| bad(format!("shape {dims:?} is too large")))?;
+    if t.data_location == Some(proto::tensor_proto::DataLocation::External as i32) {
+        return Err(bad(
+            "its data is in an external file; re-export with the weights inside the .onnx".into(),
+        ));
+    }
+    let dt = t.data_type.unwrap_or(0);
+    let data: Vec<f32> = if dt == DataType::Float as i32 {
+        match &t.raw_data {
+            Some(raw) if !raw.is_empty() => {
+                if raw.len() != n * 4 {
+                    return Err(bad(format!("{} raw bytes for {n} floats", raw.len())));
+                }
+                raw.chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect()
+            }
+            _ => t.float_data.clone(),
+        }
+    } else if dt == DataType::Double as i32 {
+        match &t.raw_data {
+            Some(raw) if !raw.is_empty() => raw
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
+                .collect(),
+            _ => t.double_data.iter().map(|&v| v as f32).collect(),
+        }
+    } else if dt == DataType::Int64 as i32 {
+        // Shapes and axes (Reshape, Squeeze): kept as numbers, never used as weights.
+        match &t.raw_data {
+            Some(raw) if !raw.is_empty() => raw
+                .chunks_exact(8)
+                .map(|c| i64::from_le_bytes(c.try_into().expect("8 bytes")) as f32)
+                .collect(),
+            _ => t.int64_data.iter().map(|&v| v as f32).collect(),
+        }
+    } else {
+        return Err(bad(format!(
+            "data type {dt} is not float32 (1), float64 (11) or int64 (7)"
+        )));
+    };
+    if data.len() != n {
+        return Err(bad(format!("{} values for shape {dims:?}", data.len())));
+    }
+    Ok(Tensor { dims, data })
+}
+
+fn attr_f(node: &NodeProto, name: &str, default: f32) -> f32 {
+    node.attribute
+        .iter()
+        .find(|a| a.name.as_deref() == Some(name))
+        .and_then(|a| a.f)
+        .unwrap_or(default)
+}
+
+fn attr_i(node: &NodeProto, name: &str, default: i64) -> i64 {
+    node.attribute
+        .iter()
+        .find(|a| a.name.as_deref() == Some(name))
+        .and_then(|a| a.i)
+        .unwrap_or(default)
+}
+
+fn attr_s(node: &NodeProto, name: &str) -> Option<String> {
+    node.attribute
+        .iter()
+        .find(|a| a.name.as_deref() == Some(name))
+        .and_then(|a| a.s.as_ref())
+        .map(|s| String::from_utf8_lossy(s).into_owned())
+}
+
+/// A linear layer being built: `[out][in]` row-major, and its bias.
+struct Linear {
+    out: usize,
+    inp: usize,
+    w: Vec<f32>,
+    b: Vec<f32>,
+}
+
+enum Built {
+    Linear(Linear),
+    Act(LayerDesc),
+    Lstm {
+        hidden: usize,
+        inp: usize,
+        w_ih: Vec<f32>,
+        w_hh: Vec<f32>,
+        b_ih: Vec<f32>,
+        b_hh: Vec<f32>,
+        h0: Option<Vec<f32>>,
+        c0: Option<Vec<f32>>,
+    },
+}
+
+/// The element-wise constant op applied to a vector of length `n`: broadcast or refuse.
+fn broadcast(c: &Tensor, n: Option<usize>, what: &str) -> Result<Vec<f32>, String> {
+    match (c.data.len(), n) {
+        (1, Some(n)) => Ok(vec![c.data[0]; n]),
+        (k, Some(n)) if k == n => Ok(c.data.clone()),
+        (k, None) => Ok(c.data.iter().copied().cycle().take(k).collect()),
+        (k, Some(n)) => Err(format!("{what}: a constant of {k} values against a vector of {n}")),
+    }
+}
+
+fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
+    let g = model
+        .graph
+        .as_ref()
+        .ok_or_else(|| ImportError::Graph("the model has no graph".into()))?;
+    let mut consts: HashMap<String, Tensor> = HashMap::new();
+    for t in &g.initializer {
+        consts.insert(t.name.clone().unwrap_or_default(), tensor_of(t)?);
+    }
+    for n in &g.node {
+        if n.op_type.as_deref() == Some("Constant") {
+            if let (Some(out), Some(t)) = (n.output.first(), n.attribute.iter().find_map(|a| a.t.as_ref())) {
+                consts.insert(out.clone(), tensor_of(t)?);
+            }
+        }
+    }
+    let inputs: Vec<&proto::ValueInfoProto> = g
+        .input
+        .iter()
+        .filter(|i| !consts.contains_key(i.name.as_deref().unwrap_or("")))
+        .collect();
+    let obs = inputs
+        .first()
+        .ok_or_else(|| ImportError::Graph("the graph has no input".into()))?;
+    let input_name = obs.name.clone().unwrap_or_default();
+    // Last dimension of the observation input, when the export states it.
+    let declared_input = obs
+        .r#type
+        .as_ref()
+        .and_then(|t| match &t.value {
+            Some(proto::type_proto::Value::TensorType(tt)) => tt.shape.as_ref(),
+            _ => None,
+        })
+        .and_then(|s| s.dim.last())
+        .and_then(|d| match d.value {
+            Some(proto::tensor_shape_proto::dimension::Value::DimValue(v)) => usize::try_from(v).ok(),
+            _ => None,
+        });
+    let output_name = g
+        .output
+        .first()
+        .and_then(|o| o.name.clone())
+        .ok_or_else(|| ImportError::Graph("the graph has no output".into()))?;
+    let state_inputs: Vec<String> = inputs[1..].iter().filter_map(|i| i.name.clone()).collect();
+
+    let mut users: HashMap<&str, Vec<usize>> = HashMap::new();
+    for (i, n) in g.node.iter().enumerate() {
+        for inp in &n.input {
+            if !inp.is_empty() && !consts.contains_key(inp) {
+                users.entry(inp.as_str()).or_default().push(i);
+            }
+        }
+    }
+
+    let mut built: Vec<Built> = Vec::new();
+    // Observation normaliser before the first layer: x' = a ⊙ x + b.
+    let mut pre: Option<(Vec<f32>, Vec<f32>)> = None;
+    let mut width: Option<usize> = declared_input;
+    let mut recurrent: Option<RecurrentIo> = None;
+    let mut trace = Vec::new();
+    let mut cur = input_name.clone();
+    let mut visited = vec![false; g.node.len()];
+    while cur != output_name {
+        let us = users.get(cur.as_str()).cloned().unwrap_or_default();
+        let idx = match us.as_slice() {
+            [i] => *i,
+            [] => {
+                return Err(ImportError::Graph(format!(
+                "value '{cur}' leads nowhere: the chain from '{input_name}' does not reach the output '{output_name}'"
+            )))
+            }
+            many => {
+                return Err(ImportError::Graph(format!(
+                    "value '{cur}' feeds {} nodes ({}): only a chain from the observation to the action is supported",
+                    many.len(),
+                    many.iter()
+                        .map(|&i| g.node[i].name.clone().unwrap_or_default())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )))
+            }
+        };
+        if std::mem::replace(&mut visited[idx], true) {
+            return Err(ImportError::Graph(format!("the graph loops at node #{idx}")));
+        }
+        let node = &g.node[idx];
+        let op = node.op_type.clone().unwrap_or_default();
+        let name = node.name.clone().unwrap_or_default();
+        let bad = |why: String| ImportError::BadNode {
+            op: op.clone(),
+            node: name.clone(),
+            index: idx,
+            why,
+        };
+        let konst = |k: usize| -> Result<&Tensor, ImportError> {
+            let n = node.input.get(k).filter(|s| !s.is_empty());
+            n.and_then(|n| consts.get(n))
+                .ok_or_else(|| bad(format!("input {k} must be a constant (an initializer)")))
+        };
+        let other_const = || -> Result<&Tensor, ImportError> {
+            let k = if node.input.first() == Some(&cur) { 1 } else { 0 };
+            konst(k)
+        };
+        let mut next = node.output.first().cloned().unwrap_or_default();
+        match op.as_str() {
+            "Identity" | "Squeeze" | "Unsqueeze" | "Reshape" | "Flatten" => {
+                trace.push(format!("#{idx} {op} '{name}': shape only, nothing to compute"));
+            }
+            "Sub" | "Add" | "Mul" | "Div" => {
+                let c = other_const()?;
+                if (op == "Sub" || op == "Div") && node.input.first() != Some(&cur) {
+                    return Err(bad(
+                        "the constant comes first (c − x, c / x): not an affine normaliser".into()
+                    ));
+                }
+                match built.last_mut() {
+                    None => {
+                        let v = broadcast(c, width, &op).map_err(bad)?;
+                        width = Some(v.len());
+                        let (a, b) = pre.get_or_insert_with(|| (vec![1.0; v.len()], vec![0.0; v.len()]));
+                        if a.len() != v.len() {
+                            return Err(bad(format!("{} values against a normaliser of {}", v.len(), a.len())));
+                        }
+                        for i in 0..v.len() {
+                            match op.as_str() {
+                                "Sub" => b[i] -= v[i],
+                                "Add" => b[i] += v[i],
+                                "Mul" => {
+                                    a[i] *= v[i];
+                                    b[i] *= v[i]
+                                }
+                                _ => {
+                                    a[i] /= v[i];
+                                    b[i] /= v[i]
+                                }
+                            }
+                        }
+                        trace.push(format!(
+                            "#{idx} {op} '{name}': observation normaliser, folded into the first layer"
+                        ));
+                    }
+                    Some(Built::Linear(l)) => {
+                        let v = broadcast(c, Some(l.out), &op).map_err(bad)?;
+                        for (o, &c) in v.iter().enumerate() {
+                            match op.as_str() {
+                                "Add" => l.b[o] += c,
+                                "Sub" => l.b[o] -= c,
+                                "Mul" | "Div" => {
+                                    let f = if op == "Mul" { c } else { 1.0 / c };
+                                    l.b[o] *= f;
+                                    for w in &mut l.w[o * l.inp..(o + 1) * l.inp] {
+                                        *w *= f;
+                                    }
+                                }
+                                _ => unreachable!(),
+                            }
+                        }
+                        trace.push(format!("#{idx} {op} '{name}': folded into the linear layer before it"));
+                    }
+                    Some(_) => {
+                        return Err(bad(
+                            "an element-wise constant after an activation or LSTM cannot be folded into a linear layer"
+                                .into(),
+                        ))
+                    }
+                }
+            }
+            "Gemm" | "MatMul" => {
+                let w = konst(1)?;
+                if w.dims.len() != 2 {
+                    return Err(bad(format!("weight of shape {:?}, expected 2-D", w.dims)));
+                }
+                if op == "Gemm" && attr_i(node, "transA", 0) != 0 {
+                    return Err(bad(
+                        "transA = 1 (the observation transposed) is not a policy layer".into()
+                    ));
+                }
+                let trans_b = op == "Gemm" && attr_i(node, "transB", 0) != 0;
+                let (inp, out) = if trans_b {
+                    (w.dims[1], w.dims[0])
+                } else {
+                    (w.dims[0], w.dims[1])
+                };
+                let alpha = if op == "Gemm" { attr_f(node, "alpha", 1.0) } else { 1.0 };
+                let beta = if op == "Gemm" { attr_f(node, "beta", 1.0) } else { 1.0 };
+                let mut l = Linear {
+                    out,
+                    inp,
+                    w: vec![0.0; out * inp],
+                    b: vec![0.0; out],
+                };
+                for o in 0..out {
+                    for i in 0..inp {
+                        let v = if trans_b {
+                            w.data[o * inp + i]
+                        } else {
+                            w.data[i * out + o]
+                        };
+                        l.w[o * inp + i] = alpha * v;
+                    }
+                }
+                if op == "Gemm" && node.input.len() > 2 && !node.input[2].is_empty() {
+                    let c = konst(2)?;
+                    let v = broadcast(c, Some(out), "Gemm bias").map_err(bad)?;
+                    for (b, c) in l.b.iter_mut().zip(&v) {
+                        *b = beta * c;
+                    }
+                }
+                if let Some(wd) = width {
+                    if wd != inp {
+                        return Err(bad(format!("takes {inp} inputs but receives {wd}")));
+                    }
+                }
+                fold_pre(&mut pre, inp, &mut l.w, &mut l.b, out).map_err(bad)?;
+                width = Some(out);
+                trace.push(format!("#{idx} {op} '{name}': linear {inp} → {out}"));
+                built.push(Built::Linear(l));
+            }
+            "Elu" | "Relu" | "Tanh" => {
+                if pre.is_some() && built.is_empty() {
+                    return Err(bad(
+                        "an activation directly on the normalised observation is not supported".into(),
+                    ));
+                }
+                let layer = match op.as_str() {
+                    "Elu" => LayerDesc::Elu {
+                        alpha: attr_f(node, "alpha", 1.0),
+                    },
+                    "Relu" => LayerDesc::Relu,
+                    _ => LayerDesc::Tanh,
+                };
+                trace.push(format!("#{idx} {op} '{name}': activation"));
+                built.push(Built::Act(layer));
+            }
+            "LSTM" => {
+                let hidden = usize::try_from(attr_i(node, "hidden_size", 0)).unwrap_or(0);
+                if hidden == 0 {
+                    return Err(bad("no hidden_size".into()));
+                }
+                if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {
+                    return Err(bad(format!("direction '{d}': only forward LSTMs run step by step")));
+                }
+                if attr_i(node, "layout", 0) != 0 || attr_i(node, "input_forget", 0) != 0 {
+                    return Err(bad("layout = 1 or input_forget = 1 is not supported".into()));
+                }
+                if node
+                    .attribute
+                    .iter()
+                    .any(|a| matches!(a.name.as_deref(), Some("clip") | Some("activations")))
+                {
+                    return Err(bad("custom activations or cell clipping are not supported".into()));
+                }
+                let (w, r) = (konst(1)?, konst(2)?);
+                if w.dims.len() != 3 || w.dims[0] != 1 || w.dims[1] != 4 * hidden {
+                    return Err(bad(format!(
+                        "W has shape {:?}, expected [1, {}, in]",
+                        w.dims,
+                        4 * hidden
+                    )));
+                }
+                if r.dims != [1, 4 * hidden, hidden] {
+                    return Err(bad(format!(
+                        "R has shape {:?}, expected [1, {}, {hidden}]",
+                        r.dims,
+                        4 * hidden
+                    )));
+                }
+                let inp = w.dims[2];
+                if let Some(wd) = width {
+                    if wd != inp {
+                        return Err(bad(format!("takes {inp} inputs but receives {wd}")));
+                    }
+                }
+                let bias: Vec<f32> = match node.input.get(3).filter(|s| !s.is_empty()) {
+                    Some(_) => {
+                        let b = konst(3)?;
+                        if b.data.len() != 8 * hidden {
+                            return Err(bad(format!("B has {} values, expected {}", b.data.len(), 8 * hidden)));
+                        }
+                        b.data.clone()
+                    }
+                    None => vec![0.0; 8 * hidden],
+                };
+                if node
+                    .input
+                    .get(4)
+                    .is_some_and(|s| !s.is_empty() && !consts.contains_key(s))
+                {
+                    return Err(bad(
+                        "sequence_lens from a graph input: step-by-step execution has none".into()
+                    ));
+                }
+                // ONNX gate blocks i, o, f, c → PyTorch i, f, g, o.
+                let reorder = |src: &[f32], cols: usize| -> Vec<f32> {
+                    let mut out = Vec::with_capacity(src.len());
+                    for blk in [0usize, 2, 3, 1] {
+                        out.extend_from_slice(&src[blk * hidden * cols..(blk + 1) * hidden * cols]);
+                    }
+                    out
+                };
+                let mut w_ih = reorder(&w.data, inp);
+                let w_hh = reorder(&r.data, hidden);
+                let mut b_ih = reorder(&bias[..4 * hidden], 1);
+                let b_hh = reorder(&bias[4 * hidden..], 1);
+                fold_pre(&mut pre, inp, &mut w_ih, &mut b_ih, 4 * hidden).map_err(bad)?;
+                let mut rec = RecurrentIo {
+                    hidden,
+                    ..Default::default()
+                };
+                let state = |k: usize, slot: &mut Option<String>| -> Result<Option<Vec<f32>>, ImportError> {
+                    match node.input.get(k).filter(|s| !s.is_empty()) {
+                        None => Ok(None),
+                        Some(s) if state_inputs.contains(s) => {
+                            *slot = Some(s.clone());
+                            Ok(None)
+                        }
+                        Some(s) => match consts.get(s) {
+                            Some(t) if t.data.len() == hidden => Ok(Some(t.data.clone())),
+                            Some(t) => Err(bad(format!("initial state '{s}' has {} values, not {hidden}", t.data.len()))),
+                            None => Err(bad(format!(
+                                "initial state '{s}' is computed in the graph (a multi-layer state sliced from one input?): not supported"
+                            ))),
+                        },
+                    }
+                };
+                let h0 = state(5, &mut rec.h_in)?;
+                let c0 = state(6, &mut rec.c_in)?;
+                if recurrent.is_some() {
+                    return Err(bad("a second LSTM: only one recurrent layer is supported".into()));
+                }
+                recurrent = Some(rec);
+                // Y (all steps) or Y_h (the last): the same vector for one step.
+                next = match (node.output.first(), node.output.get(1)) {
+                    (Some(y), _)
+                        if !y.is_empty() && users.contains_key(y.as_str()) || Some(y) == Some(&output_name) =>
+                    {
+                        y.clone()
+                    }
+                    (_, Some(yh)) if !yh.is_empty() => yh.clone(),
+                    _ => return Err(bad("neither Y nor Y_h is used".into())),
+                };
+                width = Some(hidden);
+                trace.push(format!(
+                    "#{idx} LSTM '{name}': lstm {inp} → {hidden} (gates reordered i,o,f,c → i,f,g,o)"
+                ));
+                built.push(Built::Lstm {
+                    hidden,
+                    inp,
+                    w_ih,
+                    w_hh,
+                    b_ih,
+                    b_hh,
+                    h0,
+                    c0,
+                });
+            }
+            _ => {
+                return Err(ImportError::UnsupportedOp {
+                    op,
+                    node: name,
+                    index: idx,
+                })
+            }
+        }
+        if next.is_empty() {
+            return Err(ImportError::Graph(format!("node #{idx} has no output")));
+        }
+        cur = next;
+    }
+    if built.is_empty() {
+        return Err(ImportError::Graph(
+            "the graph computes nothing (no linear or LSTM layer)".into(),
+        ));
+    }
+    if pre.is_some() && !built.iter().any(|b| !matches!(b, Built::Act(_))) {
+        return Err(ImportError::Graph("a normaliser with no layer to fold it into".into()));
+    }
+    let input = match built.first() {
+        Some(Built::Linear(l)) => l.inp,
+        Some(Built::Lstm { inp, .. }) => *inp,
+        _ => return Err(ImportError::Graph("the first layer is an activation".into())),
+    };
+    let mut layers = Vec::new();
+    let mut tensors = Vec::new();
+    for (i, b) in built.into_iter().enumerate() {
+        match b {
+            Built::Linear(l) => {
+                let (w, bias) = (format!("l{i}.weight"), format!("l{i}.bias"));
+                tensors.push((
+                    w.clone(),
+                    Tensor {
+                        dims: vec![l.out, l.inp],
+                        data: l.w,
+                    },
+                ));
+                tensors.push((
+                    bias.clone(),
+                    Tensor {
+                        dims: vec![l.out],
+                        data: l.b,
+                    },
+                ));
+                layers.push(LayerDesc::Linear { weight: w, bias });
+            }
+            Built::Act(a) => layers.push(a),
+            Built::Lstm {
+                hidden,
+                inp,
+                w_ih,
+                w_hh,
+                b_ih,
+                b_hh,
+                h0,
+                c0,
+            } => {
+                let n = |s: &str| format!("l{i}.{s}");
+                tensors.push((
+                    n("weight_ih"),
+                    Tensor {
+                        dims: vec![4 * hidden, inp],
+                        data: w_ih,
+                    },
+                ));
+                tensors.push((
+                    n("weight_hh"),
+                    Tensor {
+                        dims: vec![4 * hidden, hidden],
+                        data: w_hh,
+                    },
+                ));
+                tensors.push((
+                    n("bias_ih"),
+                    Tensor {
+                        dims: vec![4 * hidden],
+                        data: b_ih,
+                    },
+                ));
+                tensors.push((
+                    n("bias_hh"),
+                    Tensor {
+                        dims: vec![4 * hidden],
+                        data: b_hh,
+                    },
+                ));
+                let mut state = |s: &str, v: Option<Vec<f32>>| {
+                    v.map(|data| {
+                        tensors.push((
+                            n(s),
+                            Tensor {
+                                dims: vec![hidden],
+                                data,
+                            },
+                        ));
+                        n(s)
+                    })
+                };
+                let initial_hidden = state("initial_hidden", h0);
+                let initial_cell = state("initial_cell", c0);
+                layers.push(LayerDesc::Lstm {
+                    weight_ih: n("weight_ih"),
+                    weight_hh: n("weight_hh"),
+                    bias_ih: n("bias_ih"),
+                    bias_hh: n("bias_hh"),
+                    initial_hidden,
+                    initial_cell,
+                });
+            }
+        }
+    }
+    Ok(ImportedNetwork {
+        desc: NetworkDesc {
+            input,
+            input_shape: None,
+            layers,
+        },
+        tensors,
+        input_name,
+        output_name,
+        output_dim: width.unwrap_or(0),
+        recurrent,
+        metadata: model
+            .metadata_props
+            .iter()
+            .map(|p| (p.key.clone().unwrap_or_default(), p.value.clone().unwrap_or_default()))
+            .collect(),
+        trace,
+    })
+}
+
+/// Folds the pending normaliser `x' = a ⊙ x + b` into a layer `y = W x' + c`:
+/// `W'[o][i] = W[o][i]·a[i]`, `c'[o] = c[o] + Σ_i W[o][i]·b[i]`.
+fn fold_pre(
+    pre: &mut Option<(Vec<f32>, Vec<f32>)>,
+    inp: usize,
+    w: &mut [f32],
+    bias: &mut [f32],
+    out: usize,
+) -> Result<(), String> {
+    let Some((a, b)) = pre.take() else { return Ok(()) };
+    if a.len() != inp {
+        return Err(format!(
+            "the normaliser has {} values but the layer takes {inp}",
+            a.len()
+        ));
+    }
+    for o in 0..out {
+        let row = &mut w[o * inp..(o + 1) * inp];
+        let mut shift = 0.0f64;
+        for i in 0..inp {
+            shift += row[i] as f64 * b[i] as f64;
+            row[i] *= a[i];
+        }
+        bias[o] += shift as f32;
+    }
+    Ok(())
+}
+
+impl ImportedNetwork {
+    /// The tensors as a safetensors file.
+    pub fn safetensors_bytes(&self) -> Result<Vec<u8>, ImportError> {
+        let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self
+            .tensors
+            .iter()
+            .map(|(n, t)| {
+                (
+                    n.clone(),
+                    t.dims.clone(),
+                    t.data.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                )
+            })
+            .collect();
+        let views: Vec<(String, safetensors::tensor::TensorView<'_>)> = bytes
+            .iter()
+            .map(|(n, d, b)| {
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, d.clone(), b)
+                    .map(|v| (n.clone(), v))
+                    .map_err(|e| ImportError::Tensor {
+                        name: n.clone(),
+                        why: e.to_string(),
+                    })
+            })
+            .collect::<Result<_, _>>()?;
+        safetensors::serialize(views, &None).map_err(|e| ImportError::Graph(format!("writing safetensors: {e}")))
+    }
+}

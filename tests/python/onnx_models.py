@@ -1,0 +1,174 @@
+"""Independent side of the ONNX import test: builds policy networks the way exporters write them
+(onnx.helper, seeded weights; no project code) and runs them with onnxruntime.
+
+  onnx_models.py DIR [PEER_SAFETENSORS]
+
+writes DIR/<name>.onnx and prints JSON {name: {"inputs": [[...]...], "outputs": [[...]...]}} with K
+steps per model (recurrent models are fed their own state back, from zeros), plus
+DIR/softmax.onnx (an op the importer must refuse) and DIR/truncated.onnx.
+"""
+import json
+import sys
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+from onnx import TensorProto, helper, numpy_helper
+
+K = 24
+rng = np.random.default_rng(20261124)
+
+
+def const(name, a):
+    return numpy_helper.from_array(np.asarray(a, dtype=np.float32), name)
+
+
+def vinfo(name, shape):
+    return helper.make_tensor_value_info(name, TensorProto.FLOAT, shape)
+
+
+def save(model, path):
+    onnx.checker.check_model(model)
+    onnx.save(model, path)
+
+
+def mlp(path):
+    """rsl_rl-style MLP with a kept normaliser (Sub/Div), Gemm (transB 1 and 0, alpha/beta),
+    MatMul + Add, Elu / Relu / Tanh, and an action scale (Mul)."""
+    n_in = 24
+    nodes = [
+        helper.make_node("Sub", ["obs", "mean"], ["n0"], name="normalizer_sub"),
+        helper.make_node("Div", ["n0", "std"], ["n1"], name="normalizer_div"),
+        helper.make_node("Gemm", ["n1", "w0", "b0"], ["h0"], name="actor.0", transB=1),
+        helper.make_node("Elu", ["h0"], ["a0"], name="actor.1", alpha=1.0),
+        helper.make_node("MatMul", ["a0", "w1"], ["h1"], name="actor.2/MatMul"),
+        helper.make_node("Add", ["h1", "b1"], ["h1b"], name="actor.2/Add"),
+        helper.make_node("Relu", ["h1b"], ["a1"], name="actor.3"),
+        helper.make_node("Gemm", ["a1", "w2", "b2"], ["h2"], name="actor.4", alpha=0.5, beta=2.0),
+        helper.make_node("Tanh", ["h2"], ["a2"], name="actor.5"),
+        helper.make_node("Identity", ["a2"], ["a3"], name="id"),
+        helper.make_node("Gemm", ["a3", "w3", "b3"], ["h3"], name="actor.6", transB=1),
+        helper.make_node("Mul", ["h3", "scale"], ["actions"], name="action_scale"),
+    ]
+    inits = [
+        const("mean", rng.normal(0, 1, n_in)),
+        const("std", rng.uniform(0.5, 2.0, n_in)),
+        const("w0", rng.normal(0, 0.3, (32, n_in))),
+        const("b0", rng.normal(0, 0.1, 32)),
+        const("w1", rng.normal(0, 0.3, (32, 16))),
+        const("b1", rng.normal(0, 0.1, 16)),
+        const("w2", rng.normal(0, 0.3, (16, 12))),
+        const("b2", rng.normal(0, 0.1, 12)),
+        const("w3", rng.normal(0, 0.3, (8, 12))),
+        const("b3", rng.normal(0, 0.1, 8)),
+        const("scale", rng.uniform(0.5, 1.5, 8)),
+    ]
+    g = helper.make_graph(nodes, "mlp", [vinfo("obs", [1, n_in])], [vinfo("actions", [1, 8])], inits)
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)], producer_name="onnx_models.py")
+    helper.set_model_props(m, {"joint_names": "a,b,c", "action_scale": "0.25"})
+    save(m, path)
+    return n_in, None
+
+
+def lstm_graph(name, n_in, hidden, w, r, b, head, mean=None):
+    """The recurrent export: obs [1, in], h_in / c_in [1, 1, H] → LSTM → Squeeze → MLP head;
+    outputs actions, h_out, c_out."""
+    nodes, inits = [], [const("W", w), const("R", r), const("B", b)]
+    x = "obs"
+    if mean is not None:
+        nodes.append(helper.make_node("Sub", ["obs", "mean"], ["obs_n"], name="normalizer"))
+        inits.append(const("mean", mean))
+        x = "obs_n"
+    inits.append(numpy_helper.from_array(np.array([0], dtype=np.int64), "ax0"))
+    inits.append(numpy_helper.from_array(np.array([0, 1], dtype=np.int64), "ax01"))
+    nodes += [
+        helper.make_node("Unsqueeze", [x, "ax0"], ["x3"], name="unsqueeze"),
+        helper.make_node("LSTM", ["x3", "W", "R", "B", "", "h_in", "c_in"], ["Y", "h_out", "c_out"],
+                         name="memory", hidden_size=hidden),
+        helper.make_node("Squeeze", ["Y", "ax01"], ["y"], name="squeeze"),
+    ]
+    cur = "y"
+    for i, (kind, *t) in enumerate(head):
+        out = "actions" if i == len(head) - 1 else f"m{i}"
+        if kind == "gemm":
+            inits += [const(f"hw{i}", t[0]), const(f"hb{i}", t[1])]
+            nodes.append(helper.make_node("Gemm", [cur, f"hw{i}", f"hb{i}"], [out], name=f"actor.{i}", transB=1))
+        else:
+            nodes.append(helper.make_node("Elu", [cur], [out], name=f"actor.{i}", alpha=1.0))
+        cur = out
+    n_out = [t for k, *t in head if k == "gemm"][-1][0].shape[0]
+    g = helper.make_graph(nodes, name,
+                          [vinfo("obs", [1, n_in]), vinfo("h_in", [1, 1, hidden]), vinfo("c_in", [1, 1, hidden])],
+                          [vinfo("actions", [1, n_out]), vinfo("h_out", [1, 1, hidden]), vinfo("c_out", [1, 1, hidden])],
+                          inits)
+    return helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)], producer_name="onnx_models.py")
+
+
+def lstm(path):
+    n_in, h = 10, 6
+    head = [("gemm", rng.normal(0, 0.4, (4, h)), rng.normal(0, 0.1, 4)), ("elu",),
+            ("gemm", rng.normal(0, 0.4, (3, 4)), rng.normal(0, 0.1, 3))]
+    m = lstm_graph("lstm", n_in, h, rng.normal(0, 0.4, (1, 4 * h, n_in)), rng.normal(0, 0.4, (1, 4 * h, h)),
+                   rng.normal(0, 0.2, (1, 8 * h)), head, mean=rng.normal(0, 0.5, n_in))
+    save(m, path)
+    return n_in, h
+
+
+def peer(path, st_path):
+    """Unitree's G1 LSTM walker (PyTorch weights) re-exported to ONNX: gate blocks reordered from
+    PyTorch's i, f, g, o to ONNX's i, o, f, c, as torch.onnx.export does."""
+    from safetensors.numpy import load_file
+    t = load_file(st_path)
+    wih, whh = t["memory.weight_ih_l0"], t["memory.weight_hh_l0"]
+    h = whh.shape[1]
+
+    def onnx_order(a):
+        i, f, g, o = np.split(a, 4, axis=0)
+        return np.concatenate([i, o, f, g], axis=0)
+
+    b = np.concatenate([onnx_order(t["memory.bias_ih_l0"]), onnx_order(t["memory.bias_hh_l0"])])[None, :]
+    head = [("gemm", t["actor.0.weight"], t["actor.0.bias"]), ("elu",), ("gemm", t["actor.2.weight"], t["actor.2.bias"])]
+    m = lstm_graph("peer", wih.shape[1], h, onnx_order(wih)[None], onnx_order(whh)[None], b, head)
+    save(m, path)
+    return wih.shape[1], h
+
+
+def run(path, n_in, hidden):
+    s = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    ins, outs = [], []
+    hs = np.zeros((1, 1, hidden), np.float32) if hidden else None
+    cs = np.zeros((1, 1, hidden), np.float32) if hidden else None
+    for _ in range(K):
+        x = rng.normal(0, 1, (1, n_in)).astype(np.float32)
+        feed = {"obs": x}
+        if hidden:
+            feed.update({"h_in": hs, "c_in": cs})
+            y, hs, cs = s.run(["actions", "h_out", "c_out"], feed)
+        else:
+            (y,) = s.run(["actions"], feed)
+        ins.append(x[0].tolist())
+        outs.append(y[0].tolist())
+    return {"inputs": ins, "outputs": outs}
+
+
+def main():
+    d = sys.argv[1]
+    res = {}
+    for name, build in [("mlp", mlp), ("lstm", lstm)]:
+        n_in, h = build(f"{d}/{name}.onnx")
+        res[name] = run(f"{d}/{name}.onnx", n_in, h)
+    if len(sys.argv) > 2:
+        n_in, h = peer(f"{d}/peer.onnx", sys.argv[2])
+        res["peer"] = run(f"{d}/peer.onnx", n_in, h)
+    # An op the importer must refuse by name.
+    m = onnx.load(f"{d}/mlp.onnx")
+    m.graph.node[6].op_type = "Softmax"
+    m.graph.node[6].name = "actor.3.softmax"
+    onnx.save(m, f"{d}/softmax.onnx")
+    data = open(f"{d}/mlp.onnx", "rb").read()
+    open(f"{d}/truncated.onnx", "wb").write(data[: len(data) // 2])
+    print(json.dumps(res))
+
+
+if __name__ == "__main__":
+    main()
