@@ -23,6 +23,7 @@ struct Term {
     dim: usize,
     scale: Vec<f32>,
     clip: Option<f32>,
+    clip_before_scale: Option<[f32; 2]>,
     history: usize,
     /// Ring of `history` frames of `dim` values; `head` is the slot of the newest frame.
     ring: Vec<f32>,
@@ -51,6 +52,7 @@ impl ObservationBuilder {
                     dim,
                     scale: t.scale.expand(dim).expect("validated by DeploySpec"),
                     clip: t.clip,
+                    clip_before_scale: t.clip_before_scale,
                     history: t.history,
                     ring: vec![0.0; dim * t.history],
                     head: 0,
@@ -96,6 +98,10 @@ impl ObservationBuilder {
                 }
             }
             for (v, k) in frame.iter_mut().zip(&term.scale) {
+                // IsaacLab clips the raw term, then scales; bounds validated (low <= high, not NaN).
+                if let Some([lo, hi]) = term.clip_before_scale {
+                    *v = v.max(lo).min(hi);
+                }
                 *v *= k;
                 if let Some(clip) = term.clip {
                     *v = v.clamp(-clip, clip);

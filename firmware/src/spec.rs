@@ -431,9 +431,13 @@ pub struct ObsTerm {
     pub kind: ObsKind,
     #[serde(default = "Scale::one")]
     pub scale: Scale,
-    /// Clip to ±clip after scaling.
+    /// Clip to ±clip after scaling (this project's convention; rsl_rl's `clip_obs` is the same).
     #[serde(default)]
     pub clip: Option<f32>,
+    /// IsaacLab's `clip = (low, high)`: the raw value is clamped to `[low, high]` before scaling.
+    /// Both may be given; this one applies first.
+    #[serde(default)]
+    pub clip_before_scale: Option<[f32; 2]>,
     /// Frames of history (1 = current only).
     #[serde(default = "one_usize")]
     pub history: usize,
@@ -830,6 +834,14 @@ impl DeploySpec {
             if let Some(c) = t.clip {
                 if c.is_nan() || c <= 0.0 {
                     return Err(self.invalid(&format!("{field}.clip"), "must be > 0"));
+                }
+            }
+            if let Some([lo, hi]) = t.clip_before_scale {
+                if lo.is_nan() || hi.is_nan() || lo > hi {
+                    return Err(self.invalid(
+                        &format!("{field}.clip_before_scale"),
+                        format!("[low, high] with low <= high, got [{lo}, {hi}]"),
+                    ));
                 }
             }
         }

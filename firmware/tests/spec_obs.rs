@@ -52,6 +52,7 @@ fn terrain_token_term_is_the_papers_z() {
         kind: firmware::spec::ObsKind::TerrainToken,
         scale: firmware::spec::Scale::Scalar(1.0),
         clip: None,
+        clip_before_scale: None,
         history: 1,
     });
     let mut b = ObservationBuilder::new(&spec);
@@ -232,4 +233,51 @@ fn wrong_network_dimension_is_a_clear_error() {
     let spec = DeploySpec::from_toml(&text, &specs_dir().join("test/x.toml")).unwrap();
     let e = Controller::new(spec).err().expect("dimension mismatch").to_string();
     assert!(e.contains("480") || e.contains("482"), "{e}");
+}
+
+/// IsaacLab clips a term's raw value to `[low, high]` and then scales it (`clip_before_scale`);
+/// this project's `clip` is symmetric and after scaling. Both orders, on the gyroscope term.
+#[test]
+fn clip_before_scale_is_isaaclabs_order() {
+    let mut spec = rl_lab_spec();
+    spec.observation.history_layout = firmware::spec::HistoryLayout::TermMajor;
+    spec.observation.terms = vec![firmware::spec::ObsTerm {
+        kind: firmware::spec::ObsKind::BaseAngVel,
+        scale: firmware::spec::Scale::Scalar(0.5),
+        clip: None,
+        clip_before_scale: Some([-1.0, 2.0]),
+        history: 1,
+    }];
+    let zeros = vec![0.0; 29];
+    let frame = |gyro: [f32; 3]| ObsInputs {
+        gyro,
+        quat: [1.0, 0.0, 0.0, 0.0],
+        command: [0.0; 3],
+        joint_pos_rel: &zeros,
+        joint_vel: &zeros,
+        last_action: &zeros,
+        phase: 0.0,
+        terrain: hal::TerrainToken::FLAT,
+    };
+    let mut b = ObservationBuilder::new(&spec);
+    let mut out = vec![0.0; 3];
+    b.build(&frame([3.0, -3.0, 0.5]), &mut out);
+    assert_eq!(out, [1.0, -0.5, 0.25]);
+    spec.observation.terms[0].clip = Some(0.6);
+    let mut b = ObservationBuilder::new(&spec);
+    b.build(&frame([3.0, -3.0, 0.5]), &mut out);
+    assert_eq!(out, [0.6, -0.5, 0.25]);
+}
+
+#[test]
+fn clip_before_scale_bounds_must_be_ordered() {
+    let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
+    let e = load_err(&good.replace(
+        "{ kind = \"base_ang_vel\", scale = 0.2, history = 5, clip = 100.0 }",
+        "{ kind = \"base_ang_vel\", scale = 0.2, history = 5, clip_before_scale = [1.0, -1.0] }",
+    ));
+    assert!(
+        e.contains("observation.terms[0].clip_before_scale") && e.contains("low <= high"),
+        "{e}"
+    );
 }

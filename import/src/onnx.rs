@@ -751,6 +751,16 @@ fn fold_pre(
 }
 
 impl ImportedNetwork {
+    /// The network as a deploy spec's `[policy.network]` table.
+    pub fn spec_table(&self) -> Result<String, ImportError> {
+        let body =
+            toml::to_string(&self.desc).map_err(|e| ImportError::Graph(format!("writing the network table: {e}")))?;
+        Ok(format!(
+            "[policy.network]\n{}",
+            body.replace("[[layers]]", "[[policy.network.layers]]")
+        ))
+    }
+
     /// The tensors as a safetensors file.
     pub fn safetensors_bytes(&self) -> Result<Vec<u8>, ImportError> {
         let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self

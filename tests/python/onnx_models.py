@@ -133,6 +133,74 @@ def peer(path, st_path):
     return wih.shape[1], h
 
 
+def peer_deploy(path):
+    """The peer walker's deployment data written as unitree_rl_lab writes deploy.yaml: gains in SDK
+    motor order (29 on the G1), pose and action data in policy order (the 12 leg joints)."""
+    legs_kp, legs_kd = [100, 100, 100, 150, 40, 40] * 2, [2, 2, 2, 4, 2, 2] * 2
+    arm_kp = [100, 100, 50, 50, 40, 40, 40]
+    stiffness = legs_kp + [300] * 3 + arm_kp * 2
+    damping = legs_kd + [20] * 3 + [2] * 14
+    default = [-0.1, 0.0, 0.0, 0.3, -0.2, 0.0] * 2
+    fl = lambda v: "[" + ", ".join(f"{float(x)}" for x in v) + "]"
+    text = f"""joint_ids_map: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]
+step_dt: 0.02
+stiffness: {fl(stiffness)}
+damping: {fl(damping)}
+default_joint_pos: {fl(default)}
+commands:
+  base_velocity:
+    ranges:
+      lin_vel_x: [-0.8, 0.8]
+      lin_vel_y: [-0.5, 0.5]
+      ang_vel_z: [-1.57, 1.57]
+      heading: null
+actions:
+  JointPositionAction:
+    clip: null
+    joint_names: [.*]
+    scale: {fl([0.25] * 12)}
+    offset: {fl(default)}
+    joint_ids: null
+observations:
+  base_ang_vel:
+    params: {{}}
+    clip: null
+    scale: [0.25, 0.25, 0.25]
+    history_length: 1
+  projected_gravity:
+    params: {{}}
+    clip: null
+    scale: [1.0, 1.0, 1.0]
+    history_length: 1
+  velocity_commands:
+    params: {{command_name: base_velocity}}
+    clip: null
+    scale: [2.0, 2.0, 0.25]
+    history_length: 1
+  joint_pos_rel:
+    params: {{}}
+    clip: null
+    scale: {fl([1.0] * 12)}
+    history_length: 1
+  joint_vel_rel:
+    params: {{}}
+    clip: null
+    scale: {fl([0.05] * 12)}
+    history_length: 1
+  last_action:
+    params: {{}}
+    clip: null
+    scale: {fl([1.0] * 12)}
+    history_length: 1
+  gait_phase:
+    params: {{period: 0.8}}
+    clip: null
+    scale: [1.0, 1.0]
+    history_length: 1
+"""
+    open(path, "w").write(text)
+
+
 def run(path, n_in, hidden):
     s = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
     ins, outs = [], []
@@ -160,6 +228,7 @@ def main():
     if len(sys.argv) > 2:
         n_in, h = peer(f"{d}/peer.onnx", sys.argv[2])
         res["peer"] = run(f"{d}/peer.onnx", n_in, h)
+        peer_deploy(f"{d}/deploy.yaml")
     # An op the importer must refuse by name.
     m = onnx.load(f"{d}/mlp.onnx")
     m.graph.node[6].op_type = "Softmax"

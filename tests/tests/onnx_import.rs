@@ -134,3 +134,155 @@ fn a_refused_op_and_a_truncated_file_say_what_is_wrong() {
         .to_string();
     assert!(e.contains("missing.onnx"), "{e}");
 }
+
+fn g1_import(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    std::process::Command::new(integration_tests::built_bin("g1-import"))
+        .args(args)
+        .current_dir(repo_root())
+        .output()
+        .expect("g1-import runs")
+}
+
+/// Unitree's G1 walker, written out as a unitree_rl_lab export (`deploy.yaml` with SDK-order gains +
+/// the ONNX re-export), imports in one command into a spec equal, field by field, to the
+/// hand-written one, and walks as well: 20 s at 0.5 m/s on the 12-dof G1.
+#[test]
+fn an_rl_lab_export_imports_into_the_hand_checked_spec_and_walks() {
+    let Some(shared) = shared_dir() else {
+        return skip_or_fail("the peer walker as an rl_lab export");
+    };
+    let dir = scratch_dir("onnx-rl-lab");
+    let Some(_) = models(&dir) else { return };
+    let out = dir.join("imported");
+    let mjcf = shared
+        .join("assets/unitree_g1_12dof/g1_12dof.xml")
+        .canonicalize()
+        .unwrap();
+    let o = g1_import(&[
+        "rl-lab".as_ref(),
+        "--deploy".as_ref(),
+        dir.join("deploy.yaml").as_os_str(),
+        "--onnx".as_ref(),
+        dir.join("peer.onnx").as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--estimator-model".as_ref(),
+        mjcf.as_os_str(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
+    // The table a person checks: SDK-order gains landed on the right joints.
+    assert!(
+        text.contains("left_knee") && text.contains("17 held motor(s)"),
+        "{text}"
+    );
+
+    let hand = firmware::spec::DeploySpec::load(&repo_root().join("specs/peer/unitree_g1_lstm.toml")).unwrap();
+    let imp = firmware::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
+    let (h, i) = (&hand.policy, &imp.policy);
+    assert_eq!(i.joint_ids_map, h.joint_ids_map);
+    assert_eq!(i.joint_names, h.joint_names);
+    assert_eq!(i.default_pose, h.default_pose);
+    assert_eq!(i.kp, h.kp);
+    assert_eq!(i.kd, h.kd);
+    assert_eq!(i.action_scale.expand(12), h.action_scale.expand(12));
+    assert_eq!(i.action_clip, h.action_clip);
+    let (mh, mi) = (hand.motor_table(), imp.motor_table());
+    assert_eq!(mi.kp, mh.kp, "driven and held gains per slot");
+    assert_eq!(mi.kd, mh.kd);
+    assert_eq!(mi.default_q, mh.default_q);
+    assert_eq!(mi.enabled[..29], mh.enabled[..29]);
+    assert_eq!(
+        (imp.commands.min, imp.commands.max),
+        (hand.commands.min, hand.commands.max)
+    );
+    assert_eq!(
+        (imp.rates.control_hz, imp.rates.policy_hz),
+        (hand.rates.control_hz, hand.rates.policy_hz)
+    );
+    let (ph, pi) = (hand.phase.as_ref().unwrap(), imp.phase.as_ref().unwrap());
+    assert_eq!((pi.period_s, pi.first_step_time_s), (ph.period_s, ph.first_step_time_s));
+    assert_eq!(imp.observation.history_layout, hand.observation.history_layout);
+    assert_eq!(imp.observation.terms.len(), hand.observation.terms.len());
+    for (a, b) in imp.observation.terms.iter().zip(&hand.observation.terms) {
+        assert_eq!((a.kind, a.history), (b.kind, b.history));
+        let n = a.kind.dim(12);
+        assert_eq!(a.scale.expand(n), b.scale.expand(n), "{:?}", a.kind);
+        assert_eq!(a.clip_before_scale, None);
+    }
+    assert_eq!(imp.observation_dim(), 47);
+
+    // It walks as the hand-written spec does.
+    let walk = |spec: &Path, name: &str| {
+        let report = dir.join(format!("{name}.json"));
+        let o = integration_tests::g1fw(&[
+            "sim",
+            "--model",
+            "g1-12dof",
+            "--spec",
+            spec.to_str().unwrap(),
+            "--cmd",
+            "0.5,0,0",
+            "--duration",
+            "20",
+            "--seed",
+            "0",
+            "--quiet",
+            "--report",
+            report.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{name}: {}", String::from_utf8_lossy(&o.stderr));
+        integration_tests::read_json(&report)
+    };
+    let a = walk(&out.join("policy.toml"), "imported");
+    let b = walk(&repo_root().join("specs/peer/unitree_g1_lstm.toml"), "hand");
+    let (da, db) = (a["distance_x_m"].as_f64().unwrap(), b["distance_x_m"].as_f64().unwrap());
+    eprintln!("imported: {da:.3} m, hand-written: {db:.3} m");
+    assert_eq!(a["fell"], false);
+    assert!(a["trip"].is_null(), "{}", a["trip"]);
+    assert!(
+        da >= 8.5 && (da - db).abs() < 0.3,
+        "imported {da:.2} m vs hand-written {db:.2} m"
+    );
+}
+
+/// Bad exports: the error names the field.
+#[test]
+fn bad_rl_lab_exports_name_the_field() {
+    let dir = scratch_dir("onnx-rl-lab-bad");
+    let Some(_) = models(&dir) else { return };
+    if shared_dir().is_none() {
+        return;
+    }
+    let good = std::fs::read_to_string(dir.join("deploy.yaml")).unwrap();
+    let opts = policy_import::RlLabOptions::default();
+    let try_yaml = |text: &str, onnx: &str| {
+        let p = dir.join("bad.yaml");
+        std::fs::write(&p, text).unwrap();
+        match policy_import::import_rl_lab(&p, &dir.join(onnx), &opts) {
+            Ok(_) => panic!("accepted: {text}"),
+            Err(e) => e.to_string(),
+        }
+    };
+    let e = try_yaml("joint_ids_map: [0, 1\nstep_dt: [", "peer.onnx");
+    assert!(e.contains("bad.yaml") && e.contains("not valid YAML"), "{e}");
+    let e = try_yaml(&good.replace("[0, 1, 2, 3,", "[0, 1, 2, 2,"), "peer.onnx");
+    assert!(
+        e.contains("joint_ids_map") && e.contains("mapped twice") && e.contains("2 and 3"),
+        "{e}"
+    );
+    let e = try_yaml(&good.replacen("history_length: 1", "history_length: 5", 1), "peer.onnx");
+    assert!(e.contains("59 values") && e.contains("takes 47"), "{e}");
+    let e = try_yaml(&good.replace("step_dt: 0.02", "step_dt: 0.03"), "peer.onnx");
+    assert!(e.contains("`step_dt`"), "{e}");
+    let e = try_yaml(&good.replace("  last_action:", "  height_scan:"), "peer.onnx");
+    assert!(
+        e.contains("observations.height_scan") && e.contains("unknown term"),
+        "{e}"
+    );
+    let e = try_yaml(&good, "truncated.onnx");
+    assert!(
+        e.contains("truncated.onnx") && e.contains("not a readable ONNX model"),
+        "{e}"
+    );
+}

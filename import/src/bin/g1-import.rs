@@ -18,6 +18,29 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// Import a unitree_rl_lab / IsaacLab export: `deploy.yaml` + `policy.onnx` → a deploy spec
+    /// (`policy.toml`) and its weights (`policy.safetensors`) in --out, then load them with the
+    /// firmware's own validation. Prints the observation terms and, per joint, slot, kp, kd and
+    /// default pose to check before trying it on a robot. deploy.yaml's stiffness/damping are in SDK
+    /// motor order; the spec's kp/kd are in policy order (converted through joint_ids_map).
+    RlLab {
+        /// The export's deploy.yaml.
+        #[arg(long)]
+        deploy: PathBuf,
+        /// The export's policy network.
+        #[arg(long)]
+        onnx: PathBuf,
+        /// Output directory (created; existing files are not replaced unless --force).
+        #[arg(long)]
+        out: PathBuf,
+        /// The robot's MJCF for the estimator's leg kinematics, written into the spec as given
+        /// (relative paths are relative to --out); without it the estimator runs attitude only.
+        #[arg(long, value_name = "MJCF")]
+        estimator_model: Option<String>,
+        /// Replace files already in --out.
+        #[arg(long)]
+        force: bool,
+    },
     /// Convert an ONNX policy network (MLP with an optional observation normaliser, or one LSTM
     /// layer with its state as inputs) into a `[policy.network]` table and a safetensors file, and
     /// print what became of every node. Any other op is refused by name.
@@ -34,8 +57,57 @@ enum Cmd {
     },
 }
 
+fn write_new(path: &std::path::Path, data: &[u8], force: bool) -> Result<()> {
+    if path.exists() && !force {
+        anyhow::bail!("{} exists; give --force to replace it", path.display());
+    }
+    std::fs::write(path, data).with_context(|| format!("writing {}", path.display()))
+}
+
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
+        Cmd::RlLab {
+            deploy,
+            onnx,
+            out,
+            estimator_model,
+            force,
+        } => {
+            let opts = policy_import::RlLabOptions {
+                estimator_model,
+                ..Default::default()
+            };
+            let imp = policy_import::import_rl_lab(&deploy, &onnx, &opts)?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            let spec_path = out.join("policy.toml");
+            for p in [&spec_path, &out.join("policy.safetensors")] {
+                if p.exists() && !force {
+                    anyhow::bail!("{} exists; give --force to replace it", p.display());
+                }
+            }
+            write_new(&out.join("policy.safetensors"), &imp.weights, true)?;
+            write_new(&spec_path, imp.spec_toml.as_bytes(), true)?;
+            // The firmware's own loader and controller judge the result.
+            let spec = firmware::spec::DeploySpec::load(&spec_path)
+                .context("the imported spec does not load in g1fw (please report this)")?;
+            firmware::controller::Controller::new(spec).context("the imported policy does not load in g1fw")?;
+            println!("imported {} + {}", deploy.display(), onnx.display());
+            for line in &imp.network.trace {
+                println!("  {line}");
+            }
+            print!("{}", imp.table);
+            if opts.estimator_model.is_none() {
+                println!(
+                    "note: no --estimator-model: the state estimator runs attitude only (the policy does not need it)"
+                );
+            }
+            println!(
+                "wrote {} and policy.safetensors; check it with `g1fw check-spec --spec {}`",
+                spec_path.display(),
+                spec_path.display()
+            );
+            Ok(())
+        }
         Cmd::Network { onnx, out, force } => {
             let net = policy_import::import_file(&onnx)?;
             let weights = net.safetensors_bytes()?;
@@ -50,11 +122,11 @@ fn run(cli: Cli) -> Result<()> {
                     anyhow::bail!("{} exists; give --force to replace it", p.display());
                 }
             }
-            let table = toml::to_string(&net.desc).context("writing the network table")?;
+            let table = net.spec_table()?;
             std::fs::write(
                 &toml_path,
                 format!(
-                    "# [policy.network] of a deploy spec, imported from {} by g1-import; weights = \"policy.safetensors\"\n{table}",
+                    "# A deploy spec's network, imported from {} by g1-import; with [policy] weights = \"policy.safetensors\"\n{table}",
                     onnx.display()
                 ),
             )?;
