@@ -4,4 +4,4 @@ pub mod onnx;
 pub mod rl_lab;
 
 pub use onnx::{import_file, ImportError, ImportedNetwork};
-pub use rl_lab::{import_rl_lab, DeployError, RlLabImport, RlLabOptions};
+pub use rl_lab::{import_onnx_metadata, import_rl_lab, DeployError, RlLabImport, RlLabOptions};

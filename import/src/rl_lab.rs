@@ -350,8 +350,74 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
             period_s,
         });
     }
-    let obs_dim: usize = terms.iter().map(|t| t.dim * t.history).sum();
     let network = import_file(onnx)?;
+    let held: Vec<(usize, f32, f32)> = (0..G1_SLOTS)
+        .filter(|sl| !map.contains(sl))
+        .map(|sl| (sl, stiffness[sl] as f32, damping[sl] as f32))
+        .collect();
+    let draft = Draft {
+        source: format!("{} and {}", deploy.display(), onnx.display()),
+        name: deploy
+            .parent()
+            .and_then(|p| p.file_name())
+            .map_or("imported".into(), |f| f.to_string_lossy().into_owned()),
+        map,
+        kp,
+        kd,
+        default_pose,
+        action_scale,
+        action_clip,
+        ranges: [vx, vy, wz],
+        terms,
+        step_dt,
+        policy_hz,
+        held,
+        notes: Vec::new(),
+    };
+    finish(draft, network, opts)
+}
+
+/// Everything a deploy spec needs, whichever export it came from.
+pub struct Draft {
+    pub source: String,
+    pub name: String,
+    pub map: Vec<usize>,
+    pub kp: Vec<f32>,
+    pub kd: Vec<f32>,
+    pub default_pose: Vec<f32>,
+    pub action_scale: Vec<f32>,
+    pub action_clip: Option<f32>,
+    /// vx, vy, wz: [low, high].
+    pub ranges: [[f32; 2]; 3],
+    pub terms: Vec<Term>,
+    pub step_dt: f64,
+    pub policy_hz: u32,
+    /// Motor slots the policy does not drive: (slot, kp, kd), held at 0.
+    pub held: Vec<(usize, f32, f32)>,
+    /// Said in the table (defaults the export did not carry).
+    pub notes: Vec<String>,
+}
+
+/// Checks the draft against the network and writes the spec and the table.
+pub fn finish(d: Draft, network: ImportedNetwork, opts: &RlLabOptions) -> Result<RlLabImport, DeployError> {
+    let Draft {
+        source,
+        name: stem,
+        map,
+        kp,
+        kd,
+        default_pose,
+        action_scale,
+        action_clip,
+        ranges: [vx, vy, wz],
+        terms,
+        step_dt,
+        policy_hz,
+        held,
+        notes,
+    } = d;
+    let n = map.len();
+    let obs_dim: usize = terms.iter().map(|t| t.dim * t.history).sum();
     if network.desc.input != obs_dim {
         return Err(DeployError::InputSize {
             obs: obs_dim,
@@ -365,7 +431,7 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
     }
     if network.output_dim != n {
         return Err(field(
-            "joint_ids_map",
+            "joint map",
             format!("{n} joints but the ONNX network outputs {} actions", network.output_dim),
         ));
     }
@@ -375,14 +441,8 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Imported by g1-import from {} and {}.\n# deploy.yaml's stiffness/damping are in SDK motor order; kp/kd below are in policy order\n# (kp[i] = stiffness[joint_ids_map[i]]). Observation clips are IsaacLab's (raw value, before scale).\n",
-        deploy.display(),
-        onnx.display()
+        "# Imported by g1-import from {source}.\n# kp/kd are in policy order (deploy.yaml's stiffness/damping are in SDK motor order: kp[i] =\n# stiffness[joint_ids_map[i]]). Observation clips are IsaacLab's (raw value, before scale).\n"
     );
-    let stem = deploy
-        .parent()
-        .and_then(|p| p.file_name())
-        .map_or("imported".into(), |f| f.to_string_lossy().into_owned());
     let _ = writeln!(
         s,
         "[meta]\nname = {:?}\ndescription = \"imported unitree_rl_lab export\"\n",
@@ -417,13 +477,11 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
     let _ = writeln!(s, "kp = {}\nkd = {}\n", fmt_list(&kp), fmt_list(&kd));
     let _ = writeln!(s, "{}", network.spec_table()?);
     // Slots the policy does not drive are held at 0 with the export's own gains for them.
-    for slot in (0..G1_SLOTS).filter(|sl| !map.contains(sl)) {
+    for &(slot, hkp, hkd) in &held {
         let _ = writeln!(
             s,
-            "[[held]]\njoints = [{:?}]\nq = 0.0\nkp = {:?}\nkd = {:?}\n",
-            hal::G1_MOTOR_NAMES[slot],
-            stiffness[slot] as f32,
-            damping[slot] as f32
+            "[[held]]\njoints = [{:?}]\nq = 0.0\nkp = {hkp:?}\nkd = {hkd:?}\n",
+            hal::G1_MOTOR_NAMES[slot]
         );
     }
     let _ = writeln!(
@@ -515,8 +573,11 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
         wz[0],
         wz[1],
         opts.control_hz,
-        G1_SLOTS - n
+        held.len()
     );
+    for note in &notes {
+        let _ = writeln!(table, "note: {note}");
+    }
     Ok(RlLabImport {
         spec_toml: s,
         weights,
@@ -528,4 +589,160 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
         default_pose,
         terms,
     })
+}
+
+/// mjlab / BeyondMimic-style term names (`observation_names` metadata) → the spec's kinds.
+fn kind_of_meta(name: &str) -> Result<&'static str, String> {
+    match name {
+        "base_lin_vel" => Err("base_lin_vel: the base's linear velocity is not an observation g1fw offers yet".into()),
+        "command" | "commands" | "generated_commands" | "twist" => Ok("velocity_command"),
+        other => kind_of(other).ok_or_else(|| {
+            format!(
+                "'{other}' is not a term g1fw knows; supported: base_ang_vel, projected_gravity, command, joint_pos, \
+                 joint_vel, actions, gait_phase"
+            )
+        }),
+    }
+}
+
+/// An ONNX that carries its deploy data in `metadata_props`, as mjlab's and BeyondMimic's exporters
+/// write it (comma-separated lists, in the policy's joint order): `joint_names`, `joint_stiffness`,
+/// `joint_damping`, `default_joint_pos`, `action_scale`, `observation_names`. Command ranges and the
+/// policy rate are not in it: defaults are used and said so.
+pub fn import_onnx_metadata(onnx: &Path, opts: &RlLabOptions) -> Result<RlLabImport, DeployError> {
+    let network = import_file(onnx)?;
+    let meta: std::collections::HashMap<&str, &str> =
+        network.metadata.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let get = |k: &str| -> Result<&str, DeployError> {
+        meta.get(k).copied().ok_or_else(|| {
+            field(
+                &format!("metadata_props.{k}"),
+                "missing: this ONNX carries no deploy data (mjlab and BeyondMimic exports write it); use g1-import rl-lab with a deploy.yaml",
+            )
+        })
+    };
+    let csv = |k: &str| -> Result<Vec<f32>, DeployError> {
+        get(k)?
+            .split(',')
+            .enumerate()
+            .map(|(i, v)| {
+                v.trim()
+                    .parse::<f32>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| field(&format!("metadata_props.{k}[{i}]"), format!("'{v}' is not a number")))
+            })
+            .collect()
+    };
+    let names: Vec<&str> = get("joint_names")?.split(',').map(str::trim).collect();
+    let mut map = Vec::with_capacity(names.len());
+    for (i, name) in names.iter().enumerate() {
+        let bare = name.strip_suffix("_joint").unwrap_or(name);
+        let slot = hal::G1_MOTOR_NAMES[..G1_SLOTS]
+            .iter()
+            .position(|m| *m == bare)
+            .ok_or_else(|| {
+                field(
+                    &format!("metadata_props.joint_names[{i}]"),
+                    format!("'{name}' is not a G1 joint"),
+                )
+            })?;
+        if let Some(j) = map.iter().position(|&s| s == slot) {
+            return Err(field(
+                "metadata_props.joint_names",
+                format!("'{name}' appears twice, at {j} and {i}"),
+            ));
+        }
+        map.push(slot);
+    }
+    let n = map.len();
+    let per_joint = |k: &str| -> Result<Vec<f32>, DeployError> {
+        let v = csv(k)?;
+        if v.len() != n {
+            return Err(field(
+                &format!("metadata_props.{k}"),
+                format!("{} values for {n} joints", v.len()),
+            ));
+        }
+        if k != "default_joint_pos" && v.iter().any(|x| *x < 0.0) {
+            return Err(field(&format!("metadata_props.{k}"), "a negative gain"));
+        }
+        Ok(v)
+    };
+    let kp = per_joint("joint_stiffness")?;
+    let kd = per_joint("joint_damping")?;
+    let default_pose = per_joint("default_joint_pos")?;
+    let scale = csv("action_scale")?;
+    let action_scale = match scale.len() {
+        1 => vec![scale[0]; n],
+        k if k == n => scale,
+        k => {
+            return Err(field(
+                "metadata_props.action_scale",
+                format!("{k} values for {n} joints"),
+            ))
+        }
+    };
+    let mut terms = Vec::new();
+    for (i, t) in get("observation_names")?.split(',').map(str::trim).enumerate() {
+        let kind = kind_of_meta(t).map_err(|why| field(&format!("metadata_props.observation_names[{i}]"), why))?;
+        if kind == "gait_phase" {
+            return Err(field(
+                &format!("metadata_props.observation_names[{i}]"),
+                "a gait phase needs its period, which the metadata does not carry",
+            ));
+        }
+        let dim = match kind {
+            "base_ang_vel" | "projected_gravity" | "velocity_command" => 3,
+            _ => n,
+        };
+        terms.push(Term {
+            name: t.to_string(),
+            kind,
+            dim,
+            scale: vec![1.0; dim],
+            clip: None,
+            history: 1,
+            period_s: None,
+        });
+    }
+    let step_dt = 0.02;
+    let held: Vec<(usize, f32, f32)> = (0..G1_SLOTS)
+        .filter(|s| !map.contains(s))
+        .map(|s| (s, 100.0, 5.0))
+        .collect();
+    let mut notes: Vec<String> = Vec::new();
+    if !held.is_empty() {
+        notes.push(format!(
+            "{} motor(s) the policy does not drive are held at 0 with kp 100, kd 5 (the metadata has no gains for them); edit [[held]]",
+            held.len()
+        ));
+    }
+    let draft = Draft {
+        source: onnx.display().to_string(),
+        name: onnx
+            .file_stem()
+            .map_or("imported".into(), |f| f.to_string_lossy().into_owned()),
+        map: map.clone(),
+        kp,
+        kd,
+        default_pose,
+        action_scale,
+        action_clip: None,
+        ranges: [[-1.0, 1.0], [-0.5, 0.5], [-1.0, 1.0]],
+        terms,
+        step_dt,
+        policy_hz: 50,
+        held,
+        notes: [
+            "the metadata carries no command ranges: vx [-1, 1], vy [-0.5, 0.5], wz [-1, 1] were used; edit [commands]".into(),
+            "the metadata carries no policy rate: 50 Hz (step_dt 0.02, mjlab's decimation 4 × 5 ms) was used".into(),
+            "observation terms: scale 1, no history, no clip (mjlab's velocity defaults); check them against the training config"
+                .into(),
+        ]
+        .into_iter()
+        .chain(notes)
+        .collect(),
+    };
+    finish(draft, network, opts)
 }

@@ -133,6 +133,35 @@ def peer(path, st_path):
     return wih.shape[1], h
 
 
+MJLAB_JOINTS = [f"{side}_{j}_joint" for j in ["hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch", "ankle_roll"]
+                for side in ["left", "right"]]
+
+
+def mjlab_meta(path, joints=MJLAB_JOINTS):
+    """An MLP (45 → 12) with its deploy data in metadata_props, as mjlab's exporter attaches it:
+    comma-separated lists in the policy's joint order (here left/right interleaved)."""
+    n_in = 3 + 3 + 3 + 12 * 3
+    nodes = [
+        helper.make_node("Gemm", ["obs", "w0", "b0"], ["h0"], name="actor.0", transB=1),
+        helper.make_node("Elu", ["h0"], ["a0"], name="actor.1"),
+        helper.make_node("Gemm", ["a0", "w1", "b1"], ["actions"], name="actor.2", transB=1),
+    ]
+    inits = [const("w0", rng.normal(0, 0.3, (16, n_in))), const("b0", rng.normal(0, 0.1, 16)),
+             const("w1", rng.normal(0, 0.3, (12, 16))), const("b1", rng.normal(0, 0.1, 12))]
+    g = helper.make_graph(nodes, "mjlab", [vinfo("obs", [1, n_in])], [vinfo("actions", [1, 12])], inits)
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)], producer_name="onnx_models.py")
+    kp = [100.0 + 10 * i for i in range(12)]
+    kd = [2.0 + 0.5 * i for i in range(12)]
+    pos = [round(-0.3 + 0.05 * i, 3) for i in range(12)]
+    csv = lambda v: ",".join(f"{x:.3f}" for x in v)
+    helper.set_model_props(m, {
+        "run_path": "test/run", "joint_names": ",".join(joints), "joint_stiffness": csv(kp),
+        "joint_damping": csv(kd), "default_joint_pos": csv(pos), "command_names": "twist",
+        "observation_names": "base_ang_vel,projected_gravity,command,joint_pos,joint_vel,actions",
+        "action_scale": "0.5"})
+    save(m, path)
+
+
 def peer_deploy(path):
     """The peer walker's deployment data written as unitree_rl_lab writes deploy.yaml: gains in SDK
     motor order (29 on the G1), pose and action data in policy order (the 12 leg joints)."""
@@ -229,6 +258,8 @@ def main():
         n_in, h = peer(f"{d}/peer.onnx", sys.argv[2])
         res["peer"] = run(f"{d}/peer.onnx", n_in, h)
         peer_deploy(f"{d}/deploy.yaml")
+    mjlab_meta(f"{d}/mjlab.onnx")
+    mjlab_meta(f"{d}/mjlab_bad.onnx", MJLAB_JOINTS[:11] + ["left_tail_joint"])
     # An op the importer must refuse by name.
     m = onnx.load(f"{d}/mlp.onnx")
     m.graph.node[6].op_type = "Softmax"

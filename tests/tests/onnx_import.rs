@@ -286,3 +286,53 @@ fn bad_rl_lab_exports_name_the_field() {
         "{e}"
     );
 }
+
+/// An ONNX with its deploy data in metadata_props (mjlab / BeyondMimic style) imports on its own:
+/// joints found by name, gains and pose in the metadata's order, the missing parts said.
+#[test]
+fn an_onnx_with_mjlab_metadata_imports() {
+    let dir = scratch_dir("onnx-mjlab");
+    let Some(_) = models(&dir) else { return };
+    let imp = policy_import::import_onnx_metadata(&dir.join("mjlab.onnx"), &Default::default()).expect("imports");
+    // left/right interleaved: left_hip_pitch (slot 0), right_hip_pitch (6), left_hip_roll (1), …
+    assert_eq!(imp.joint_ids_map, [0, 6, 1, 7, 2, 8, 3, 9, 4, 10, 5, 11]);
+    assert_eq!(imp.kp, (0..12).map(|i| 100.0 + 10.0 * i as f32).collect::<Vec<_>>());
+    assert_eq!(imp.kd, (0..12).map(|i| 2.0 + 0.5 * i as f32).collect::<Vec<_>>());
+    assert!((imp.default_pose[3] - (-0.15)).abs() < 1e-6);
+    assert!(imp.table.contains("no command ranges"), "{}", imp.table);
+    let kinds: Vec<&str> = imp.terms.iter().map(|t| t.kind).collect();
+    assert_eq!(
+        kinds,
+        [
+            "base_ang_vel",
+            "projected_gravity",
+            "velocity_command",
+            "joint_pos_rel",
+            "joint_vel",
+            "last_action"
+        ]
+    );
+    // The spec it writes loads in the firmware (weights beside it).
+    let out = dir.join("spec");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("policy.toml"), &imp.spec_toml).unwrap();
+    std::fs::write(out.join("policy.safetensors"), &imp.weights).unwrap();
+    let spec = firmware::spec::DeploySpec::load(&out.join("policy.toml")).expect("the spec loads");
+    assert_eq!(spec.observation_dim(), 45);
+    assert_eq!(spec.motor_table().kd[29..], [0.0; 6]);
+    firmware::controller::Controller::new(spec).expect("the policy loads");
+
+    let e = policy_import::import_onnx_metadata(&dir.join("mjlab_bad.onnx"), &Default::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("joint_names[11]") && e.contains("left_tail_joint"), "{e}");
+    let e = policy_import::import_onnx_metadata(&dir.join("lstm.onnx"), &Default::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.contains("metadata_props.joint_names") && e.contains("deploy.yaml"),
+        "{e}"
+    );
+}

@@ -41,6 +41,24 @@ enum Cmd {
         #[arg(long)]
         force: bool,
     },
+    /// Import an ONNX that carries its deploy data in metadata_props (mjlab, BeyondMimic):
+    /// joint_names, joint_stiffness, joint_damping, default_joint_pos, action_scale,
+    /// observation_names. Writes `policy.toml` + `policy.safetensors` like `rl-lab`; what the
+    /// metadata lacks (command ranges, policy rate) gets defaults, listed as notes.
+    Mjlab {
+        /// The exported network with its metadata.
+        #[arg(long)]
+        onnx: PathBuf,
+        /// Output directory (created; existing files are not replaced unless --force).
+        #[arg(long)]
+        out: PathBuf,
+        /// The robot's MJCF for the estimator's leg kinematics (as in `rl-lab`).
+        #[arg(long, value_name = "MJCF")]
+        estimator_model: Option<String>,
+        /// Replace files already in --out.
+        #[arg(long)]
+        force: bool,
+    },
     /// Convert an ONNX policy network (MLP with an optional observation normaliser, or one LSTM
     /// layer with its state as inputs) into a `[policy.network]` table and a safetensors file, and
     /// print what became of every node. Any other op is refused by name.
@@ -78,35 +96,26 @@ fn run(cli: Cli) -> Result<()> {
                 ..Default::default()
             };
             let imp = policy_import::import_rl_lab(&deploy, &onnx, &opts)?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            let spec_path = out.join("policy.toml");
-            for p in [&spec_path, &out.join("policy.safetensors")] {
-                if p.exists() && !force {
-                    anyhow::bail!("{} exists; give --force to replace it", p.display());
-                }
-            }
-            write_new(&out.join("policy.safetensors"), &imp.weights, true)?;
-            write_new(&spec_path, imp.spec_toml.as_bytes(), true)?;
-            // The firmware's own loader and controller judge the result.
-            let spec = firmware::spec::DeploySpec::load(&spec_path)
-                .context("the imported spec does not load in g1fw (please report this)")?;
-            firmware::controller::Controller::new(spec).context("the imported policy does not load in g1fw")?;
-            println!("imported {} + {}", deploy.display(), onnx.display());
-            for line in &imp.network.trace {
-                println!("  {line}");
-            }
-            print!("{}", imp.table);
-            if opts.estimator_model.is_none() {
-                println!(
-                    "note: no --estimator-model: the state estimator runs attitude only (the policy does not need it)"
-                );
-            }
-            println!(
-                "wrote {} and policy.safetensors; check it with `g1fw check-spec --spec {}`",
-                spec_path.display(),
-                spec_path.display()
-            );
-            Ok(())
+            write_spec(
+                &imp,
+                &out,
+                force,
+                &format!("{} + {}", deploy.display(), onnx.display()),
+                &opts,
+            )
+        }
+        Cmd::Mjlab {
+            onnx,
+            out,
+            estimator_model,
+            force,
+        } => {
+            let opts = policy_import::RlLabOptions {
+                estimator_model,
+                ..Default::default()
+            };
+            let imp = policy_import::import_onnx_metadata(&onnx, &opts)?;
+            write_spec(&imp, &out, force, &onnx.display().to_string(), &opts)
         }
         Cmd::Network { onnx, out, force } => {
             let net = policy_import::import_file(&onnx)?;
@@ -169,6 +178,44 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// Writes an import's spec and weights into `out`, loads them with the firmware's own validation,
+/// and prints the table.
+fn write_spec(
+    imp: &policy_import::RlLabImport,
+    out: &std::path::Path,
+    force: bool,
+    what: &str,
+    opts: &policy_import::RlLabOptions,
+) -> Result<()> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let spec_path = out.join("policy.toml");
+    for p in [&spec_path, &out.join("policy.safetensors")] {
+        if p.exists() && !force {
+            anyhow::bail!("{} exists; give --force to replace it", p.display());
+        }
+    }
+    write_new(&out.join("policy.safetensors"), &imp.weights, true)?;
+    write_new(&spec_path, imp.spec_toml.as_bytes(), true)?;
+    // The firmware's own loader and controller judge the result.
+    let spec = firmware::spec::DeploySpec::load(&spec_path)
+        .context("the imported spec does not load in g1fw (please report this)")?;
+    firmware::controller::Controller::new(spec).context("the imported policy does not load in g1fw")?;
+    println!("imported {what}");
+    for line in &imp.network.trace {
+        println!("  {line}");
+    }
+    print!("{}", imp.table);
+    if opts.estimator_model.is_none() {
+        println!("note: no --estimator-model: the state estimator runs attitude only (the policy does not need it)");
+    }
+    println!(
+        "wrote {} and policy.safetensors; check it with `g1fw check-spec --spec {}`",
+        spec_path.display(),
+        spec_path.display()
+    );
+    Ok(())
 }
 
 fn main() -> ExitCode {
