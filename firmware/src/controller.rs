@@ -288,6 +288,11 @@ impl Controller {
         Ok(())
     }
 
+    /// The operator's velocity command as the policy receives it (clamped to `[commands]`).
+    pub fn clamp_command(&self, command: [f32; 3]) -> [f32; 3] {
+        self.io.clamp_command(command)
+    }
+
     /// The gains each slot is commanded with, per phase: what a peer on the wire may check the
     /// commands against. `None` for slots the controller leaves disabled.
     pub fn gain_table(&self) -> [Option<SlotGains>; NUM_MOTORS] {

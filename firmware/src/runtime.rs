@@ -54,6 +54,9 @@ pub struct TickSummary {
     pub tick: TickTime,
     pub frame: FrameStatus,
     pub operator: OperatorInput,
+    /// The velocity command as the policy receives it: the operator's, clamped to the spec's
+    /// `[commands]` limits.
+    pub command_received: [f32; 3],
     pub policy_step: bool,
     pub perception_step: bool,
     pub mode: Mode,
@@ -78,6 +81,7 @@ impl TickSummary {
             tick: TickTime::default(),
             frame: FrameStatus::NoFrame,
             operator: OperatorInput::default(),
+            command_received: [0.0; 3],
             policy_step: false,
             perception_step: false,
             mode: Mode::Startup,
@@ -445,6 +449,7 @@ impl Runtime {
             tick,
             frame,
             operator,
+            command_received: self.controller.clamp_command(operator.velocity),
             policy_step: false,
             perception_step: false,
             mode: self.controller.mode(),

@@ -163,8 +163,13 @@ pub struct Report {
     pub model: String,
     pub spec: String,
     pub weights_sha256: String,
-    /// The command of the first schedule step (the whole run's, for a constant command).
+    /// The command of the first schedule step (the whole run's, for a constant command), as given.
     pub command: [f32; 3],
+    /// The same as the policy received it: clamped to the spec's `[commands]` limits. Tracking is
+    /// scored against this.
+    pub command_received: [f32; 3],
+    /// Set when any command was clamped: the first one, and the limits (reported once).
+    pub command_clamped: Option<CommandClamp>,
     pub seed: u64,
     /// Velocity tracking against the operator's commands (body frame, from ground truth).
     pub tracking: Tracking,
@@ -395,6 +400,16 @@ impl SafetyReport {
     }
 }
 
+/// A command the spec's `[commands]` limits changed before the policy saw it.
+#[derive(Clone, Debug, Serialize)]
+pub struct CommandClamp {
+    pub at_s: f64,
+    pub given: [f32; 3],
+    pub received: [f32; 3],
+    pub min: Option<[f32; 3]>,
+    pub max: Option<[f32; 3]>,
+}
+
 /// Tracking error of one command segment, measured after `settle_s` (the robot needs time to reach
 /// a new command) while the policy is in control.
 #[derive(Clone, Debug, Serialize)]
@@ -402,6 +417,8 @@ pub struct SegmentTracking {
     pub start_s: f64,
     pub end_s: f64,
     pub command: [f32; 3],
+    /// As the policy received it (clamped), what `rmse` is scored against.
+    pub command_received: [f32; 3],
     pub samples: u64,
     pub mean_measured: [f64; 3],
     pub rmse: [f64; 3],
@@ -641,6 +658,8 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         spec: spec_name,
         weights_sha256,
         command: opts.schedule.velocity_at(0.0),
+        command_received: runtime.controller().clamp_command(opts.schedule.velocity_at(0.0)),
+        command_clamped: agg.first_clamp.clone(),
         seed: opts.seed,
         tracking: agg.tracking(&opts.schedule, opts.duration_s),
         trip,
@@ -735,8 +754,10 @@ struct Aggregate {
     fell_at: Option<f64>,
     sum_second_half: [f64; 3],
     n_second_half: u64,
-    /// (time, command, measured body velocity) of ticks under policy control.
+    /// (time, command as received, measured body velocity) of ticks under policy control.
     samples: Vec<(f64, [f32; 3], [f64; 3])>,
+    /// The first command the spec's limits changed.
+    first_clamp: Option<CommandClamp>,
 }
 
 /// Seconds after a command change that tracking errors ignore.
@@ -758,6 +779,7 @@ impl Aggregate {
             sum_second_half: [0.0; 3],
             n_second_half: 0,
             samples: Vec::with_capacity(ticks + 1),
+            first_clamp: None,
         }
     }
 
@@ -787,8 +809,20 @@ impl Aggregate {
             (0..3).for_each(|i| self.sum_second_half[i] += meas[i]);
             self.n_second_half += 1;
         }
+        let given = v.summary.operator.velocity;
+        if self.first_clamp.is_none() && v.summary.command_received != given {
+            let c = &v.runtime.controller().spec().commands;
+            self.first_clamp = Some(CommandClamp {
+                at_s: time_s,
+                given,
+                received: v.summary.command_received,
+                min: c.min,
+                max: c.max,
+            });
+        }
         if v.summary.mode == Mode::Policy {
-            self.samples.push((time_s, v.summary.operator.velocity, meas));
+            // Scored against the command the policy received (clamped to `[commands]`).
+            self.samples.push((time_s, v.summary.command_received, meas));
         }
     }
 
@@ -821,6 +855,11 @@ impl Aggregate {
                 start_s: start,
                 end_s: end,
                 command: cmd,
+                command_received: self
+                    .samples
+                    .iter()
+                    .find(|&&(t, _, _)| t >= start && t < end)
+                    .map_or(cmd, |s| s.1),
                 samples: n,
                 mean_measured: sum.map(|x| x / nf),
                 rmse: sq.map(|x| (x / nf).sqrt()),

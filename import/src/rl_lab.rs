@@ -24,7 +24,7 @@ pub enum DeployError {
     Io { path: String, source: std::io::Error },
     #[error("{path}: not valid YAML: {why}")]
     Yaml { path: String, why: String },
-    #[error("deploy.yaml `{field}`: {why}")]
+    #[error("export field `{field}`: {why}")]
     Field { field: String, why: String },
     #[error(transparent)]
     Onnx(#[from] ImportError),

@@ -166,3 +166,24 @@ fn same_seed_gives_bit_identical_runs() {
     assert_eq!(a.state_trace_sha256, b.state_trace_sha256);
     assert!(a.ticks == 2000 && a.policy_steps > 100);
 }
+
+/// A command beyond the spec's `[commands]` limits is reported once, with the limits, and tracking
+/// is scored against what the policy received (the peer spec allows vx up to 0.8 m/s).
+#[test]
+fn a_clamped_command_is_reported_and_tracked_as_received() {
+    if shared_dir().is_none() {
+        return skip_or_fail("command clamping (the peer policy)");
+    }
+    let r = run("g1-12dof", [1.5, 0.0, 0.0], 4.0);
+    assert_eq!(r.command, [1.5, 0.0, 0.0]);
+    assert_eq!(r.command_received, [0.8, 0.0, 0.0]);
+    let c = r.command_clamped.as_ref().expect("the clamp is reported");
+    assert_eq!((c.given, c.received), ([1.5, 0.0, 0.0], [0.8, 0.0, 0.0]));
+    assert_eq!(c.max, Some([0.8, 0.5, 1.57]));
+    let seg = &r.tracking.segments[0];
+    assert_eq!(seg.command_received, [0.8, 0.0, 0.0]);
+    // Scored against 0.8, not 1.5: the error is what the walker misses of 0.8.
+    let mean = seg.mean_measured[0];
+    assert!((seg.rmse[0] - (mean - 0.8).abs()).abs() < 0.3, "{seg:?}");
+    assert!(seg.rmse[0] < 0.6, "scored against the clamped 0.8: {seg:?}");
+}

@@ -552,6 +552,7 @@ impl McapSink {
         if self.last_operator != Some(s.operator) {
             self.last_operator = Some(s.operator);
             let o = s.operator;
+            let rx = s.command_received;
             self.put_json(
                 ch::OPERATOR,
                 t,
@@ -560,6 +561,7 @@ impl McapSink {
                     vx: o.velocity[0],
                     vy: o.velocity[1],
                     wz: o.velocity[2],
+                    received: rx,
                     estop: o.estop,
                     reset: o.reset,
                 },
@@ -1023,6 +1025,8 @@ struct OperatorMsg {
     vx: f32,
     vy: f32,
     wz: f32,
+    /// vx, vy, wz as the policy receives them (clamped to the spec's `[commands]`).
+    received: [f32; 3],
     estop: bool,
     reset: bool,
 }
