@@ -493,6 +493,36 @@ pub struct MotorTable {
 }
 
 impl DeploySpec {
+    /// Gains that a PD law computed explicitly once per control period would not hold stable:
+    /// the damping term diverges once `kd · dt / I > 2`, with `I` the joint's inertia. Judged on the
+    /// distal joints (ankles, elbows, wrists), whose inertia is mostly the reflected rotor inertia
+    /// used here; a proximal joint carries a heavy link (the waist, the torso) and is far from the
+    /// limit at the same kd. The robot's motor drivers and `g1-sim`'s implicit actuators are not affected; a
+    /// simulator that steps PD explicitly (Unitree's reference loop, `g1-sim --integrator euler`,
+    /// IsaacGym-style explicit actuators) is. One line per joint.
+    pub fn explicit_pd_warnings(&self) -> Vec<String> {
+        let dt = self.control_dt();
+        let t = self.motor_table();
+        (0..hal::NUM_MOTORS)
+            .filter(|&s| t.enabled[s] && t.kd[s] > 0.0)
+            .filter_map(|s| {
+                let name = hal::G1_MOTOR_NAMES[s];
+                if !["ankle", "elbow", "wrist"].iter().any(|d| name.contains(d)) {
+                    return None;
+                }
+                let inertia = hal::g1_rotor_inertia(name)?;
+                let ratio = t.kd[s] as f64 * dt / inertia;
+                (ratio > 2.0).then(|| {
+                    format!(
+                        "{name}: kd {} × dt {dt} s / I {inertia} kg·m² = {ratio:.1} > 2: explicit PD at this rate diverges \
+                         (fine on the robot and in g1-sim's implicit actuators; not in a simulator that steps PD explicitly)",
+                        t.kd[s]
+                    )
+                })
+            })
+            .collect()
+    }
+
     /// The per-slot table of driven and held motors (policy joints first, then `[[held]]` groups).
     pub fn motor_table(&self) -> MotorTable {
         const N: usize = hal::NUM_MOTORS;

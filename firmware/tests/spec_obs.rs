@@ -281,3 +281,34 @@ fn clip_before_scale_bounds_must_be_ordered() {
         "{e}"
     );
 }
+
+/// unitree_rl_lab's arm kd 10 is more than explicit PD at 500 Hz holds on the light distal joints
+/// (kd·dt/I > 2); the test spec's own gains are not.
+#[test]
+fn explicit_pd_unstable_gains_are_warned() {
+    let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
+    let spec = DeploySpec::from_toml(&good, &specs_dir().join("test/x.toml")).unwrap();
+    assert!(
+        spec.explicit_pd_warnings().is_empty(),
+        "{:?}",
+        spec.explicit_pd_warnings()
+    );
+    let kd10 = good.replace(
+        "kd = [2, 2, 20, 2, 2, 20, 2, 2, 20, 4, 4, 5, 5, 2, 2, 5, 5, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2]",
+        "kd = [2, 2, 20, 2, 2, 20, 2, 2, 20, 4, 4, 10, 10, 2, 2, 10, 10, 2, 2, 10, 10, 10, 10, 10, 10, 10, 10, 10, 10]",
+    );
+    assert_ne!(kd10, good);
+    let spec = DeploySpec::from_toml(&kd10, &specs_dir().join("test/x.toml")).unwrap();
+    let w = spec.explicit_pd_warnings();
+    // Both elbows and all six wrist joints; not the shoulders, waist or legs.
+    assert_eq!(w.len(), 8, "{w:?}");
+    assert!(
+        w.iter()
+            .any(|l| l.starts_with("left_wrist_pitch: kd 10") && l.contains("= 4.7 > 2")),
+        "{w:?}"
+    );
+    assert!(
+        !w.iter().any(|l| l.contains("waist") || l.contains("shoulder")),
+        "{w:?}"
+    );
+}

@@ -188,3 +188,18 @@ pub fn g1_motor_slot(name: &str) -> Option<usize> {
     let base = name.strip_suffix("_joint").unwrap_or(name);
     G1_MOTOR_NAMES.iter().position(|n| *n == base)
 }
+
+/// Reflected rotor inertia (MuJoCo `armature`) of a G1 joint, kg·m², by slot name with or without
+/// its side (mjlab's `g1_constants.py`): the simulator adds it to the 29-dof MJCF, and `check-spec`
+/// judges gains against it. A joint's inertia is at least this.
+pub fn g1_rotor_inertia(slot_name: &str) -> Option<f64> {
+    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
+    Some(match n {
+        "hip_pitch" | "hip_yaw" | "waist_yaw" => 0.01018,
+        "hip_roll" | "knee" => 0.02510,
+        "waist_roll" | "waist_pitch" | "ankle_pitch" | "ankle_roll" => 0.00722,
+        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 0.00361,
+        "wrist_pitch" | "wrist_yaw" => 0.00425,
+        _ => return None,
+    })
+}

@@ -422,6 +422,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 s.rates.policy_hz,
                 c.weights_sha256()
             );
+            for w in s.explicit_pd_warnings() {
+                println!("warning: {w}");
+            }
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Sim(a) => sim(*a),

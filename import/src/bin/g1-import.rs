@@ -201,12 +201,16 @@ fn write_spec(
     // The firmware's own loader and controller judge the result.
     let spec = firmware::spec::DeploySpec::load(&spec_path)
         .context("the imported spec does not load in g1fw (please report this)")?;
+    let warnings = spec.explicit_pd_warnings();
     firmware::controller::Controller::new(spec).context("the imported policy does not load in g1fw")?;
     println!("imported {what}");
     for line in &imp.network.trace {
         println!("  {line}");
     }
     print!("{}", imp.table);
+    for w in &warnings {
+        println!("warning: {w}");
+    }
     if opts.estimator_model.is_none() {
         println!("note: no --estimator-model: the state estimator runs attitude only (the policy does not need it)");
     }

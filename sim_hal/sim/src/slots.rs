@@ -58,15 +58,7 @@ pub fn effort_limit(slot_name: &str) -> Option<f64> {
 /// groups do not coincide with the torque groups (hip roll and knee share 0.02510, ankles share
 /// with waist roll/pitch, wrist pitch/yaw have their own).
 pub fn armature(slot_name: &str) -> Option<f64> {
-    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
-    Some(match n {
-        "hip_pitch" | "hip_yaw" | "waist_yaw" => 0.01018,
-        "hip_roll" | "knee" => 0.02510,
-        "waist_roll" | "waist_pitch" | "ankle_pitch" | "ankle_roll" => 0.00722,
-        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 0.00361,
-        "wrist_pitch" | "wrist_yaw" => 0.00425,
-        _ => return None,
-    })
+    hal::g1_rotor_inertia(slot_name)
 }
 
 /// Home pose used by mjlab for the 29-dof model: joint angles by slot name (others 0) and the
