@@ -162,6 +162,48 @@ def mjlab_meta(path, joints=MJLAB_JOINTS):
     save(m, path)
 
 
+def rl_lab_29(d):
+    """The shape of unitree_rl_lab's official G1 29-dof velocity export: deploy.yaml (IsaacLab joint
+    order mapped to SDK slots, SDK-order gains with arm kd 10, 6 terms × 5 frames = 480 inputs,
+    clips) + an MLP 480 → 512 → 256 → 128 → 29 with ELU (seeded weights)."""
+    ids = [0, 6, 12, 1, 7, 13, 2, 8, 14, 3, 9, 15, 22, 4, 10, 16, 23, 5, 11, 17, 24, 18, 25, 19, 26, 20, 27, 21, 28]
+    kp = [100, 100, 100, 150, 40, 40] * 2 + [200] * 3 + [40] * 14
+    kd = [2, 2, 2, 4, 2, 2] * 2 + [5] * 3 + [10] * 14
+    pos = [-0.1, -0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 0.3, 0.3, 0.3, -0.2, -0.2, 0.25, -0.25,
+           0.0, 0.0, 0.0, 0.0, 0.97, 0.97, 0.15, -0.15, 0.0, 0.0, 0.0, 0.0]
+    fl = lambda v: "[" + ", ".join(f"{float(x)}" for x in v) + "]"
+    term = lambda name, scale, clip="null", params="{}": (
+        f"  {name}:\n    params: {params}\n    clip: {clip}\n    scale: {fl(scale)}\n    history_length: 5\n")
+    text = (f"joint_ids_map: {ids}\nstep_dt: 0.02\nstiffness: {fl(kp)}\ndamping: {fl(kd)}\n"
+            f"default_joint_pos: {fl(pos)}\n"
+            "commands:\n  base_velocity:\n    ranges:\n      lin_vel_x: [-0.5, 1.0]\n      lin_vel_y: [-0.3, 0.3]\n"
+            "      ang_vel_z: [-0.2, 0.2]\n      heading: null\n"
+            f"actions:\n  JointPositionAction:\n    clip: null\n    joint_names: [.*]\n    scale: {fl([0.25] * 29)}\n"
+            f"    offset: {fl(pos)}\n    joint_ids: null\n"
+            "observations:\n"
+            + term("base_ang_vel", [0.2] * 3, clip="[-100.0, 100.0]")
+            + term("projected_gravity", [1.0] * 3)
+            + term("keyboard_velocity_commands", [1.0] * 3, params="{command_name: base_velocity}")
+            + term("joint_pos_rel", [1.0] * 29)
+            + term("joint_vel_rel", [0.05] * 29, clip="[-50.0, 50.0]")
+            + term("last_action", [1.0] * 29))
+    open(f"{d}/rl_lab_29.yaml", "w").write(text)
+    sizes = [480, 512, 256, 128, 29]
+    nodes, inits, cur = [], [], "obs"
+    for i in range(4):
+        inits += [const(f"w{i}", rng.normal(0, 1 / np.sqrt(sizes[i]), (sizes[i + 1], sizes[i]))),
+                  const(f"b{i}", rng.normal(0, 0.05, sizes[i + 1]))]
+        out = "actions" if i == 3 else f"h{i}"
+        nodes.append(helper.make_node("Gemm", [cur, f"w{i}", f"b{i}"], [out], name=f"actor.{2 * i}", transB=1))
+        cur = out
+        if i < 3:
+            nodes.append(helper.make_node("Elu", [cur], [f"e{i}"], name=f"actor.{2 * i + 1}"))
+            cur = f"e{i}"
+    g = helper.make_graph(nodes, "rl_lab_29", [vinfo("obs", [1, 480])], [vinfo("actions", [1, 29])], inits)
+    save(helper.make_model(g, opset_imports=[helper.make_opsetid("", 17)]), f"{d}/rl_lab_29.onnx")
+    return 480, None
+
+
 def peer_deploy(path):
     """The peer walker's deployment data written as unitree_rl_lab writes deploy.yaml: gains in SDK
     motor order (29 on the G1), pose and action data in policy order (the 12 leg joints)."""
@@ -254,6 +296,8 @@ def main():
     for name, build in [("mlp", mlp), ("lstm", lstm)]:
         n_in, h = build(f"{d}/{name}.onnx")
         res[name] = run(f"{d}/{name}.onnx", n_in, h)
+    rl_lab_29(d)
+    res["rl_lab_29"] = run(f"{d}/rl_lab_29.onnx", 480, None)
     if len(sys.argv) > 2:
         n_in, h = peer(f"{d}/peer.onnx", sys.argv[2])
         res["peer"] = run(f"{d}/peer.onnx", n_in, h)

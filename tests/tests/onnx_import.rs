@@ -336,3 +336,43 @@ fn an_onnx_with_mjlab_metadata_imports() {
         "{e}"
     );
 }
+
+/// The shape of unitree_rl_lab's official G1 29-dof velocity export (IsaacLab joint order, SDK-order
+/// gains with arm kd 10, 6 terms × 5 frames = 480 inputs with IsaacLab clips, MLP 480-512-256-128-29
+/// ELU): one command, the gains land on the right joints, the network matches onnxruntime, the
+/// spec loads, and the arm kd 10 is flagged for explicit PD.
+#[test]
+fn an_rl_lab_29dof_export_imports() {
+    let dir = scratch_dir("onnx-rl-lab-29");
+    let Some(reference) = models(&dir) else { return };
+    let e = max_error(&dir, "rl_lab_29", &reference["rl_lab_29"]);
+    assert!(e <= TOLERANCE, "{e:e}");
+    let out = dir.join("imported");
+    let o = g1_import(&[
+        "rl-lab".as_ref(),
+        "--deploy".as_ref(),
+        dir.join("rl_lab_29.yaml").as_os_str(),
+        "--onnx".as_ref(),
+        dir.join("rl_lab_29.onnx").as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(text.contains("warning: left_wrist_pitch: kd 10"), "{text}");
+    let spec = firmware::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
+    assert_eq!(spec.observation_dim(), 480);
+    assert_eq!(spec.num_joints(), 29);
+    let p = &spec.policy;
+    // IsaacLab index 2 is the waist yaw (SDK slot 12, kp 200 kd 5); index 9 the left knee (slot 3).
+    assert_eq!((p.joint_ids_map[2], p.kp[2], p.kd[2]), (12, 200.0, 5.0));
+    assert_eq!((p.joint_ids_map[9], p.kp[9], p.kd[9]), (3, 150.0, 4.0));
+    assert_eq!((p.joint_ids_map[28], p.kp[28], p.kd[28]), (28, 40.0, 10.0));
+    assert_eq!(p.default_pose[21], 0.97);
+    let t = &spec.observation.terms;
+    assert_eq!(t[0].clip_before_scale, Some([-100.0, 100.0]));
+    assert_eq!(t[4].clip_before_scale, Some([-50.0, 50.0]));
+    assert!(t.iter().all(|t| t.history == 5));
+    assert_eq!(spec.commands.max, Some([1.0, 0.3, 0.2]));
+    firmware::controller::Controller::new(spec).expect("loads");
+}
