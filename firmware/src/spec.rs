@@ -303,6 +303,8 @@ pub struct Policy {
     /// Clip raw actions to ±this before scaling (none if absent).
     #[serde(default)]
     pub action_clip: Option<f32>,
+    /// PD gains of the driven joints, in policy order (`kp[i]` drives slot `joint_ids_map[i]`);
+    /// unitree_rl_lab's deploy.yaml lists them in SDK motor order instead (`g1-import` converts).
     pub kp: Vec<f32>,
     pub kd: Vec<f32>,
 }
