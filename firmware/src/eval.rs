@@ -200,7 +200,7 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
         pb
     });
     std::thread::scope(|scope| {
-        for _ in 0..opts.jobs.clamp(1, n) {
+        for _ in 0..opts.jobs.min(n).max(1) {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
                 if i >= n {

@@ -104,7 +104,7 @@ impl ObservationBuilder {
                 }
                 *v *= k;
                 if let Some(clip) = term.clip {
-                    *v = v.clamp(-clip, clip);
+                    *v = v.max(-clip).min(clip);
                 }
             }
             if !self.primed {

@@ -131,14 +131,15 @@ impl PolicyIo {
     pub fn apply_action(&mut self, action: &[f32], target_q: &mut [f32; NUM_MOTORS]) -> u64 {
         for (a, &raw) in self.last_action.iter_mut().zip(action) {
             *a = match self.action_clip {
-                Some(c) => raw.clamp(-c, c),
+                // max/min, not clamp: never panics, whatever the spec held (validated c > 0).
+                Some(c) => raw.max(-c).min(c),
                 None => raw,
             };
         }
         let mut clamped = 0;
         for (i, &slot) in self.joint_ids_map.iter().enumerate() {
             let q = self.default_pose[i] + self.action_scale[i] * self.last_action[i];
-            let c = q.clamp(self.q_min[slot], self.q_max[slot]);
+            let c = q.max(self.q_min[slot]).min(self.q_max[slot]);
             clamped += (c != q) as u64;
             target_q[slot] = c;
         }

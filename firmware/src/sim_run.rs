@@ -448,7 +448,16 @@ fn yaw(q: [f64; 4]) -> f64 {
 }
 
 /// Runs the firmware against the simulator. `observe` sees every tick (evaluation only).
+/// Longest run `g1fw sim` accepts: a day of simulated time (its report keeps a sample per tick).
+pub const MAX_DURATION_S: f64 = 86_400.0;
+
 pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(&TickView)) -> Result<Report> {
+    if !(opts.duration_s.is_finite() && opts.duration_s > 0.0 && opts.duration_s <= MAX_DURATION_S) {
+        bail!(
+            "--duration {} s: give a positive number of seconds, at most {MAX_DURATION_S} (a day)",
+            opts.duration_s
+        );
+    }
     if let Some((ramp, hold)) = opts.ramp_override {
         spec.startup.ramp_s = ramp;
         spec.startup.hold_s = hold;

@@ -404,6 +404,13 @@ pub struct Observation {
     pub terms: Vec<ObsTerm>,
 }
 
+/// Largest PD gains a spec may command (N·m/rad, N·m·s/rad): above the G1's own (kp ≤ 300, kd ≤ 20
+/// in Unitree's examples) with room, far below values that only a typo makes.
+pub const MAX_KP: f32 = 1000.0;
+pub const MAX_KD: f32 = 100.0;
+/// Largest |action_scale| (rad of target per unit of action).
+pub const MAX_ACTION_SCALE: f32 = 10.0;
+
 /// The signals an observation term can read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -816,6 +823,52 @@ impl DeploySpec {
         if p.action_scale.expand(n).is_none() {
             return Err(self.invalid("policy.action_scale", format!("per-joint list must have {n} entries")));
         }
+        // Physical ranges (docs: "Deploy spec limits"): the runtime can then meet no value it
+        // cannot handle.
+        let gains = [
+            ("policy.kp", Some(&p.kp), MAX_KP),
+            ("policy.kd", Some(&p.kd), MAX_KD),
+            ("startup.kp", self.startup.kp.as_ref(), MAX_KP),
+            ("startup.kd", self.startup.kd.as_ref(), MAX_KD),
+        ];
+        for (field, v, max) in gains {
+            if let Some((i, x)) = v.and_then(|v| v.iter().enumerate().find(|(_, x)| !(0.0..=max).contains(*x))) {
+                return Err(self.invalid(&format!("{field}[{i}]"), format!("{x} is outside 0..={max}")));
+            }
+        }
+        for (i, &x) in p.action_scale.expand(n).unwrap_or_default().iter().enumerate() {
+            if !(x.is_finite() && x.abs() <= MAX_ACTION_SCALE) {
+                return Err(self.invalid(
+                    &format!("policy.action_scale[{i}]"),
+                    format!("{x} is not a finite number within ±{MAX_ACTION_SCALE} rad per unit of action"),
+                ));
+            }
+        }
+        if let Some(c) = p.action_clip {
+            if !(c.is_finite() && c > 0.0) {
+                return Err(self.invalid("policy.action_clip", format!("{c}: must be a finite number > 0")));
+            }
+        }
+        let margin = self.safety.joint_range_margin_rad;
+        for (i, (&slot, &q)) in p.joint_ids_map.iter().zip(&p.default_pose).enumerate() {
+            if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[slot] {
+                if 2.0 * margin >= hi - lo {
+                    return Err(self.invalid(
+                        "safety.joint_range_margin_rad",
+                        format!(
+                            "{margin} leaves no range for {} ([{lo}, {hi}] rad)",
+                            hal::G1_MOTOR_NAMES[slot]
+                        ),
+                    ));
+                }
+                if !(lo..=hi).contains(&q) {
+                    return Err(self.invalid(
+                        &format!("policy.default_pose[{i}]"),
+                        format!("{q} rad is outside {}'s range [{lo}, {hi}]", hal::G1_MOTOR_NAMES[slot]),
+                    ));
+                }
+            }
+        }
 
         for (g, group) in self.held.iter().enumerate() {
             let k = group.joints.len();
@@ -828,12 +881,19 @@ impl DeploySpec {
                 }
                 used[slot] = true;
             }
-            for (f, sc) in [("q", &group.q), ("kp", &group.kp), ("kd", &group.kd)] {
-                if sc.expand(k).is_none() {
+            for (f, sc, lo, hi) in [
+                ("q", &group.q, -std::f32::consts::TAU, std::f32::consts::TAU),
+                ("kp", &group.kp, 0.0, MAX_KP),
+                ("kd", &group.kd, 0.0, MAX_KD),
+            ] {
+                let Some(v) = sc.expand(k) else {
                     return Err(self.invalid(
                         &format!("held[{g}].{f}"),
                         format!("per-joint list must have {k} entries"),
                     ));
+                };
+                if let Some((j, x)) = v.iter().enumerate().find(|(_, x)| !(lo..=hi).contains(*x)) {
+                    return Err(self.invalid(&format!("held[{g}].{f}[{j}]"), format!("{x} is outside {lo}..={hi}")));
                 }
             }
         }
@@ -854,11 +914,17 @@ impl DeploySpec {
             if t.history == 0 {
                 return Err(self.invalid(&format!("{field}.history"), "must be >= 1"));
             }
-            if t.scale.expand(t.kind.dim(n)).is_none() {
-                return Err(self.invalid(
-                    &format!("{field}.scale"),
-                    format!("per-element list must have {} entries for {:?}", t.kind.dim(n), t.kind),
-                ));
+            match t.scale.expand(t.kind.dim(n)) {
+                None => {
+                    return Err(self.invalid(
+                        &format!("{field}.scale"),
+                        format!("per-element list must have {} entries for {:?}", t.kind.dim(n), t.kind),
+                    ))
+                }
+                Some(v) if v.iter().any(|x| !x.is_finite()) => {
+                    return Err(self.invalid(&format!("{field}.scale"), "contains a non-finite value"))
+                }
+                Some(_) => {}
             }
             if t.kind == ObsKind::GaitPhase && self.phase.is_none() {
                 return Err(self.invalid(&field, "gait_phase needs a [phase] section"));

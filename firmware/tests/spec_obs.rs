@@ -312,3 +312,43 @@ fn explicit_pd_unstable_gains_are_warned() {
         "{w:?}"
     );
 }
+
+/// The values that passed `check-spec` and then panicked or reached the motors (issue 22): each is
+/// now refused at load, naming the field.
+#[test]
+fn out_of_range_values_are_refused_by_field() {
+    let good = std::fs::read_to_string(specs_dir().join("test/rl_lab_style.toml")).unwrap();
+    let cases: [(&str, &str, &str); 9] = [
+        ("action_clip = 10.0", "action_clip = -5.0", "policy.action_clip"),
+        ("action_clip = 10.0", "action_clip = nan", "policy.action_clip"),
+        (
+            "[safety]",
+            "[safety]\njoint_range_margin_rad = 5.0",
+            "safety.joint_range_margin_rad",
+        ),
+        ("kp = [100, 100, 300,", "kp = [-100, 100, 300,", "policy.kp[0]"),
+        ("kp = [100, 100, 300,", "kp = [1e30, 100, 300,", "policy.kp[0]"),
+        ("kd = [2, 2, 20,", "kd = [2, 2, 2000,", "policy.kd[2]"),
+        (
+            "default_pose = [-0.1,",
+            "default_pose = [100.0,",
+            "policy.default_pose[0]",
+        ),
+        ("action_scale = 0.25", "action_scale = inf", "policy.action_scale[0]"),
+        (
+            "scale = 0.2, history = 5",
+            "scale = nan, history = 5",
+            "observation.terms[0].scale",
+        ),
+    ];
+    for (from, to, field) in cases {
+        let text = if from == "[safety]" && !good.contains("[safety]") {
+            format!("{good}\n[safety]\njoint_range_margin_rad = 5.0\n")
+        } else {
+            assert!(good.contains(from), "the test spec changed: {from}");
+            good.replacen(from, to, 1)
+        };
+        let e = load_err(&text);
+        assert!(e.contains(field), "{to}: {e}");
+    }
+}

@@ -289,3 +289,33 @@ fn can_emulator_lidar_without_a_world_is_a_clear_error() {
     assert!(err.contains("--lidar-udp-to needs --world"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// `g1-sim --socket PATH` replaces only a stale socket: a regular file at PATH is refused and kept.
+#[test]
+fn g1_sim_never_deletes_a_file_that_is_not_a_socket() {
+    let dir = integration_tests::scratch_dir("sim-socket-file");
+    let victim = dir.join("notes.txt");
+    std::fs::write(&victim, "precious").unwrap();
+    let out = std::process::Command::new(integration_tests::built_bin("g1-sim"))
+        .args(["--model", "g1-12dof", "--quiet", "--socket"])
+        .arg(&victim)
+        .output()
+        .expect("g1-sim runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "g1-sim accepted a regular file as its socket");
+    assert!(err.contains("is not a socket") && err.contains("refusing"), "{err}");
+    assert_eq!(std::fs::read_to_string(&victim).unwrap(), "precious");
+}
+
+/// An absurd --duration is refused before anything is allocated for it (it used to abort
+/// allocating 2.4e16 bytes).
+#[test]
+fn an_absurd_duration_is_refused() {
+    for d in ["1e12", "nan", "-1"] {
+        let arg = format!("--duration={d}");
+        let out = g1fw(&["sim", "--model", "g1-12dof", &arg, "--quiet"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{d}: {err}");
+        assert!(err.contains("--duration"), "{d}: {err}");
+    }
+}

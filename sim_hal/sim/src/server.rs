@@ -305,7 +305,14 @@ pub fn serve_unix(
     opts: &ServeOptions,
     ready: impl FnOnce(),
 ) -> Result<SessionSummary, ServeError> {
-    if path.exists() {
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        // Only a socket is ours to replace: anything else at PATH is someone's file.
+        if !std::os::unix::fs::FileTypeExt::is_socket(&meta.file_type()) {
+            return Err(ServeError::Setup(format!(
+                "{} exists and is not a socket; refusing to replace it (choose another --socket path)",
+                path.display()
+            )));
+        }
         if UnixStream::connect(path).is_ok() {
             return Err(ServeError::Setup(format!(
                 "{} is in use by another server",
