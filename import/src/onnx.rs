@@ -32,8 +32,13 @@ pub const MAX_ONNX_BYTES: u64 = 256 << 20;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
-    #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The OS's reason is the source (printed once by `{:#}` chains).
+    #[error("cannot read {path}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{path}: {bytes} bytes is more than the {max} an ONNX policy may have")]
     TooLarge { path: PathBuf, bytes: u64, max: u64 },
     #[error(

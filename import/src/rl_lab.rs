@@ -20,8 +20,12 @@ pub const G1_SLOTS: usize = 29;
 
 #[derive(Debug, thiserror::Error)]
 pub enum DeployError {
-    #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    #[error("cannot read {path}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{path}: not valid YAML: {why}")]
     Yaml { path: String, why: String },
     #[error("export field `{field}`: {why}")]

@@ -274,9 +274,12 @@ fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
     assert!(u(&fw["policy_steps"]) >= 450, "{}", fw["policy_steps"]);
     assert_eq!(u(&fw["dds"]["rejected"]), 0);
     // The peer: every command's CRC is right, echoes mode_machine, and carries the spec's gains.
-    // g1fw sent 5000; the peer's BEST_EFFORT KEEP_LAST 1 reader may miss one when two arrive
-    // between its takes (it did, once in a CI run: 4999).
-    assert_eq!(u(&fw["dds"]["samples_out"]), 5000);
+    // g1fw handed 5000 commands over; the transport writes the newest when two come before it
+    // wakes (a silent tick's command and the next), and the peer's BEST_EFFORT KEEP_LAST 1 reader
+    // may miss one when two arrive between its takes (each seen once in CI: 4999).
+    let d = &fw["dds"];
+    assert_eq!(u(&d["samples_out"]) + u(&d["coalesced"]), 5000, "{d}");
+    assert!(u(&d["samples_out"]) >= 4990, "{d}");
     let cmds = u(&peer["cmds"]);
     assert!(cmds >= 4990, "the peer saw {cmds} of 5000 commands");
     assert_eq!(u(&peer["cmd_crc_bad"]), 0);

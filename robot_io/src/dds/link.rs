@@ -119,6 +119,9 @@ pub fn interface_address(interface: &str) -> Result<IpAddr, DdsError> {
 pub struct LinkCounters {
     pub samples_in: u64,
     pub samples_out: u64,
+    /// Samples handed to `send` that a newer one replaced before the transport thread wrote them
+    /// (the outbox keeps the newest, as the robot wants the newest command).
+    pub coalesced: u64,
     pub write_errors: u64,
     pub read_errors: u64,
     /// Writers on our write topic that belong to another participant (another program
@@ -146,6 +149,7 @@ struct Shared {
     stop: AtomicBool,
     samples_in: AtomicU64,
     samples_out: AtomicU64,
+    coalesced: AtomicU64,
     write_errors: AtomicU64,
     read_errors: AtomicU64,
     other_writers_now: AtomicU64,
@@ -194,6 +198,7 @@ impl DdsLink {
             stop: AtomicBool::new(false),
             samples_in: AtomicU64::new(0),
             samples_out: AtomicU64::new(0),
+            coalesced: AtomicU64::new(0),
             write_errors: AtomicU64::new(0),
             read_errors: AtomicU64::new(0),
             other_writers_now: AtomicU64::new(0),
@@ -308,6 +313,7 @@ impl DdsLink {
         LinkCounters {
             samples_in: s.samples_in.load(Ordering::Relaxed),
             samples_out: s.samples_out.load(Ordering::Relaxed),
+            coalesced: s.coalesced.load(Ordering::Relaxed),
             write_errors: s.write_errors.load(Ordering::Relaxed),
             read_errors: s.read_errors.load(Ordering::Relaxed),
             other_writers: s.other_writers_max.load(Ordering::Relaxed),
@@ -446,6 +452,7 @@ fn transport(
         let pending = {
             let out = lock(&shared.outbox);
             (out.seq != sent_seq).then(|| {
+                shared.coalesced.fetch_add(out.seq - sent_seq - 1, Ordering::Relaxed);
                 sent_seq = out.seq;
                 CdrSample(out.bytes[..out.len].to_vec())
             })
