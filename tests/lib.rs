@@ -22,7 +22,14 @@ pub fn shared_dir() -> Option<PathBuf> {
 
 /// Loud skip outside CI; a failure in CI (where `../shared` is always present).
 pub fn skip_or_fail(what: &str) {
-    let msg = format!("SKIP: {what} needs ../shared beside the checkout (the peer policy and models); it is not there");
+    skip_loudly_or_fail(&format!(
+        "SKIP: {what} needs ../shared beside the checkout (the peer policy and models); it is not there"
+    ));
+}
+
+/// Prints `msg` loudly and returns (the caller skips); under CI, where everything a test needs is
+/// installed, panics with it instead.
+pub fn skip_loudly_or_fail(msg: &str) {
     if std::env::var_os("CI").is_some() {
         panic!("{msg} — and CI must have it");
     }
@@ -83,11 +90,9 @@ pub fn venv_python(what: &str) -> Option<PathBuf> {
     if p.is_file() {
         return Some(p);
     }
-    let msg = format!("SKIP: {what} needs the project's Python environment (.venv); run scripts/install.sh");
-    if std::env::var_os("CI").is_some() {
-        panic!("{msg} — and CI must have it");
-    }
-    eprintln!("\n!!!!!!!! {msg} !!!!!!!!\n");
+    skip_loudly_or_fail(&format!(
+        "SKIP: {what} needs the project's Python environment (.venv); run scripts/install.sh"
+    ));
     None
 }
 

@@ -612,9 +612,6 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
             "the graph computes nothing (no linear or LSTM layer)".into(),
         ));
     }
-    if pre.is_some() && !built.iter().any(|b| !matches!(b, Built::Act(_))) {
-        return Err(ImportError::Graph("a normaliser with no layer to fold it into".into()));
-    }
     let input = match built.first() {
         Some(Built::Linear(l)) => l.inp,
         Some(Built::Lstm { inp, .. }) => *inp,

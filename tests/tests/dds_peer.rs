@@ -10,15 +10,15 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::OnceLock;
 
-use integration_tests::{built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_or_fail};
+use integration_tests::{
+    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail,
+};
 
 /// Loud skip outside CI, failure in CI (where install.sh put the tools and the tests run as root).
 fn missing(what: &str) {
-    let msg = format!("SKIP: the DDS peer test needs {what}");
-    if std::env::var_os("CI").is_some() {
-        panic!("{msg} — and CI must have it (scripts/install.sh installs cyclonedds-dev and cyclonedds-tools)");
-    }
-    eprintln!("\n!!!!!!!! {msg} !!!!!!!!\n");
+    skip_loudly_or_fail(&format!(
+        "SKIP: the DDS peer test needs {what} (scripts/install.sh installs cyclonedds-dev and cyclonedds-tools)"
+    ));
 }
 
 fn have(cmd: &str, arg: &str) -> bool {

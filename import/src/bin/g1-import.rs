@@ -30,16 +30,8 @@ enum Cmd {
         /// The export's policy network.
         #[arg(long)]
         onnx: PathBuf,
-        /// Output directory (created; existing files are not replaced unless --force).
-        #[arg(long)]
-        out: PathBuf,
-        /// The robot's MJCF for the estimator's leg kinematics, written into the spec as given
-        /// (relative paths are relative to --out); without it the estimator runs attitude only.
-        #[arg(long, value_name = "MJCF")]
-        estimator_model: Option<String>,
-        /// Replace files already in --out.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        spec: SpecOut,
     },
     /// Import an ONNX that carries its deploy data in metadata_props (mjlab, BeyondMimic):
     /// joint_names, joint_stiffness, joint_damping, default_joint_pos, action_scale,
@@ -49,15 +41,8 @@ enum Cmd {
         /// The exported network with its metadata.
         #[arg(long)]
         onnx: PathBuf,
-        /// Output directory (created; existing files are not replaced unless --force).
-        #[arg(long)]
-        out: PathBuf,
-        /// The robot's MJCF for the estimator's leg kinematics (as in `rl-lab`).
-        #[arg(long, value_name = "MJCF")]
-        estimator_model: Option<String>,
-        /// Replace files already in --out.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        spec: SpecOut,
     },
     /// Convert an ONNX policy network (MLP with an optional observation normaliser, or one LSTM
     /// layer with its state as inputs) into a `[policy.network]` table and a safetensors file, and
@@ -65,81 +50,84 @@ enum Cmd {
     Network {
         /// The exported network (`policy.onnx`).
         onnx: PathBuf,
-        /// Directory for `network.toml` and `policy.safetensors` (created; not overwritten unless
-        /// --force).
-        #[arg(long)]
-        out: PathBuf,
-        /// Replace files already in --out.
-        #[arg(long)]
-        force: bool,
+        /// Where `network.toml` and `policy.safetensors` go.
+        #[command(flatten)]
+        dir: OutDir,
     },
 }
 
-fn write_new(path: &std::path::Path, data: &[u8], force: bool) -> Result<()> {
-    if path.exists() && !force {
-        anyhow::bail!("{} exists; give --force to replace it", path.display());
+/// Where an import writes.
+#[derive(clap::Args)]
+struct OutDir {
+    /// Output directory (created; files already in it are not replaced unless --force).
+    #[arg(long)]
+    out: PathBuf,
+    /// Replace files already in --out.
+    #[arg(long)]
+    force: bool,
+}
+
+impl OutDir {
+    /// Creates the directory and, before anything is written, refuses to replace any of `names`
+    /// without --force. Returns their paths.
+    fn paths<const N: usize>(&self, names: [&str; N]) -> Result<[PathBuf; N]> {
+        std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
+        let paths = names.map(|n| self.out.join(n));
+        if let Some(p) = paths.iter().find(|p| p.exists() && !self.force) {
+            anyhow::bail!("{} exists; give --force to replace it", p.display());
+        }
+        Ok(paths)
     }
+}
+
+/// The output of a spec import (`rl-lab`, `mjlab`).
+#[derive(clap::Args)]
+struct SpecOut {
+    #[command(flatten)]
+    dir: OutDir,
+    /// The robot's MJCF for the estimator's leg kinematics, written into the spec as given
+    /// (relative paths are relative to --out); without it the estimator runs attitude only.
+    #[arg(long, value_name = "MJCF")]
+    estimator_model: Option<String>,
+}
+
+impl SpecOut {
+    fn options(&self) -> policy_import::RlLabOptions {
+        policy_import::RlLabOptions {
+            estimator_model: self.estimator_model.clone(),
+            ..Default::default()
+        }
+    }
+}
+
+fn write(path: &std::path::Path, data: &[u8]) -> Result<()> {
     std::fs::write(path, data).with_context(|| format!("writing {}", path.display()))
 }
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::RlLab {
-            deploy,
-            onnx,
-            out,
-            estimator_model,
-            force,
-        } => {
-            let opts = policy_import::RlLabOptions {
-                estimator_model,
-                ..Default::default()
-            };
-            let imp = policy_import::import_rl_lab(&deploy, &onnx, &opts)?;
-            write_spec(
-                &imp,
-                &out,
-                force,
-                &format!("{} + {}", deploy.display(), onnx.display()),
-                &opts,
-            )
+        Cmd::RlLab { deploy, onnx, spec } => {
+            let imp = policy_import::import_rl_lab(&deploy, &onnx, &spec.options())?;
+            write_spec(&imp, &spec, &format!("{} + {}", deploy.display(), onnx.display()))
         }
-        Cmd::Mjlab {
-            onnx,
-            out,
-            estimator_model,
-            force,
-        } => {
-            let opts = policy_import::RlLabOptions {
-                estimator_model,
-                ..Default::default()
-            };
-            let imp = policy_import::import_onnx_metadata(&onnx, &opts)?;
-            write_spec(&imp, &out, force, &onnx.display().to_string(), &opts)
+        Cmd::Mjlab { onnx, spec } => {
+            let imp = policy_import::import_onnx_metadata(&onnx, &spec.options())?;
+            write_spec(&imp, &spec, &onnx.display().to_string())
         }
-        Cmd::Network { onnx, out, force } => {
+        Cmd::Network { onnx, dir } => {
             let net = policy_import::import_file(&onnx)?;
             let weights = net.safetensors_bytes()?;
             // The firmware's own loader checks every shape before anything is written.
             let check = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
                 .context("the converted network does not load in the firmware's executor")?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            let toml_path = out.join("network.toml");
-            let st_path = out.join("policy.safetensors");
-            for p in [&toml_path, &st_path] {
-                if p.exists() && !force {
-                    anyhow::bail!("{} exists; give --force to replace it", p.display());
-                }
-            }
+            let [toml_path, st_path] = dir.paths(["network.toml", "policy.safetensors"])?;
             let table = net.spec_table()?;
-            std::fs::write(
-                &toml_path,
-                format!(
-                    "# A deploy spec's network, imported from {} by g1-import; with [policy] weights = \"policy.safetensors\"\n{table}",
-                    onnx.display()
-                ),
-            )?;
-            std::fs::write(&st_path, &weights)?;
+            let text = format!(
+                "# A deploy spec's network, imported from {} by g1-import; with [policy] weights = \"policy.safetensors\"\n{table}",
+                onnx.display()
+            );
+            write(&toml_path, text.as_bytes())?;
+            write(&st_path, &weights)?;
             println!(
                 "imported {} (input '{}', output '{}')",
                 onnx.display(),
@@ -182,22 +170,10 @@ fn run(cli: Cli) -> Result<()> {
 
 /// Writes an import's spec and weights into `out`, loads them with the firmware's own validation,
 /// and prints the table.
-fn write_spec(
-    imp: &policy_import::RlLabImport,
-    out: &std::path::Path,
-    force: bool,
-    what: &str,
-    opts: &policy_import::RlLabOptions,
-) -> Result<()> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let spec_path = out.join("policy.toml");
-    for p in [&spec_path, &out.join("policy.safetensors")] {
-        if p.exists() && !force {
-            anyhow::bail!("{} exists; give --force to replace it", p.display());
-        }
-    }
-    write_new(&out.join("policy.safetensors"), &imp.weights, true)?;
-    write_new(&spec_path, imp.spec_toml.as_bytes(), true)?;
+fn write_spec(imp: &policy_import::RlLabImport, out: &SpecOut, what: &str) -> Result<()> {
+    let [spec_path, weights_path] = out.dir.paths(["policy.toml", "policy.safetensors"])?;
+    write(&weights_path, &imp.weights)?;
+    write(&spec_path, imp.spec_toml.as_bytes())?;
     // The firmware's own loader and controller judge the result.
     let spec = firmware::spec::DeploySpec::load(&spec_path)
         .context("the imported spec does not load in g1fw (please report this)")?;
@@ -211,7 +187,7 @@ fn write_spec(
     for w in &warnings {
         println!("warning: {w}");
     }
-    if opts.estimator_model.is_none() {
+    if out.estimator_model.is_none() {
         println!("note: no --estimator-model: the state estimator runs attitude only (the policy does not need it)");
     }
     println!(

@@ -37,8 +37,8 @@ pub struct DdsServeOptions {
     pub quiet: bool,
 }
 
-/// What a DDS session did.
-#[derive(Clone, Copy, Debug, Default)]
+/// What a DDS session did (`g1-sim --dds` prints it as one JSON line).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct DdsSummary {
     pub ticks: u64,
     pub sim_time_s: f64,

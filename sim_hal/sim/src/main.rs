@@ -235,10 +235,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             );
         }
         // One JSON line on stdout: what a harness scores the session by.
-        println!(
-            "{{\"ticks\": {}, \"sim_time_s\": {:.4}, \"rejected_commands\": {}, \"resent_states\": {}, \"base_travel_m\": [{:.4}, {:.4}], \"base_z_min_m\": {:.4}, \"fell\": {}, \"lidar_datagrams_sent\": {}, \"lidar_send_errors\": {}}}",
-            s.ticks, s.sim_time_s, s.rejected_commands, s.resent_states, s.base_travel_m[0], s.base_travel_m[1], s.base_z_min_m, s.fell, s.lidar_datagrams_sent, s.lidar_send_errors
-        );
+        println!("{}", serde_json::to_string(&s)?);
         return Ok(ExitCode::SUCCESS);
     }
     let result = match &cli.tcp {
