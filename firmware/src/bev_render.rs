@@ -42,7 +42,11 @@ fn data_field(msg: &[u8]) -> Result<Vec<u8>> {
 /// Renders the perception frame nearest to `at_s` (seconds of log time; the last frame when
 /// `None`) of a `g1fw sim --world` log.
 pub fn render_bev_png(log: &Path, at_s: Option<f64>, out: &Path) -> Result<RenderInfo> {
+    if let Some(t) = at_s.filter(|t| !(t.is_finite() && *t >= 0.0)) {
+        bail!("--at {t}: give a time in seconds from the start of the log (finite, ≥ 0)");
+    }
     let file = LogFile::open(log)?;
+    file.verify()?;
     // Frame times first, then the chosen one's messages.
     let mut times = Vec::new();
     file.scan(|topic, t, _| {

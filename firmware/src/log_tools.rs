@@ -20,8 +20,10 @@ pub struct LogInfo {
     pub last_tick: Option<u64>,
     pub safety_events: Vec<serde_json::Value>,
     pub hal_events: Vec<serde_json::Value>,
-    /// Set when the log ends without its summary (the writer was killed) or is damaged.
+    /// Set when the log ends without its summary (the writer was killed).
     pub truncated: Option<String>,
+    /// Set when the log fails a check; what is listed is what precedes the damage.
+    pub damaged: Option<crate::log::reader::Damage>,
 }
 
 pub fn log_info(path: &Path) -> Result<LogInfo> {
@@ -57,12 +59,14 @@ pub fn log_info(path: &Path) -> Result<LogInfo> {
         safety_events: safety,
         hal_events: hal,
         truncated: end.truncated,
+        damaged: end.damaged,
     })
 }
 
 /// Commanded (operator channel) vs measured (simulator truth) body velocity, with safety events.
 pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
     let log = LogFile::open(path)?;
+    log.verify()?;
     let meta = log.run_metadata()?;
     let mut s = VelocitySeries {
         title: format!(

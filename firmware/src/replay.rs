@@ -26,7 +26,7 @@ use sensor_io::unitree_hg::{
 
 use crate::controller::Controller;
 use crate::log::channels as ch;
-use crate::log::reader::LogFile;
+use crate::log::reader::{Damage, LogFile};
 use crate::operator::{OperatorInput, OperatorSource};
 use crate::perception::{LidarFrame, PerceptionSummary, TerrainSource};
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
@@ -104,6 +104,9 @@ pub struct ReplayReport {
     /// Perception steps whose re-computed terrain estimate matched the recorded one bit for bit.
     pub compared_perception_steps: u64,
     pub truncated: Option<String>,
+    /// The log fails a check (CRC, LZ4 checksum, structure): only the ticks before the damage were
+    /// replayed, and the replay is not a pass whatever it compared.
+    pub damaged: Option<Damage>,
     pub divergence: Option<Divergence>,
     pub notes: Vec<String>,
     /// Ticks per wall-second of the re-execution alone (after the log is loaded), as sim-s/wall-s.
@@ -141,6 +144,7 @@ struct Recording {
     /// `/perception/terrain` by tick (sorted).
     terrain: Vec<(u64, RecTerrain)>,
     truncated: Option<String>,
+    damaged: Option<Damage>,
     period_ns: u64,
 }
 
@@ -349,7 +353,10 @@ fn load(log: &LogFile) -> Result<Recording> {
         ticks.pop();
     }
     if ticks.is_empty() {
-        bail!("{} holds no complete control tick", log.path.display());
+        match &end.damaged {
+            Some(d) => bail!("{} is damaged before its first complete tick: {d}", log.path.display()),
+            None => bail!("{} holds no complete control tick", log.path.display()),
+        }
     }
     lidar.sort_by_key(|(k, _)| *k);
     terrain.sort_by_key(|(k, _)| *k);
@@ -367,6 +374,7 @@ fn load(log: &LogFile) -> Result<Recording> {
         lidar_bytes,
         terrain,
         truncated: end.truncated,
+        damaged: end.damaged,
         period_ns,
     })
 }
@@ -533,6 +541,16 @@ fn meta_get<'a>(meta: &'a BTreeMap<String, String>, k: &str) -> Result<&'a str> 
 pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     let wall = Instant::now();
     let log = LogFile::open(log_path)?;
+    // Every check first: damage in the metadata or between chunks is only found by the data-section
+    // CRC at the end, and must not pass as a spec mismatch or a divergence.
+    let damaged = log.scan(|_, _, _| {}).damaged;
+    replay_log(wall, log_path, &log, opts).map_err(|e| match &damaged {
+        Some(d) => e.context(format!("log {} is damaged: {d}", log_path.display())),
+        None => e,
+    })
+}
+
+fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOptions) -> Result<ReplayReport> {
     let meta = log.run_metadata()?;
     let mut notes = Vec::new();
 
@@ -610,7 +628,7 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         notes.push(msg);
     }
 
-    let rec = load(&log)?;
+    let rec = load(log)?;
     let observes_terrain = controller
         .spec()
         .observation
@@ -715,6 +733,7 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
         perception_frames_fed: hal.lidar_fed,
         compared_perception_steps: cmp.perception_steps,
         truncated: rec.truncated.clone(),
+        damaged: rec.damaged.clone(),
         divergence: cmp.divergence,
         notes,
         run_sim_seconds_per_wall_second: sim_seconds / run_seconds,

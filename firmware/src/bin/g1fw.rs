@@ -48,7 +48,8 @@ enum Cmd {
     },
     /// Feed a recorded log's inputs through the same firmware code and compare every output bit for
     /// bit. Exit 0: identical; 1: diverged (the first divergent tick, channel and field are printed);
-    /// 2: could not replay (missing or mismatched spec/weights, unreadable log).
+    /// 2: could not replay (missing or mismatched spec/weights, unreadable log) or the log is damaged
+    /// (the ticks before the damage are replayed; the damaged chunk is named).
     Replay(ReplayArgs),
     /// Render commanded vs measured base velocity of a logged simulation run to a PNG.
     Plot {
@@ -446,6 +447,18 @@ fn run(cli: Cli) -> Result<ExitCode> {
             for n in &report.notes {
                 eprintln!("note: {n}");
             }
+            if let Some(d) = &report.damaged {
+                println!("{json}");
+                eprintln!(
+                    "LOG DAMAGED: {d}; replay stopped there ({} ticks before it {})",
+                    report.ticks,
+                    match &report.divergence {
+                        Some(_) => "diverged",
+                        None => "matched",
+                    }
+                );
+                return Ok(ExitCode::from(2));
+            }
             if let Some(t) = &report.truncated {
                 eprintln!(
                     "note: the log ends early ({t}); replayed its {} complete ticks",
@@ -485,6 +498,10 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Cmd::LogInfo { log } => {
             let info = firmware::log_tools::log_info(&log)?;
             println!("{}", serde_json::to_string_pretty(&info)?);
+            if let Some(d) = &info.damaged {
+                eprintln!("error: log {} is damaged: {d}", log.display());
+                return Ok(ExitCode::from(2));
+            }
             Ok(ExitCode::SUCCESS)
         }
     }
