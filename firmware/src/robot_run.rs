@@ -64,6 +64,9 @@ pub struct RunOptions {
     /// Perception off the tick thread by default: its result is used a fixed number of ticks after
     /// the frame, or counted late and not used (never waited for on a robot).
     pub perception: PerceptionExec,
+    /// Tests only (no command-line flag sets it): panic inside the control loop on this tick, to
+    /// show that the guard damps the motors and the log and report survive.
+    pub inject_panic_at_tick: Option<u64>,
 }
 
 impl Default for RunOptions {
@@ -83,6 +86,7 @@ impl Default for RunOptions {
                 consume_after: DEFAULT_CONSUME_AFTER,
                 wait: false,
             },
+            inject_panic_at_tick: None,
         }
     }
 }
@@ -98,6 +102,8 @@ pub struct RunReport {
     pub trip: Option<TripReport>,
     /// `completed`, `stopped` (signal) or the HAL failure.
     pub end: String,
+    /// The control loop panicked (a bug); the guard sent damping (see `end`).
+    pub panicked: bool,
     pub safety: SafetyReport,
     /// The CAN HAL's counters (CAN runs only).
     pub can: Option<CanCounters>,
@@ -258,6 +264,9 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             l.push(v);
         }
         ticks = v.summary.tick.index;
+        if opts.inject_panic_at_tick == Some(ticks) {
+            panic!("injected at tick {ticks} by RunOptions::inject_panic_at_tick");
+        }
         !opts.stop.load(Ordering::Relaxed)
     });
     let end_text = match &end {
@@ -276,6 +285,14 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         LoopEnd::HalError { tick, kind, message } => {
             format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
         }
+        LoopEnd::Panicked {
+            tick,
+            message,
+            damping_sent,
+        } => format!(
+            "panicked at tick {tick} (a bug: {message}); damping {} on every enabled motor",
+            if *damping_sent { "sent" } else { "could not be sent" }
+        ),
     };
     let log = match logger {
         Some(l) => Some(l.finish().context("closing the log")?),
@@ -307,6 +324,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         final_mode: format!("{:?}", runtime.mode()),
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
+        panicked: matches!(end, LoopEnd::Panicked { .. }),
         safety: SafetyReport::of(&runtime),
         can: None,
         dds: None,

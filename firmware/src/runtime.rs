@@ -688,18 +688,79 @@ pub enum LoopEnd {
         kind: ErrorKind,
         message: String,
     },
+    /// Code on the tick panicked (a bug): the guard sent the damping command (kp 0, the spec's
+    /// damping kd on every enabled motor) before returning.
+    Panicked {
+        tick: u64,
+        message: String,
+        damping_sent: bool,
+    },
+}
+
+/// The text of a panic payload (`panic!` with a literal or a formatted message).
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic with a non-text payload".into())
 }
 
 /// Drives `runtime` from `hal` until tick `last_tick` (inclusive; no command is written on it, so a
 /// lock-stepped simulator stops there), the observer returns `false`, or the HAL fails.
 /// `observe` sees every tick, including the failing one. Allocation-free per tick when the HAL,
 /// operator source and observer are.
+///
+/// A panic anywhere in the tick (runtime, HAL, observer) is caught here: the damping command, built
+/// before the first tick so that it depends on nothing the panic may have left half-updated, goes
+/// to the HAL, and the loop ends with [`LoopEnd::Panicked`]. The caller then finishes its log and
+/// report as after a HAL failure.
 pub fn run_loop<H, O>(
     hal: &mut H,
     rt: &mut Runtime,
     operator: &mut O,
     last_tick: u64,
     mut observe: impl FnMut(&TickView) -> bool,
+) -> LoopEnd
+where
+    H: TimeBase + LowLevel + FrameSource,
+    O: OperatorSource,
+{
+    let mut damping = LowCommand::default();
+    rt.controller().damping_command(&LowState::default(), &mut damping);
+    let mut at = (0u64, 0u8); // (tick, the robot's mode_machine, echoed in every command)
+    let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        ticks(hal, rt, operator, last_tick, &mut observe, &mut at)
+    }));
+    match run {
+        Ok(end) => end,
+        Err(payload) => {
+            damping.mode_machine = at.1;
+            let damping_sent =
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| hal.write_command(&damping).is_ok()))
+                    .unwrap_or(false);
+            let message = panic_message(payload.as_ref());
+            tracing::error!(
+                tick = at.0,
+                damping_sent,
+                "the control loop panicked ({message}); damping commanded on every enabled motor"
+            );
+            LoopEnd::Panicked {
+                tick: at.0,
+                message,
+                damping_sent,
+            }
+        }
+    }
+}
+
+fn ticks<H, O>(
+    hal: &mut H,
+    rt: &mut Runtime,
+    operator: &mut O,
+    last_tick: u64,
+    mut observe: impl FnMut(&TickView) -> bool,
+    at: &mut (u64, u8),
 ) -> LoopEnd
 where
     H: TimeBase + LowLevel + FrameSource,
@@ -740,6 +801,7 @@ where
                 FrameStatus::Bad(hal::Error::kind(&e))
             }
         };
+        *at = (k, state.mode_machine);
         let op = operator.at_state(tick, &state);
         if rt.terrain_source() == TerrainSource::Truth {
             // The documented evaluation ablation: ground truth into the policy's token.

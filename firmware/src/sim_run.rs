@@ -1,6 +1,8 @@
 //! `g1fw sim`: start the simulator, run the firmware loop against it over the bridge, and evaluate
 //! the run from the simulator's privileged ground truth (which never reaches the controller).
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context as _, Result};
@@ -53,11 +55,11 @@ pub struct SimOptions {
     pub faults: Vec<String>,
     /// IMU error model for the simulator (`g1-sim --imu-noise` grammar, e.g. `realistic`).
     pub imu_noise: Option<String>,
-    /// Terrain world for the simulator (`g1-sim --world`: preset, scenario file or random:SEED).
-    /// With a world the simulator also streams its MID-360 and the perception group runs.
     /// The simulator's integrator (`g1-sim --integrator`): `None` its default (implicitfast, the
     /// PD's damping implicit), `euler` to reproduce an explicit-PD reference loop.
     pub integrator: Option<String>,
+    /// Terrain world for the simulator (`g1-sim --world`: preset, scenario file or random:SEED).
+    /// With a world the simulator also streams its MID-360 and the perception group runs.
     pub world: Option<String>,
     /// Record an MCAP log here.
     pub log: Option<PathBuf>,
@@ -75,6 +77,9 @@ pub struct SimOptions {
     /// Stop once the base has stood on the staircase's end landing this long (s), with no fall
     /// and no safety trip: the run has succeeded (saves time in evaluations).
     pub stop_after_landing_s: Option<f64>,
+    /// Stop when this becomes true (SIGINT/SIGTERM handlers set it): the log is closed, the
+    /// simulator stopped and reaped, and the report says `interrupted`.
+    pub stop: Arc<AtomicBool>,
 }
 
 /// The target of the heading correction.
@@ -133,6 +138,7 @@ impl Default for SimOptions {
             terrain_source: None,
             perception: crate::perception_worker::PerceptionExec::Inline,
             heading: None,
+            stop: Arc::new(AtomicBool::new(false)),
             stop_after_landing_s: None,
         }
     }
@@ -176,8 +182,10 @@ pub struct Report {
     /// The first latched damping: tick, time and reason.
     pub trip: Option<TripReport>,
     pub safety: SafetyReport,
-    /// How the run ended: `completed`, `fell`, or the HAL failure.
+    /// How the run ended: `completed`, `fell`, `interrupted ...`, or the HAL failure.
     pub end: String,
+    /// Stopped early by SIGINT/SIGTERM: the figures cover the run up to then.
+    pub interrupted: bool,
     pub log: Option<LogStats>,
     /// State estimator against ground truth, beside the naive baseline (`null` without leg
     /// kinematics in the spec).
@@ -560,7 +568,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             target_yaw,
         }),
     };
-    let mut landed = false;
+    let (mut landed, mut interrupted) = (false, false);
     let wall = Instant::now();
     let mut ticks = 0u64;
 
@@ -603,7 +611,8 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
                 ));
             }
         }
-        !(landed || opts.stop_on_fall && agg.fell_at.is_some())
+        interrupted = opts.stop.load(Ordering::Relaxed);
+        !(landed || interrupted || opts.stop_on_fall && agg.fell_at.is_some())
     });
     if let Some(pb) = progress {
         pb.finish_and_clear();
@@ -621,11 +630,23 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     };
     let end_text = match &end {
         LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { ticks } if interrupted => {
+            format!("interrupted by a signal at tick {ticks}; the log is closed and the simulator stopped")
+        }
         LoopEnd::Stopped { .. } if landed => format!(
             "stopped: on the end landing for {:.1} s (success)",
             opts.stop_after_landing_s.unwrap_or(0.0)
         ),
         LoopEnd::Stopped { .. } => "fell".to_string(),
+        LoopEnd::Panicked {
+            tick,
+            message,
+            damping_sent,
+        } => bail!(
+            "internal error: the control loop panicked at tick {tick} ({message}); damping {}{}",
+            if *damping_sent { "sent" } else { "could not be sent" },
+            log_note(&opts.log)
+        ),
         LoopEnd::HalError { tick, kind, message } => {
             let what = match kind {
                 hal::ErrorKind::Disconnected => {
@@ -674,6 +695,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         trip,
         safety: SafetyReport::of(&runtime),
         end: end_text,
+        interrupted,
         log: log_stats,
         estimator: est_eval.report(),
         terrain: opts.world.as_ref().map(|w| terrain_eval.report(w, lidar_counters)),

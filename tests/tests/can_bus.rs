@@ -133,6 +133,8 @@ struct Scenario {
     /// The emulator plays the MID-360 too (g1-sim on `stairs-up`), sending its packets over UDP to
     /// the firmware on this loopback port, and the firmware runs the stair spec (with perception).
     lidar_port: Option<u16>,
+    /// The firmware's control loop panics on this tick (`RunOptions::inject_panic_at_tick`).
+    panic_at: Option<u64>,
 }
 
 impl Scenario {
@@ -148,6 +150,7 @@ impl Scenario {
             tick_timeout_ms: None,
             log: None,
             lidar_port: None,
+            panic_at: None,
         }
     }
 }
@@ -192,6 +195,7 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
             lidar: Some([127, 0, 0, 1].into()),
             ..Default::default()
         }),
+        inject_panic_at_tick: sc.panic_at,
         ..RunOptions::default()
     };
     let mut fw_layout = layout();
@@ -468,6 +472,47 @@ fn an_imu_that_stops_ends_the_run_in_damping() {
     let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
     assert!(rep.compared_commands >= 700, "{rep:?}");
+}
+
+/// A panic in the control loop (a bug, forced here) is caught by the loop's guard: one damping
+/// command per enabled motor goes out on the bus, the run reports it, and the log keeps every tick
+/// before the panic and replays bit-exact.
+#[test]
+fn a_panic_in_the_control_loop_damps_every_motor() {
+    if shared_dir().is_none() {
+        return skip_or_fail("CAN panic guard");
+    }
+    let dir = scratch_dir("can_bus_panic");
+    let log = dir.join("panic.mcap");
+    let r = run_scenario(
+        "panic",
+        Scenario {
+            panic_at: Some(600),
+            log: Some(log.clone()),
+            ..Scenario::walk()
+        },
+    );
+    assert_eq!(r.fw.ticks, 600);
+    assert!(
+        r.fw.panicked && r.fw.end.contains("injected at tick 600") && r.fw.end.contains("damping sent"),
+        "{}",
+        r.fw.end
+    );
+    let cmds = commands(&r);
+    let (walk, last) = cmds.split_at(cmds.len() - 12);
+    let mut slots: Vec<usize> = last.iter().map(|c| c.1).collect();
+    slots.sort();
+    assert_eq!(slots, layout().motors.iter().map(|m| m.slot).collect::<Vec<_>>());
+    let kd = DeploySpec::load(&peer_spec_path()).unwrap().safety.damping_kd;
+    // kd travels as a 12-bit fixed-point value.
+    assert!(
+        last.iter().all(|&(_, _, p, d)| p == 0.0 && (d - kd).abs() < 0.01),
+        "{last:?}"
+    );
+    assert!(walk.iter().filter(|c| c.0 > 500).all(|&(_, _, kp, _)| kp > 0.0));
+    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    assert!(rep.divergence.is_none() && rep.damaged.is_none(), "{rep:?}");
+    assert!(rep.compared_commands >= 600, "{rep:?}");
 }
 
 /// The robot's full sensor set: motors and IMU on CAN, the MID-360 over UDP. The emulator sends the

@@ -1,5 +1,5 @@
 //! `g1fw`: the G1 control firmware.
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
@@ -392,6 +392,14 @@ fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
 }
 
 fn main() -> ExitCode {
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        default_hook(info);
+        eprintln!(
+            "g1fw: this is a bug, please report it with the run's log. A panic inside the control loop \
+             is caught by its guard, which commands damping on every enabled motor and closes the log."
+        );
+    }));
     tracing_subscriber::fmt()
         // rustdds narrates discovery and shutdown at info level: keep it to warnings.
         .with_env_filter(
@@ -514,6 +522,19 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
     if a.ramp.is_some_and(|r| !(r >= 0.0 && r.is_finite())) {
         bail!("--ramp must be a non-negative number of seconds");
     }
+    distinct_files(
+        &[
+            ("--log", a.log.as_deref()),
+            ("--report", a.report.as_deref()),
+            ("--plot", a.plot.as_deref()),
+            ("--profile-plot", a.profile_plot.as_deref()),
+        ],
+        &[
+            ("--spec", Some(a.spec.as_path())),
+            ("--weights", a.weights.as_deref()),
+            ("--cmd-schedule", a.cmd_schedule.as_deref()),
+        ],
+    )?;
     let mut spec = DeploySpec::load(&a.spec)?;
     if let Some(w) = &a.weights {
         spec = spec.with_weights(w)?;
@@ -562,6 +583,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
             .heading
             .map(|d| firmware::sim_run::Heading::Fixed(d.to_radians() as f32)),
         stop_after_landing_s: a.stop_after_landing,
+        stop: stop_on_signals()?,
     };
     let mut profile = Vec::new();
     let mut on_stairs = false;
@@ -629,7 +651,49 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         end = report.end,
         "run finished"
     );
-    Ok(ExitCode::SUCCESS)
+    // 128 + SIGINT, as shells report an interrupted command.
+    Ok(if report.interrupted {
+        ExitCode::from(130)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+/// A flag SIGINT and SIGTERM set instead of killing the process: the run stops at the next tick,
+/// damps (robot) or stops the simulator, closes its log and writes its report.
+fn stop_on_signals() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
+    }
+    Ok(stop)
+}
+
+/// Refuses a run whose outputs would overwrite one another or one of its inputs.
+fn distinct_files(outputs: &[(&str, Option<&Path>)], inputs: &[(&str, Option<&Path>)]) -> Result<()> {
+    let abs = |p: &Path| {
+        std::fs::canonicalize(p)
+            .or_else(|_| std::path::absolute(p))
+            .unwrap_or(p.into())
+    };
+    let outs: Vec<(&str, PathBuf)> = outputs.iter().filter_map(|(f, p)| p.map(|p| (*f, abs(p)))).collect();
+    for (i, (flag, path)) in outs.iter().enumerate() {
+        for (other, p) in outs[..i].iter().chain(
+            inputs
+                .iter()
+                .filter_map(|(f, p)| p.map(|p| (*f, abs(p))))
+                .collect::<Vec<_>>()
+                .iter(),
+        ) {
+            if p == path {
+                bail!(
+                    "{flag} {} is also {other}: one would overwrite the other; give it another file",
+                    path.display()
+                );
+            }
+        }
+    }
+    Ok(())
 }
 
 fn eval(a: EvalArgs) -> Result<ExitCode> {
@@ -721,10 +785,15 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         }
         None => None,
     };
-    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, stop.clone()).context("installing the signal handler")?;
-    }
+    distinct_files(
+        &[("--log", a.log.as_deref()), ("--report", a.report.as_deref())],
+        &[
+            ("--spec", Some(a.spec.as_path())),
+            ("--can-config", a.can_config.as_deref()),
+            ("--cmd-schedule", a.cmd_schedule.as_deref()),
+        ],
+    )?;
+    let stop = stop_on_signals()?;
     let opts = firmware::robot_run::RunOptions {
         schedule: match &a.cmd_schedule {
             Some(p) => CommandSchedule::load(p)?,
@@ -739,6 +808,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         rt: a.rt.options(),
         stop,
         perception: a.perception,
+        inject_panic_at_tick: None,
         lidar: match a.lidar_udp {
             None => None,
             Some(bind) => Some(robot_io::UdpLidarConfig {
@@ -785,7 +855,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         end = report.end,
         "run finished"
     );
-    Ok(if report.trip.is_some() {
+    Ok(if report.trip.is_some() || report.panicked {
         ExitCode::from(3)
     } else {
         ExitCode::SUCCESS

@@ -48,6 +48,11 @@ pub enum BridgeError {
     NotLoopback(SocketAddr),
     #[error("bridge: simulator speaks protocol {got}, this firmware speaks {PROTOCOL_VERSION}")]
     Version { got: u32 },
+    #[error(
+        "bridge: the simulator at {target} accepted the connection but sent no Welcome within \
+         {waited:?}; g1-sim serves one client at a time: is another g1fw connected to it?"
+    )]
+    NoWelcome { target: String, waited: Duration },
 }
 
 impl hal::Error for BridgeError {
@@ -58,7 +63,7 @@ impl hal::Error for BridgeError {
             BridgeError::Protocol(_) => ErrorKind::Malformed,
             // The same classification as every other unitree_hg decoder (replay included).
             BridgeError::Decode(e) => hal::Error::kind(e),
-            BridgeError::Connect { .. } => ErrorKind::Timeout,
+            BridgeError::Connect { .. } | BridgeError::NoWelcome { .. } => ErrorKind::Timeout,
             BridgeError::NotLoopback(_) | BridgeError::Version { .. } => ErrorKind::Other,
         }
     }
@@ -72,6 +77,19 @@ enum Stream {
 /// How long the firmware spins waiting for the simulator's answer before blocking: about one
 /// control tick of physics on this class of machine.
 pub const CLIENT_SPIN: Duration = Duration::from_micros(300);
+
+impl Stream {
+    fn set_read_timeout(&self, t: Option<Duration>) -> std::io::Result<()> {
+        match self {
+            Stream::Unix(s) => s.get_ref().set_read_timeout(t),
+            Stream::Tcp(s) => s.get_ref().set_read_timeout(t),
+        }
+    }
+}
+
+/// How long a connected simulator may take to answer the Hello (it sends Welcome at once, unless
+/// it is busy with another client).
+pub const WELCOME_TIMEOUT: Duration = Duration::from_secs(10);
 
 impl Read for Stream {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
@@ -180,7 +198,7 @@ impl BridgeHal {
             match UnixStream::connect(path) {
                 Ok(s) => {
                     let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
-                    return Self::handshake(Stream::Unix(s), want.into());
+                    return Self::handshake(Stream::Unix(s), want.into(), &path.display().to_string());
                 }
                 Err(e) => {
                     let last = match alive() {
@@ -212,10 +230,10 @@ impl BridgeHal {
         })?;
         s.set_nodelay(true).map_err(ProtocolError::from)?;
         let s = SpinStream::new(s, CLIENT_SPIN).map_err(ProtocolError::from)?;
-        Self::handshake(Stream::Tcp(s), want.into())
+        Self::handshake(Stream::Tcp(s), want.into(), &addr.to_string())
     }
 
-    fn handshake(stream: Stream, want: Wants) -> Result<Self, BridgeError> {
+    fn handshake(stream: Stream, want: Wants, target: &str) -> Result<Self, BridgeError> {
         let want_truth = want.truth;
         let mut stream = BufReader::with_capacity(16 * 1024, stream);
         let mut scratch = Vec::with_capacity(4096);
@@ -225,7 +243,22 @@ impl BridgeHal {
         hello[4] = want_truth as u8;
         hello[5] = want.lidar as u8;
         write_msg(stream.get_mut(), Kind::Hello, &hello, &mut scratch)?;
-        read_expect(&mut stream, &mut payload, Kind::Welcome)?;
+        stream
+            .get_ref()
+            .set_read_timeout(Some(WELCOME_TIMEOUT))
+            .map_err(ProtocolError::from)?;
+        match read_expect(&mut stream, &mut payload, Kind::Welcome) {
+            Err(ProtocolError::Io(e))
+                if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+            {
+                return Err(BridgeError::NoWelcome {
+                    target: target.to_string(),
+                    waited: WELCOME_TIMEOUT,
+                })
+            }
+            r => r?,
+        }
+        stream.get_ref().set_read_timeout(None).map_err(ProtocolError::from)?;
         let welcome = Welcome::decode(&payload)?;
         if welcome.protocol_version != PROTOCOL_VERSION {
             return Err(BridgeError::Version {

@@ -1,6 +1,7 @@
 //! Starting `g1-sim` as a child process and connecting to it over the bridge: the one launcher
 //! that `g1fw sim`, `g1-can-emu` and the tests share. The simulator is always another process, so
 //! nothing that uses this links MuJoCo.
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -106,6 +107,9 @@ impl SimLaunch {
             .args(self.integrator.iter().flat_map(|i| ["--integrator", i.as_str()]))
             .arg("--quiet")
             .stdin(Stdio::null())
+            // Its own process group: a terminal's Ctrl-C reaches g1fw only, which stops the run,
+            // closes its log and then stops the simulator (instead of losing it mid-tick).
+            .process_group(0)
             .spawn()
             .map_err(|source| LaunchError::Spawn {
                 bin: bin.display().to_string(),

@@ -1,0 +1,158 @@
+//! Nothing written is lost (issue 22): SIGINT/SIGTERM during `g1fw sim --log` close the log, write
+//! the report marked interrupted and reap the simulator; outputs never overwrite inputs or each
+//! other; a simulator that accepts but never answers is a clear error, not a hang.
+use std::os::unix::net::UnixListener;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use firmware::log::LogFile;
+use integration_tests::*;
+
+/// Children of `pid` (from /proc).
+fn children(pid: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|p| {
+            std::fs::read_to_string(format!("/proc/{p}/stat")).is_ok_and(|s| {
+                // pid (comm) state ppid ...: comm may hold spaces, so split after the last ')'.
+                s.rsplit_once(')')
+                    .and_then(|(_, rest)| rest.split_whitespace().nth(1)?.parse::<u32>().ok())
+                    == Some(pid)
+            })
+        })
+        .collect()
+}
+
+fn interrupt_a_logged_run(signal: &str, name: &str) {
+    let dir = scratch_dir(name);
+    let (log, report) = (dir.join("run.mcap"), dir.join("report.json"));
+    let mut child = Command::new(built_bin("g1fw"))
+        .args([
+            "sim",
+            "--quiet",
+            "--keep-going",
+            "--duration",
+            "600",
+            "--cmd",
+            "0.3,0,0",
+        ])
+        .args(["--spec", "specs/test/rl_lab_style.toml"])
+        .arg("--log")
+        .arg(&log)
+        .arg("--report")
+        .arg(&report)
+        .current_dir(repo_root())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("g1fw starts");
+    // Wait until the run is well under way: the simulator is up and the log has its first chunk.
+    let start = Instant::now();
+    let sim = loop {
+        let kids = children(child.id());
+        if !kids.is_empty() && std::fs::metadata(&log).is_ok_and(|m| m.len() > 200_000) {
+            break kids[0];
+        }
+        assert!(start.elapsed() < Duration::from_secs(60), "the run did not get going");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let kill = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .expect("kill runs");
+    assert!(kill.success());
+    let out = child.wait_with_output().expect("g1fw exits");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    // The report is written and says so.
+    let r = read_json(&report);
+    assert_eq!(r["interrupted"], true, "{r}");
+    assert!(r["end"].as_str().unwrap().contains("interrupted"), "{r}");
+    assert!(r["time_s"].as_f64().unwrap() > 0.1, "{r}");
+    // The log is finished (footer, summary, every CRC right), not crash-truncated.
+    let end = LogFile::open(&log).unwrap().verify().expect("an intact log");
+    assert!(end.truncated.is_none() && end.messages > 1000, "{end:?}");
+    // The simulator was stopped and reaped: its process is gone.
+    assert!(
+        !Path::new(&format!("/proc/{sim}")).exists(),
+        "g1-sim (pid {sim}) outlived g1fw"
+    );
+}
+
+#[test]
+fn sigterm_closes_the_log_writes_the_report_and_reaps_the_simulator() {
+    interrupt_a_logged_run("-TERM", "sigterm");
+}
+
+#[test]
+fn sigint_closes_the_log_writes_the_report_and_reaps_the_simulator() {
+    interrupt_a_logged_run("-INT", "sigint");
+}
+
+#[test]
+fn an_output_that_is_another_output_or_an_input_is_refused() {
+    let dir = scratch_dir("same-output");
+    let same = dir.join("x.mcap");
+    std::fs::write(&same, b"keep me").unwrap();
+    let s = same.to_str().unwrap();
+    for args in [
+        vec![
+            "sim",
+            "--spec",
+            "specs/test/rl_lab_style.toml",
+            "--log",
+            s,
+            "--report",
+            s,
+        ],
+        vec![
+            "sim",
+            "--spec",
+            "specs/test/rl_lab_style.toml",
+            "--report",
+            "specs/test/rl_lab_style.toml",
+        ],
+        vec![
+            "run",
+            "--dds",
+            "lo",
+            "--spec",
+            "specs/test/rl_lab_style.toml",
+            "--log",
+            s,
+            "--report",
+            s,
+        ],
+    ] {
+        let out = g1fw(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains("would overwrite"), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read(&same).unwrap(), b"keep me");
+}
+
+#[test]
+fn a_simulator_that_never_answers_is_a_clear_error() {
+    let dir = scratch_dir("silent-sim");
+    let sock = dir.join("silent.sock");
+    // Accepts, then says nothing (as g1-sim does to a second client while it serves the first).
+    let listener = UnixListener::bind(&sock).unwrap();
+    let held = std::thread::spawn(move || listener.accept().map(|(s, _)| s));
+    let start = Instant::now();
+    let out = g1fw(&[
+        "sim",
+        "--quiet",
+        "--spec",
+        "specs/test/rl_lab_style.toml",
+        "--connect",
+        sock.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("sent no Welcome") && err.contains("another g1fw"), "{err}");
+    assert!(start.elapsed() < Duration::from_secs(30));
+    drop(held.join());
+}
