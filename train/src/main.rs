@@ -115,9 +115,9 @@ enum Cmd {
         #[arg(long)]
         report: Option<PathBuf>,
         /// Plot of the errors versus true step height (PNG); a second one, `<stem>_by_riser.png`
-        /// beside it, plots them versus the labelled riser's distance ahead.
-        #[arg(long, default_value = "eval_terrain.png")]
-        plot: PathBuf,
+        /// beside it, plots them versus the labelled riser's distance ahead. None when not given.
+        #[arg(long)]
+        plot: Option<PathBuf>,
         #[arg(long, default_value_t = default_jobs())]
         jobs: usize,
         #[arg(long)]
@@ -242,6 +242,7 @@ fn keep_freed_tensors_in_the_heap() {
 
 fn main() -> anyhow::Result<()> {
     keep_freed_tensors_in_the_heap();
+    g1_sim::no_mujoco_log_file();
     let cli = Cli::parse();
     match cli.cmd {
         Cmd::Ppo {
@@ -467,9 +468,12 @@ fn main() -> anyhow::Result<()> {
             } else {
                 EVAL_SEED_BASE
             };
+            let first = base
+                .checked_add(seed)
+                .with_context(|| format!("--seed {seed}: held-out seeds start at {base} + SEED, past u64"))?;
             let set = match worlds.trim().parse::<usize>() {
                 Ok(count) => WorldSet::Random {
-                    first_seed: base + seed,
+                    first_seed: first,
                     count,
                 },
                 Err(_) => WorldSet::Named {
@@ -478,10 +482,14 @@ fn main() -> anyhow::Result<()> {
                         .map(|w| w.trim().to_string())
                         .filter(|w| !w.is_empty())
                         .collect(),
-                    seed: base + seed,
+                    seed: first,
                 },
             };
-            anyhow::ensure!(!set.is_empty(), "--worlds: no worlds given");
+            set.check().context("--worlds/--seed")?;
+            anyhow::ensure!(
+                poses_per_world > 0,
+                "--poses-per-world 0 evaluates nothing: give at least 1"
+            );
             let mut net = load_net(weights.as_deref())?;
             let cfg = DatasetConfig {
                 mode,
@@ -497,18 +505,20 @@ fn main() -> anyhow::Result<()> {
                 "terrain token errors vs step height: {} ({} samples)",
                 r.world_set, r.cnn.samples
             );
-            train::plot::error_vs_height_png(&plot, &r.by_step_height, &title)?;
-            println!("plot: {}", plot.display());
-            let riser_plot = plot.with_file_name(format!(
-                "{}_by_riser.png",
-                plot.file_stem().and_then(|s| s.to_str()).unwrap_or("eval_terrain")
-            ));
-            let title = format!(
-                "terrain token errors vs the labelled riser's distance: {} ({} samples)",
-                r.world_set, r.cnn.samples
-            );
-            train::plot::error_vs_riser_png(&riser_plot, &r.by_riser_ahead, &title)?;
-            println!("plot: {}", riser_plot.display());
+            if let Some(plot) = &plot {
+                train::plot::error_vs_height_png(plot, &r.by_step_height, &title)?;
+                println!("plot: {}", plot.display());
+                let riser_plot = plot.with_file_name(format!(
+                    "{}_by_riser.png",
+                    plot.file_stem().and_then(|s| s.to_str()).unwrap_or("eval_terrain")
+                ));
+                let title = format!(
+                    "terrain token errors vs the labelled riser's distance: {} ({} samples)",
+                    r.world_set, r.cnn.samples
+                );
+                train::plot::error_vs_riser_png(&riser_plot, &r.by_riser_ahead, &title)?;
+                println!("plot: {}", riser_plot.display());
+            }
             if let Some(path) = report {
                 train::eval::write_report(&path, &r)?;
                 println!("report: {}", path.display());

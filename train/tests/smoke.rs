@@ -26,6 +26,7 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
             poses_per_world: 4,
             shard_size: 16,
             out: data.clone(),
+            force: false,
             jobs: 2,
             // The memory's render path (the firmware's default may be single-frame).
             dataset: DatasetConfig {
@@ -201,4 +202,39 @@ fn bev_coverage_script_reads_the_export(data: &std::path::Path) {
     };
     assert!(share("x +0.3..+0.4 m") > 30.0, "{out}");
     assert!(share("r 1.4-1.5 m") > 10.0, "{out}");
+}
+
+/// Empty or wrapping requests are errors (not "MAE 0.000"), and nothing lands in the working
+/// directory unless asked for (the plots used to default to ./eval_terrain.png).
+#[test]
+fn eval_terrain_refuses_empty_requests_and_writes_only_what_it_is_asked() {
+    let cwd = temp("cwd");
+    std::fs::create_dir_all(&cwd).unwrap();
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_g1-train"))
+            .arg("eval-terrain")
+            .args(args)
+            .current_dir(&cwd)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--worlds", "2", "--poses-per-world", "0", "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--poses-per-world 0"), "{err}");
+    let o = run(&["--worlds", "2", "--seed", &u64::MAX.to_string(), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("u64"), "{err}");
+    let o = run(&["--worlds", "0", "--quiet"]);
+    assert!(!o.status.success());
+    let o = run(&["--worlds", "1", "--poses-per-world", "1", "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let left: Vec<_> = std::fs::read_dir(&cwd)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert!(
+        left.is_empty(),
+        "eval-terrain wrote {left:?} into its working directory"
+    );
+    std::fs::remove_dir_all(&cwd).ok();
 }

@@ -641,6 +641,31 @@ impl WorldSet {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+    /// Held-out evaluation worlds: `World::random(EVAL_SEED_BASE + seed + i)`, i < count.
+    pub fn held_out(seed: u64, count: usize) -> anyhow::Result<Self> {
+        let first_seed = EVAL_SEED_BASE.checked_add(seed).ok_or_else(|| {
+            anyhow::anyhow!("--seed {seed}: held-out seeds start at {EVAL_SEED_BASE} + SEED, past u64")
+        })?;
+        let set = WorldSet::Random { first_seed, count };
+        set.check()?;
+        Ok(set)
+    }
+
+    /// Refuses an empty set, and seeds that would wrap around u64 into another seed range (held-out
+    /// worlds must never become training worlds).
+    pub fn check(&self) -> anyhow::Result<()> {
+        let (first, n) = match self {
+            WorldSet::Random { first_seed, count } => (*first_seed, *count),
+            WorldSet::Named { args, seed } => (*seed, args.len()),
+        };
+        anyhow::ensure!(n > 0, "no worlds to render: give at least one");
+        anyhow::ensure!(
+            first.checked_add(n as u64).is_some(),
+            "world seeds {first}.. (+{n}) run past u64::MAX and would wrap around to seed 0: choose a smaller --seed"
+        );
+        Ok(())
+    }
+
     /// World `i` and its seed.
     pub fn get(&self, i: usize) -> Result<(World, u64), SimError> {
         match self {
@@ -667,6 +692,12 @@ pub fn render_worlds(
     jobs: usize,
     mut sink: impl FnMut(usize, u64, Sample) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
+    set.check()?;
+    anyhow::ensure!(
+        poses_per_world > 0,
+        "--poses-per-world 0 renders nothing: give at least 1"
+    );
+    anyhow::ensure!(jobs > 0, "--jobs 0: give at least 1 worker");
     let n = set.len();
     let jobs = jobs.clamp(1, n.max(1));
     let next = AtomicUsize::new(0);
@@ -724,6 +755,8 @@ pub struct ExportConfig {
     pub poses_per_world: usize,
     pub shard_size: usize,
     pub out: PathBuf,
+    /// Write into an `out` that exists and is not empty (its shards are replaced).
+    pub force: bool,
     pub jobs: usize,
     pub dataset: DatasetConfig,
 }
@@ -846,6 +879,12 @@ impl ShardBuf {
 pub fn export(cfg: &ExportConfig, progress: &dyn Fn()) -> anyhow::Result<Manifest> {
     anyhow::ensure!(cfg.shard_size > 0, "shard size must be at least 1");
     anyhow::ensure!(!cfg.worlds.is_empty(), "no worlds to render");
+    let occupied = std::fs::read_dir(&cfg.out).is_ok_and(|mut d| d.next().is_some());
+    anyhow::ensure!(
+        !occupied || cfg.force,
+        "{} exists and is not empty: export into a new directory, or pass --force to replace its dataset",
+        cfg.out.display()
+    );
     std::fs::create_dir_all(&cfg.out).map_err(|e| anyhow::anyhow!("creating {}: {e}", cfg.out.display()))?;
     let mut shards = Vec::new();
     let mut buf = ShardBuf::default();

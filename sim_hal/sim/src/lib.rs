@@ -53,6 +53,14 @@ use mujoco_rs::prelude::*;
 use rng::Rng;
 pub use sim_hal::bridge::Truth;
 
+/// Keeps MuJoCo from writing `MUJOCO_LOG.TXT` into the working directory: its warnings still go to
+/// the console. Call first thing in `main`, before any thread or MuJoCo object exists.
+pub fn no_mujoco_log_file() {
+    use mujoco_rs::wrappers::mj_logging::{log_config, set_log_config};
+    // SAFETY: called at the start of main, when no other thread uses MuJoCo's global configuration.
+    unsafe { set_log_config(log_config().with_logto_file(false)) };
+}
+
 /// Errors of the simulator library.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {

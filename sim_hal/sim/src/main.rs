@@ -278,6 +278,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
 }
 
 fn main() -> ExitCode {
+    g1_sim::no_mujoco_log_file();
     match run(Cli::parse()) {
         Ok(code) => code,
         Err(e) => {

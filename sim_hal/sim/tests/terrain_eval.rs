@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use g1_sim::dataset::{
-    evaluate_geometric, export, sample_pose, DatasetConfig, ExportConfig, ModeChoice, WorldRenderer, WorldSet,
-    EVAL_SEED_BASE,
+    evaluate_geometric, export, render_worlds, sample_pose, DatasetConfig, ExportConfig, ModeChoice, WorldRenderer,
+    WorldSet, EVAL_SEED_BASE,
 };
 use g1_sim::world::{RandomRanges, World};
 use safetensors::tensor::Dtype;
@@ -105,6 +105,7 @@ fn dataset_export_reads_back() {
         poses_per_world: poses,
         shard_size: 4,
         out: out.clone(),
+        force: false,
         jobs: 2,
         dataset,
     };
@@ -193,7 +194,45 @@ fn dataset_export_reads_back() {
         }
     }
     assert_eq!(k, 9);
+    // A second export into the same directory would replace this dataset: refused unless forced.
+    let e = export(&cfg, &|| {}).unwrap_err().to_string();
+    assert!(e.contains("not empty") && e.contains("--force"), "{e}");
+    assert!(export(
+        &ExportConfig {
+            force: true,
+            ..cfg.clone()
+        },
+        &|| {}
+    )
+    .is_ok());
     std::fs::remove_dir_all(&out).unwrap();
+}
+
+/// Requests that would render nothing, or whose world seeds would wrap around u64 (into the
+/// training range, for held-out worlds), are errors rather than empty results.
+#[test]
+fn empty_or_wrapping_requests_are_errors() {
+    let dataset = DatasetConfig::default();
+    let one = WorldSet::Random {
+        first_seed: 0,
+        count: 1,
+    };
+    let e = render_worlds(&one, 0, dataset, 1, |_, _, _| Ok(()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--poses-per-world 0"), "{e}");
+    let none = WorldSet::Random {
+        first_seed: 0,
+        count: 0,
+    };
+    assert!(render_worlds(&none, 1, dataset, 1, |_, _, _| Ok(())).is_err());
+    let e = WorldSet::held_out(u64::MAX, 10).unwrap_err().to_string();
+    assert!(e.contains("past u64"), "{e}");
+    let e = WorldSet::held_out(u64::MAX - EVAL_SEED_BASE - 5, 10)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("wrap"), "{e}");
+    assert!(WorldSet::held_out(7, 10).is_ok());
 }
 
 /// The memory's render path: a sample holds the keyframes its approach gave it, their points fill

@@ -45,9 +45,12 @@ enum Cmd {
         /// their poses). Evaluation uses seeds from 1 000 000 upwards.
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Output directory (created).
+        /// Output directory (created; refused if it exists and is not empty, unless --force).
         #[arg(long)]
         out: PathBuf,
+        /// Replace the dataset in an existing --out directory.
+        #[arg(long)]
+        force: bool,
         /// Samples per shard file.
         #[arg(long, default_value_t = 1024)]
         shard_size: usize,
@@ -115,6 +118,7 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
 }
 
 fn main() -> anyhow::Result<()> {
+    g1_sim::no_mujoco_log_file();
     let cli = Cli::parse();
     match cli.cmd {
         Cmd::Export {
@@ -122,6 +126,7 @@ fn main() -> anyhow::Result<()> {
             poses_per_world,
             seed,
             out,
+            force,
             shard_size,
             mode,
             world,
@@ -135,6 +140,7 @@ fn main() -> anyhow::Result<()> {
             } else {
                 WorldSet::Named { args: world, seed }
             };
+            set.check()?;
             if let WorldSet::Random { first_seed, count } = &set {
                 if first_seed + *count as u64 > EVAL_SEED_BASE {
                     eprintln!(
@@ -148,6 +154,7 @@ fn main() -> anyhow::Result<()> {
                 poses_per_world,
                 shard_size,
                 out: out.clone(),
+                force,
                 jobs: common.jobs,
                 dataset: dataset_config(mode, &common),
             };
@@ -185,10 +192,7 @@ fn main() -> anyhow::Result<()> {
             report,
             common,
         } => {
-            let set = WorldSet::Random {
-                first_seed: EVAL_SEED_BASE + seed,
-                count: worlds,
-            };
+            let set = WorldSet::held_out(seed, worlds)?;
             let pb = bar(worlds * poses_per_world, common.quiet, "samples");
             let t = Instant::now();
             let r = evaluate_geometric(
@@ -202,8 +206,8 @@ fn main() -> anyhow::Result<()> {
             println!(
                 "geometric estimator, {} worlds (seeds {}..{}), {} poses each, {:.1} s",
                 r.worlds,
-                EVAL_SEED_BASE + seed,
-                EVAL_SEED_BASE + seed + worlds as u64,
+                EVAL_SEED_BASE.saturating_add(seed),
+                EVAL_SEED_BASE.saturating_add(seed).saturating_add(worlds as u64),
                 poses_per_world,
                 t.elapsed().as_secs_f64()
             );
