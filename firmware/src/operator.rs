@@ -81,7 +81,7 @@ impl<S: OperatorSource> OperatorSource for HeadingSource<S> {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScheduleError {
-    #[error("cannot read command schedule {path}: {source}")]
+    #[error("cannot read command schedule {path}")]
     Read { path: PathBuf, source: std::io::Error },
     #[error("command schedule {path}, line {line}: {message}")]
     Line {
@@ -115,6 +115,21 @@ impl CommandSchedule {
         Self {
             steps: vec![(0.0, Step::Velocity(velocity))],
             source: None,
+        }
+    }
+
+    /// Refuses steps that start at or after the run's end (`duration_s`): they would never take
+    /// effect, and a run that silently ignores part of its schedule measures something else.
+    pub fn check_within(&self, duration_s: f64) -> Result<(), String> {
+        match self.steps.iter().find(|(t, _)| *t > 0.0 && *t >= duration_s) {
+            Some((t, _)) => Err(format!(
+                "{}: a step starts at {t} s, at or after the run's end ({duration_s} s): lengthen --duration or \
+                 remove the step",
+                self.source
+                    .as_ref()
+                    .map_or("the command schedule".into(), |p| p.display().to_string())
+            )),
+            None => Ok(()),
         }
     }
 

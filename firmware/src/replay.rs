@@ -383,13 +383,27 @@ fn load(log: &LogFile) -> Result<Recording> {
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayHalError {
     #[error("recorded frame: {0}")]
-    Decode(#[from] DecodeError),
+    Decode(DecodeError),
     #[error("recorded frame: {0}")]
-    Cdr(#[from] CdrError),
+    Cdr(CdrError),
     #[error("recorded HAL failure ({0:?})")]
     Recorded(ErrorKind),
     #[error("end of the recording")]
     End,
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<CdrError> for ReplayHalError {
+    fn from(e: CdrError) -> Self {
+        ReplayHalError::Cdr(e)
+    }
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<DecodeError> for ReplayHalError {
+    fn from(e: DecodeError) -> Self {
+        ReplayHalError::Decode(e)
+    }
 }
 
 impl hal::Error for ReplayHalError {

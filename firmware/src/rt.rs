@@ -17,7 +17,7 @@ pub enum RtError {
     Priority(i32),
     #[error("CPU {cpu} is not available (this machine has CPUs 0..{n})")]
     Cpu { cpu: usize, n: usize },
-    #[error("{what} failed: {source}{hint}")]
+    #[error("{what} failed{hint}")]
     Os {
         what: &'static str,
         source: std::io::Error,

@@ -50,9 +50,9 @@ impl Default for UdpLidarConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum UdpLidarError {
-    #[error("cannot bind the lidar's UDP port {addr}: {source} (is another program, e.g. Livox Viewer or a second g1fw, bound to it? is {addr} an address of this machine?)")]
+    #[error("cannot bind the lidar's UDP port {addr} (is another program, e.g. Livox Viewer or a second g1fw, bound to it? is {addr} an address of this machine?)")]
     Bind { addr: SocketAddr, source: std::io::Error },
-    #[error("lidar UDP socket {addr}: {source}")]
+    #[error("lidar UDP socket {addr}")]
     Socket { addr: SocketAddr, source: std::io::Error },
 }
 

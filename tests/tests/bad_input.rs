@@ -319,3 +319,65 @@ fn an_absurd_duration_is_refused() {
         assert!(err.contains("--duration"), "{d}: {err}");
     }
 }
+
+/// Requests that cannot mean anything are errors, not silent no-ops (issue 22): a fault or a
+/// schedule step after the run's end, a BEV time that is not a time.
+#[test]
+fn requests_outside_the_run_are_refused() {
+    let out = g1fw(&["sim", "--duration", "2", "--fault", "drop@5+0.1", "--quiet"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("drop@5+0.1") && err.contains("never happen"), "{err}");
+
+    // specs/schedules/velocity_steps.txt has steps at 2 s and 6 s.
+    let out = g1fw(&[
+        "sim",
+        "--duration",
+        "4",
+        "--cmd-schedule",
+        "specs/schedules/velocity_steps.txt",
+        "--quiet",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("velocity_steps.txt") && err.contains("6 s"), "{err}");
+
+    for at in ["nan", "-1", "inf"] {
+        let at = format!("--at={at}");
+        let out = g1fw(&[
+            "bev",
+            "tests/corpus/rl_lab_terrain_cnn_29dof.mcap",
+            &at,
+            "--out",
+            "/dev/null",
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{at}: {err}");
+        assert!(err.contains("--at"), "{at}: {err}");
+    }
+}
+
+/// An error names its cause once: `error: cannot read deploy spec X: No such file or directory`, not
+/// the OS reason two or three times down the chain (issue 22).
+#[test]
+fn error_chains_say_the_reason_once() {
+    for args in [
+        vec!["check-spec", "--spec", "/nonexistent/spec.toml"],
+        vec!["replay", "/nonexistent/run.mcap"],
+        vec![
+            "sim",
+            "--quiet",
+            "--duration",
+            "0.1",
+            "--log",
+            "/nonexistent/dir/run.mcap",
+        ],
+        vec!["sim", "--quiet", "--cmd-schedule", "/nonexistent/schedule.txt"],
+    ] {
+        let out = g1fw(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{args:?}: {err}");
+        assert!(err.contains("/nonexistent/"), "{args:?}: {err}");
+    }
+}

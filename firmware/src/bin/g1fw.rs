@@ -543,6 +543,20 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         Some(p) => CommandSchedule::load(p)?,
         None => CommandSchedule::constant(a.cmd),
     };
+    schedule.check_within(a.duration).map_err(anyhow::Error::msg)?;
+    for f in &a.faults {
+        // `KIND@START_S[+DURATION_S][:ARG]` (g1-sim parses the rest and names any error).
+        let start = f
+            .split_once('@')
+            .and_then(|(_, rest)| rest.split(['+', ':']).next())
+            .and_then(|t| t.trim().parse::<f64>().ok());
+        if let Some(t) = start.filter(|t| *t >= a.duration) {
+            bail!(
+                "--fault {f} starts at {t} s, at or after the run's end (--duration {}): it would never happen",
+                a.duration
+            );
+        }
+    }
     if let Some(h) = a.heading {
         if !h.is_finite() {
             bail!("--heading must be a finite number of degrees");
@@ -794,11 +808,15 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         ],
     )?;
     let stop = stop_on_signals()?;
+    let schedule = match &a.cmd_schedule {
+        Some(p) => CommandSchedule::load(p)?,
+        None => CommandSchedule::constant(a.cmd),
+    };
+    if let Some(d) = a.duration {
+        schedule.check_within(d).map_err(anyhow::Error::msg)?;
+    }
     let opts = firmware::robot_run::RunOptions {
-        schedule: match &a.cmd_schedule {
-            Some(p) => CommandSchedule::load(p)?,
-            None => CommandSchedule::constant(a.cmd),
-        },
+        schedule,
         duration_s: a.duration,
         ramp_override: a.ramp.map(|r| (r, spec.startup.hold_s)),
         hold_only: a.hold,

@@ -41,7 +41,7 @@ mod op {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
-    #[error("cannot read log {path}: {source}")]
+    #[error("cannot read log {path}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path} is not an MCAP log (or its first bytes are damaged): {message}")]
     NotMcap { path: PathBuf, message: String },

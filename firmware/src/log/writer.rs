@@ -31,11 +31,11 @@ const FRAME_CAP: usize = sensor_io::unitree_hg::LOW_STATE_LEN;
 
 #[derive(Debug, thiserror::Error)]
 pub enum LogError {
-    #[error("cannot create log {path}: {source}")]
+    #[error("cannot create log {path}")]
     Create { path: PathBuf, source: std::io::Error },
-    #[error("writing log {path}: {source}")]
+    #[error("writing log {path}")]
     Mcap { path: PathBuf, source: mcap::McapError },
-    #[error("writing log {path}: {source}")]
+    #[error("writing log {path}")]
     Io { path: PathBuf, source: std::io::Error },
     #[error("the log holds observations up to {MAX_OBS} values and actions up to {MAX_ACT}; this policy has {obs} and {act}")]
     TooLarge { obs: usize, act: usize },

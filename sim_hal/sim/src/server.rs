@@ -69,17 +69,38 @@ pub struct SessionSummary {
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     #[error("malformed LowCmd: {0}")]
-    MalformedCmd(#[from] DecodeError),
+    MalformedCmd(DecodeError),
     #[error("bad Hello: {0}")]
     BadHello(String),
     #[error("unexpected {got:?} message (expected {expected})")]
     Unexpected { got: Kind, expected: &'static str },
     #[error("protocol: {0}")]
-    Protocol(#[from] ProtocolError),
+    Protocol(ProtocolError),
     #[error("socket: {0}")]
-    Io(#[from] io::Error),
+    Io(io::Error),
     #[error("{0}")]
     Setup(String),
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<io::Error> for ServeError {
+    fn from(e: io::Error) -> Self {
+        ServeError::Io(e)
+    }
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<ProtocolError> for ServeError {
+    fn from(e: ProtocolError) -> Self {
+        ServeError::Protocol(e)
+    }
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<DecodeError> for ServeError {
+    fn from(e: DecodeError) -> Self {
+        ServeError::MalformedCmd(e)
+    }
 }
 
 impl ServeError {

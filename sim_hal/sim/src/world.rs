@@ -33,7 +33,7 @@ pub const PRESETS: [&str; 4] = ["flat", "stairs-up", "stairs-down", "outdoor"];
 
 #[derive(Debug, thiserror::Error)]
 pub enum WorldError {
-    #[error("reading scenario {path}: {source}")]
+    #[error("reading scenario {path}")]
     Io { path: String, source: std::io::Error },
     #[error("scenario {path}: {message}")]
     Parse { path: String, message: String },

@@ -35,9 +35,9 @@ use super::spin::SpinStream;
 #[derive(Debug, thiserror::Error)]
 pub enum BridgeError {
     #[error("bridge: {0}")]
-    Protocol(#[from] ProtocolError),
+    Protocol(ProtocolError),
     #[error("bridge: bad LowState frame from the simulator: {0}")]
-    Decode(#[from] DecodeError),
+    Decode(DecodeError),
     #[error("bridge: could not connect to the simulator at {target} within {waited:?}: {last}")]
     Connect {
         target: String,
@@ -53,6 +53,20 @@ pub enum BridgeError {
          {waited:?}; g1-sim serves one client at a time: is another g1fw connected to it?"
     )]
     NoWelcome { target: String, waited: Duration },
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<DecodeError> for BridgeError {
+    fn from(e: DecodeError) -> Self {
+        BridgeError::Decode(e)
+    }
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<ProtocolError> for BridgeError {
+    fn from(e: ProtocolError) -> Self {
+        BridgeError::Protocol(e)
+    }
 }
 
 impl hal::Error for BridgeError {

@@ -18,7 +18,7 @@ pub enum LaunchError {
     NotFound { exe: String },
     #[error("locating this executable: {0}")]
     CurrentExe(std::io::Error),
-    #[error("starting the simulator {bin}: {source}")]
+    #[error("starting the simulator {bin}")]
     Spawn { bin: String, source: std::io::Error },
     #[error(transparent)]
     Bridge(#[from] BridgeError),
