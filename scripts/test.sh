@@ -18,6 +18,10 @@ cargo clippy --release --workspace --all-targets -- -D warnings
 # Integration tests start the g1fw and g1-sim binaries: build them first.
 cargo build --release --workspace --bins
 cargo test --release --workspace --no-fail-fast
+# Issue 22's acceptance, through the command line: 1000 single-byte changes of a committed log, each
+# named as damaged (exit 2) by replay, log-info and plot; no abort, no panic (~35 s).
+scripts/flip_experiment.py --flips 1000 > target/flip_experiment.json
+echo "[test] flip experiment: $(python3 -c 'import json; d=json.load(open("target/flip_experiment.json")); print(d["flips"], "flips,", d["aborts_or_panics"], "aborts,", d["not_named_damaged"], "not named")')" >&2
 # The robot's CPU (README, "aarch64 replay and deploy image"): cross-build g1fw once, replay the corpus
 # under qemu-aarch64 bit for bit, pack the deploy image from the same build, check the image.
 aarch64_start=$(date +%s)
