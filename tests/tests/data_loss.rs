@@ -156,3 +156,44 @@ fn a_simulator_that_never_answers_is_a_clear_error() {
     assert!(start.elapsed() < Duration::from_secs(30));
     drop(held.join());
 }
+
+/// `kill -9` of g1fw (no handler can run) still ends its simulator: g1-sim dies with its parent
+/// instead of waiting on its socket forever. Killed as soon as the simulator runs (before it has a
+/// client: without `PR_SET_PDEATHSIG` it would wait in accept() forever), and mid-run.
+#[test]
+fn the_simulator_dies_with_a_killed_g1fw() {
+    for mid_run in [false, true] {
+        let mut child = Command::new(built_bin("g1fw"))
+            .args(["sim", "--quiet", "--keep-going", "--duration", "600"])
+            .args(["--spec", "specs/test/rl_lab_style.toml"])
+            .current_dir(repo_root())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("g1fw starts");
+        let start = Instant::now();
+        let sim = loop {
+            let running =
+                |p: &u32| std::fs::read_to_string(format!("/proc/{p}/comm")).is_ok_and(|c| c.trim() == "g1-sim");
+            if let Some(&s) = children(child.id()).iter().find(|p| running(p)) {
+                break s;
+            }
+            assert!(start.elapsed() < Duration::from_secs(60), "no simulator started");
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        if mid_run {
+            std::thread::sleep(Duration::from_millis(1500));
+        }
+        child.kill().unwrap();
+        child.wait().unwrap();
+        let gone = Instant::now();
+        // Gone, or a zombie waiting for init to reap it.
+        while std::fs::read_to_string(format!("/proc/{sim}/stat")).is_ok_and(|s| !s.contains(") Z ")) {
+            assert!(
+                gone.elapsed() < Duration::from_secs(5),
+                "g1-sim (pid {sim}) outlived a killed g1fw (mid-run: {mid_run})"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}

@@ -94,7 +94,23 @@ impl SimLaunch {
             N.fetch_add(1, Ordering::Relaxed)
         ));
         let _ = std::fs::remove_file(&socket);
-        let child = Command::new(&bin)
+        let mut cmd = Command::new(&bin);
+        let parent = nix::unistd::getpid();
+        // SAFETY: the closure runs in the child between fork and exec and only calls prctl(2) and
+        // getppid(2), which are async-signal-safe; it allocates nothing and touches no lock.
+        unsafe {
+            cmd.pre_exec(move || {
+                // If g1fw dies before it connects (kill -9), the simulator would wait in accept()
+                // forever; this ends it with its parent.
+                nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGTERM)?;
+                // The parent may have died before the line above: then no signal will come.
+                if nix::unistd::getppid() != parent {
+                    return Err(std::io::Error::from(std::io::ErrorKind::BrokenPipe));
+                }
+                Ok(())
+            });
+        }
+        let child = cmd
             .arg("--socket")
             .arg(&socket)
             .args(["--model", &self.model])
