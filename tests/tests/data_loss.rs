@@ -28,7 +28,7 @@ fn children(pid: u32) -> Vec<u32> {
 fn interrupt_a_logged_run(signal: &str, name: &str) {
     let dir = scratch_dir(name);
     let (log, report) = (dir.join("run.mcap"), dir.join("report.json"));
-    let mut child = Command::new(built_bin("g1fw"))
+    let child = Command::new(built_bin("g1fw"))
         .args([
             "sim",
             "--quiet",
