@@ -145,8 +145,10 @@ pub struct Runtime {
     replayed_late_steps: Option<Vec<u64>>,
     /// The step handed over (or, in replay, computed ahead) and not yet consumed.
     pending: Option<PendingStep>,
-    /// Poses recorded while perception was away, added to its history when it comes home.
+    /// Poses recorded while perception was away, added to its history when it comes home: a ring
+    /// of the newest `AWAY_POSES` (oldest at `away_start`), O(1) per tick however long it is away.
     away_poses: Box<[(u64, Estimate); AWAY_POSES]>,
+    away_start: usize,
     away_len: usize,
     /// The token the policy reads (perception's newest consumed one).
     policy_token: hal::TerrainToken,
@@ -178,6 +180,7 @@ impl Runtime {
             replayed_late_steps: None,
             pending: None,
             away_poses: Box::new([(0, Estimate::default()); AWAY_POSES]),
+            away_start: 0,
             away_len: 0,
             policy_token: hal::TerrainToken::FLAT,
             perception_late: 0,
@@ -293,20 +296,22 @@ impl Runtime {
             None => {
                 // The history holds only the last HISTORY poses anyway: keep the newest.
                 if self.away_len == AWAY_POSES {
-                    self.away_poses.copy_within(1.., 0);
-                    self.away_len -= 1;
+                    self.away_poses[self.away_start] = (time_ns, est);
+                    self.away_start = (self.away_start + 1) % AWAY_POSES;
+                } else {
+                    self.away_poses[(self.away_start + self.away_len) % AWAY_POSES] = (time_ns, est);
+                    self.away_len += 1;
                 }
-                self.away_poses[self.away_len] = (time_ns, est);
-                self.away_len += 1;
             }
         }
     }
 
     fn come_home(&mut self, mut p: Box<Perception>) {
-        for (t, est) in &self.away_poses[..self.away_len] {
+        for i in 0..self.away_len {
+            let (t, est) = &self.away_poses[(self.away_start + i) % AWAY_POSES];
             p.record_pose(*t, est);
         }
-        self.away_len = 0;
+        (self.away_start, self.away_len) = (0, 0);
         self.perception = Some(p);
     }
 
