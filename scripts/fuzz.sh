@@ -1,42 +1,67 @@
 #!/usr/bin/env bash
-# Runs the cargo-fuzz target for the Livox point-packet codec on stable Rust (RUSTC_BOOTSTRAP lets
-# cargo-fuzz pass its -Z flags; no sanitizer, libFuzzer's coverage only).
-#   scripts/fuzz.sh [SECONDS] [extra libFuzzer args...]     default 60 s
-# Seeds the corpus with valid packets (zlib CRC-32 == the packet's CRC-32/ISO-HDLC) on first run.
+# Runs the cargo-fuzz targets of fuzz/ (every decoder and parser; docs/reliability.md) on stable Rust:
+# RUSTC_BOOTSTRAP lets cargo-fuzz pass its -Z flags; no sanitizer (libFuzzer's coverage only), but
+# debug assertions and overflow checks on (-a), so arithmetic overflow is a crash too.
+#   scripts/fuzz.sh [SECONDS] [TARGET...]     default: 600 s, every target
+# Each target stops at FUZZ_RUNS executions (default 10,000,000) or SECONDS, whichever comes first,
+# one target at a time. The committed seeds (fuzz/corpus/<target>) are read, never written: the grown
+# corpus is fuzz/target/corpus/<target> (kept between runs), crashes go to fuzz/artifacts/<target>.
+# Prints per target: executions, fuzzing time, exec/s, crashes, corpus size; the table is also in
+# fuzz/target/fuzz-summary.md. Exits 1 if any target crashed.
 set -euo pipefail
-secs="${1:-60}"
+secs="${1:-600}"
 shift || true
-cd "$(dirname "$0")/../sensor_io"
+runs="${FUZZ_RUNS:-10000000}"
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
 command -v cargo-fuzz >/dev/null 2>&1 || cargo install cargo-fuzz
-corpus=fuzz/corpus/livox_packet
-if [ ! -d "$corpus" ] || [ -z "$(ls -A "$corpus")" ]; then
-  mkdir -p "$corpus"
-  python3 - "$corpus" <<'PY'
-import struct, sys, zlib
-out = sys.argv[1]
-def packet(udp, frame, ts, pts, dtype=1, ti=4800):
-    if dtype == 1:
-        body = b"".join(struct.pack("<iiiBB", x, y, z, 10, 0) for x, y, z in pts)
-    elif dtype == 2:
-        body = b"".join(struct.pack("<hhhBB", x // 10, y // 10, z // 10, 10, 0) for x, y, z in pts)
-    else:
-        body = struct.pack("<6f", 0.01, -0.02, 0.0, 0.0, 0.0, -1.0)
-        pts = [0]
-    n = len(pts)
-    tail = struct.pack("<Q", ts) + body
-    return struct.pack("<BHHHHBBB12sI", 0, 36 + len(body), ti, n, udp, frame, dtype, 0, bytes(12),
-                       zlib.crc32(tail)) + tail
-pts = [(1000 + 37 * i, -500 + 11 * i, -300 + i) for i in range(96)]
-seeds = {
-    "high96": packet(0, 0, 10**9, pts),
-    "high3": packet(1, 0, 10**9 + 480000, pts[:3]),
-    "low4": packet(2, 1, 2 * 10**9, pts[:4], dtype=2),
-    "imu": packet(3, 0, 3 * 10**9, [], dtype=0),
-    "zero": packet(4, 1, 0, [(0, 0, 0), (50, 0, 0)]),
-}
-seeds["stream"] = seeds["high3"] + seeds["zero"] + seeds["imu"] + seeds["high3"]
-for name, data in seeds.items():
-    open(f"{out}/{name}", "wb").write(data)
-PY
-fi
-RUSTC_BOOTSTRAP=1 cargo fuzz run livox_packet --sanitizer none -- -max_total_time="$secs" "$@"
+mapfile -t all < <(sed -n 's/^name = "\(.*\)"$/\1/p' fuzz/Cargo.toml | grep -v '^g1-fuzz$')
+targets=("$@")
+(( ${#targets[@]} )) || targets=("${all[@]}")
+for t in "${targets[@]}"; do
+  printf '%s\n' "${all[@]}" | grep -qx "$t" || { echo "[fuzz] unknown target '$t' (have: ${all[*]})" >&2; exit 2; }
+  [ -n "$(ls -A "fuzz/corpus/$t" 2>/dev/null)" ] || { echo "[fuzz] no seeds in fuzz/corpus/$t" >&2; exit 2; }
+done
+export RUSTC_BOOTSTRAP=1
+flags=(-O -a --sanitizer none)
+nice -n 10 cargo fuzz build "${flags[@]}"
+summary=fuzz/target/fuzz-summary.md
+mkdir -p fuzz/target
+{
+  echo "| target | executions | time | exec/s | crashes | corpus (seeds → final) |"
+  echo "|---|---:|---:|---:|---:|---:|"
+} >"$summary"
+failed=0
+for t in "${targets[@]}"; do
+  work="fuzz/target/corpus/$t"
+  art="fuzz/artifacts/$t"
+  log="fuzz/target/fuzz-$t.log"
+  mkdir -p "$work" "$art"
+  seeds=$(ls "fuzz/corpus/$t" | wc -l)
+  before=$(ls "$art" | wc -l)
+  echo "[fuzz] $t: up to $runs executions or $secs s" >&2
+  start=$(date +%s.%N)
+  set +e
+  nice -n 10 cargo fuzz run "${flags[@]}" "$t" "$work" "fuzz/corpus/$t" -- \
+    -runs="$runs" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 >"$log" 2>&1
+  rc=$?
+  set -e
+  # Fuzzing time as libFuzzer reports it (cargo fuzz run may rebuild first); else the wall clock.
+  wall=$(sed -n 's/^Done [0-9]* runs in \([0-9]*\) second.*/\1/p' "$log" | tail -1)
+  [ -n "$wall" ] || wall=$(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { print b - a }')
+  execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
+  rate=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
+  crashes=$(( $(ls "$art" | wc -l) - before ))
+  corpus=$(ls "$work" | wc -l)
+  if (( rc != 0 )); then
+    failed=1
+    (( crashes > 0 )) || crashes="exit $rc"
+    echo "[fuzz] $t FAILED (rc $rc); see $log and $art/" >&2
+    grep -m5 -E "panicked|ERROR|SUMMARY" "$log" >&2 || true
+  fi
+  row=$(printf '| `%s` | %s | %.0f s | %s | %s | %s → %s |' "$t" "${execs:-?}" "$wall" "${rate:-?}" "$crashes" "$seeds" "$corpus")
+  echo "$row" >>"$summary"
+  echo "[fuzz] $row" >&2
+done
+cat "$summary"
+exit "$failed"

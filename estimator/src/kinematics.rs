@@ -192,6 +192,9 @@ impl Leg {
     }
 }
 
+/// Largest MJCF file read (the G1's models are under 100 KB; meshes are separate files).
+pub const MAX_MJCF_BYTES: u64 = 16 << 20;
+
 /// Both legs of the G1.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LegKinematics {
@@ -201,8 +204,17 @@ pub struct LegKinematics {
 impl LegKinematics {
     /// Reads an MJCF file (see [`LegKinematics::from_mjcf`]).
     pub fn from_mjcf_file(path: &std::path::Path) -> Result<Self, KinematicsError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| KinematicsError::Xml(format!("cannot read {}: {e}", path.display())))?;
+        use std::io::Read;
+        let cannot = |e: &dyn std::fmt::Display| KinematicsError::Xml(format!("cannot read {}: {e}", path.display()));
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_MJCF_BYTES + 1).read_to_string(&mut text))
+            .map_err(|e| cannot(&e))?;
+        if text.len() as u64 > MAX_MJCF_BYTES {
+            return Err(cannot(&format!(
+                "more than the {MAX_MJCF_BYTES}-byte limit for a model"
+            )));
+        }
         Self::from_mjcf(&text)
     }
 

@@ -10,7 +10,7 @@ use crate::spec::DeploySpec;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ControllerError {
-    #[error("loading policy weights {path}: {source}")]
+    #[error("loading policy weights {path}")]
     Weights {
         path: std::path::PathBuf,
         source: Box<NnError>,
@@ -89,6 +89,11 @@ impl Controller {
             path,
             source: Box::new(source),
         })?;
+        Self::build(spec, Some(net))
+    }
+
+    /// [`Controller::new`] with a network already loaded (embedded or fuzzed weights).
+    pub fn with_network(spec: DeploySpec, net: Network) -> Result<Self, ControllerError> {
         Self::build(spec, Some(net))
     }
 

@@ -12,7 +12,7 @@ use crate::nn::NetworkDesc;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SpecError {
-    #[error("cannot read deploy spec {path}: {source}")]
+    #[error("cannot read deploy spec {path}")]
     Read { path: PathBuf, source: std::io::Error },
     #[error("deploy spec {path} is not valid TOML for a deploy spec: {message}")]
     Parse { path: PathBuf, message: String },
@@ -410,6 +410,15 @@ pub const MAX_KP: f32 = 1000.0;
 pub const MAX_KD: f32 = 100.0;
 /// Largest |action_scale| (rad of target per unit of action).
 pub const MAX_ACTION_SCALE: f32 = 10.0;
+/// Most frames of history one observation term may keep (IsaacLab exports use up to a few tens;
+/// a value past this is a typo, and unbounded ones overflowed the observation size).
+pub const MAX_OBS_HISTORY: usize = 1000;
+/// Most values an observation vector may have (the policies here take 45 to 480).
+pub const MAX_OBSERVATION_DIM: usize = 1 << 16;
+/// Longest start-up ramp or hold, s (an hour; the tick counts derived from them must not overflow).
+pub const MAX_STARTUP_S: f64 = 3600.0;
+/// Largest deploy spec file read (the ones here are a few KB).
+pub const MAX_SPEC_BYTES: usize = 1 << 20;
 
 /// The signals an observation term can read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -563,22 +572,19 @@ impl DeploySpec {
     }
 
     pub fn load(path: &Path) -> Result<Self, SpecError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SpecError::Read {
+        let read = |source| SpecError::Read {
             path: path.into(),
             source,
-        })?;
+        };
+        let bytes = crate::read_capped(path, MAX_SPEC_BYTES as u64).map_err(read)?;
+        let text =
+            String::from_utf8(bytes).map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         Self::from_toml(&text, path)
     }
 
     /// Parses and validates; `path` locates relative files and names the spec in errors.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, SpecError> {
-        let mut spec: DeploySpec = toml::from_str(text).map_err(|e| SpecError::Parse {
-            path: path.into(),
-            message: e.to_string(),
-        })?;
-        spec.path = path.to_path_buf();
-        spec.source_text = text.to_string();
-        spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        let mut spec = Self::parse(text, path)?;
         spec.validate()?;
         if let Some(model) = &spec.estimator.model {
             let file = spec.base_dir.join(model);
@@ -592,6 +598,27 @@ impl DeploySpec {
                 )
             })?);
         }
+        Ok(spec)
+    }
+
+    /// The TOML alone, not validated.
+    fn parse(text: &str, path: &Path) -> Result<Self, SpecError> {
+        if text.len() > MAX_SPEC_BYTES {
+            return Err(SpecError::Parse {
+                path: path.into(),
+                message: format!(
+                    "{} bytes is more than the {MAX_SPEC_BYTES} a deploy spec may have",
+                    text.len()
+                ),
+            });
+        }
+        let mut spec: DeploySpec = toml::from_str(text).map_err(|e| SpecError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
+        spec.path = path.to_path_buf();
+        spec.source_text = text.to_string();
+        spec.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Ok(spec)
     }
 
@@ -663,10 +690,18 @@ impl DeploySpec {
         1.0 / self.rates.control_hz as f64
     }
 
-    /// Length of the observation vector the spec builds.
+    /// Length of the observation vector the spec builds (validated: at most
+    /// [`MAX_OBSERVATION_DIM`]; saturates rather than overflow on an unvalidated spec).
     pub fn observation_dim(&self) -> usize {
+        self.checked_observation_dim().unwrap_or(usize::MAX)
+    }
+
+    fn checked_observation_dim(&self) -> Option<usize> {
         let n = self.num_joints();
-        self.observation.terms.iter().map(|t| t.kind.dim(n) * t.history).sum()
+        self.observation
+            .terms
+            .iter()
+            .try_fold(0usize, |sum, t| sum.checked_add(t.kind.dim(n).checked_mul(t.history)?))
     }
 
     fn validate(&self) -> Result<(), SpecError> {
@@ -747,8 +782,14 @@ impl DeploySpec {
             ));
         }
         let s = &self.startup;
-        if !(s.ramp_s >= 0.0 && s.hold_s >= 0.0 && s.ramp_s.is_finite() && s.hold_s.is_finite()) {
-            return Err(self.invalid("startup", "ramp_s and hold_s must be finite and >= 0"));
+        if !((0.0..=MAX_STARTUP_S).contains(&s.ramp_s) && (0.0..=MAX_STARTUP_S).contains(&s.hold_s)) {
+            return Err(self.invalid(
+                "startup",
+                format!(
+                    "ramp_s and hold_s must be 0 to {MAX_STARTUP_S} s, got {} and {}",
+                    s.ramp_s, s.hold_s
+                ),
+            ));
         }
 
         let p = &self.policy;
@@ -911,8 +952,11 @@ impl DeploySpec {
 
         for (i, t) in self.observation.terms.iter().enumerate() {
             let field = format!("observation.terms[{i}]");
-            if t.history == 0 {
-                return Err(self.invalid(&format!("{field}.history"), "must be >= 1"));
+            if !(1..=MAX_OBS_HISTORY).contains(&t.history) {
+                return Err(self.invalid(
+                    &format!("{field}.history"),
+                    format!("{} frames: must be 1 to {MAX_OBS_HISTORY}", t.history),
+                ));
             }
             match t.scale.expand(t.kind.dim(n)) {
                 None => {
@@ -953,7 +997,15 @@ impl DeploySpec {
             }
         }
 
-        let obs_dim = self.observation_dim();
+        let obs_dim = match self.checked_observation_dim() {
+            Some(d) if d <= MAX_OBSERVATION_DIM => d,
+            _ => {
+                return Err(self.invalid(
+                    "observation",
+                    format!("terms add up to more than {MAX_OBSERVATION_DIM} values"),
+                ))
+            }
+        };
         if obs_dim != self.policy.network.input {
             return Err(self.invalid(
                 "observation",
@@ -964,5 +1016,44 @@ impl DeploySpec {
             ));
         }
         Ok(())
+    }
+}
+
+/// Fuzz harness (the `deploy_spec` cargo-fuzz target and the stable `fuzz_smoke` test): the bytes
+/// before the first NUL are a deploy spec, the bytes after it a weight file. A spec that validates
+/// builds what `g1fw check-spec` builds (the controller, its observation, the warnings) and, if the
+/// weights load against its network, the controller with them. Paths inside the spec are not
+/// followed: the MJCF and terrain-network loaders have their own limits, and a fuzzer must not read
+/// the disk.
+#[doc(hidden)]
+pub fn fuzz_deploy_spec(data: &[u8]) {
+    let (text, weights) = match data.iter().position(|&b| b == 0) {
+        Some(i) => (&data[..i], Some(&data[i + 1..])),
+        None => (data, None),
+    };
+    let Ok(text) = std::str::from_utf8(text) else {
+        return;
+    };
+    let Ok(mut spec) = DeploySpec::parse(text, Path::new("/nonexistent/g1fw-fuzz/spec.toml")) else {
+        return;
+    };
+    spec.estimator.model = None;
+    spec.perception.terrain_network = None;
+    spec.perception.terrain_weights = None;
+    if spec.validate().is_err() {
+        return;
+    }
+    let dim = spec.observation_dim();
+    assert!(dim <= MAX_OBSERVATION_DIM && dim == spec.policy.network.input);
+    let _ = spec.explicit_pd_warnings();
+    let _ = spec.estimator.config();
+    let _ = spec.perception.self_filter().expect("validated");
+    let c = crate::controller::Controller::hold_only(spec.clone());
+    assert_eq!(c.observation().len(), dim);
+    if let Some(w) = weights {
+        if let Ok(net) = crate::nn::Network::from_safetensors_bytes(&spec.policy.network, w) {
+            assert_eq!(net.input_dim(), dim);
+            let _ = crate::controller::Controller::with_network(spec, net);
+        }
     }
 }

@@ -19,7 +19,7 @@ pub const EMBEDDED_DESC: &str = include_str!("../weights/terrain_cnn.toml");
 /// Why a terrain network could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum TerrainNetError {
-    #[error("reading terrain network description {path}: {source}")]
+    #[error("reading terrain network description {path}")]
     ReadDesc {
         path: std::path::PathBuf,
         source: std::io::Error,
@@ -27,13 +27,20 @@ pub enum TerrainNetError {
     #[error("terrain network description {origin}: {message}")]
     ParseDesc { origin: String, message: String },
     #[error("terrain network: {0}")]
-    Nn(#[from] NnError),
+    Nn(NnError),
     #[error(
         "terrain network maps {input} inputs to {output} outputs; the firmware needs {} → {OUTPUTS} \
          (a 6×60×60 BEV grid to class logits, h, d and the yaw vector)",
         BEV_CHANNELS * BEV_CELLS * BEV_CELLS
     )]
     Shape { input: usize, output: usize },
+}
+
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<NnError> for TerrainNetError {
+    fn from(e: NnError) -> Self {
+        TerrainNetError::Nn(e)
+    }
 }
 
 /// A loaded terrain CNN and its output buffer.
@@ -51,10 +58,14 @@ impl TerrainNet {
 
     /// A network from a description (TOML, as `g1-train` writes it) and a safetensors file.
     pub fn load(desc_path: &Path, weights_path: &Path) -> Result<Self, TerrainNetError> {
-        let text = std::fs::read_to_string(desc_path).map_err(|source| TerrainNetError::ReadDesc {
+        let read = |source| TerrainNetError::ReadDesc {
             path: desc_path.to_path_buf(),
             source,
-        })?;
+        };
+        // A description is a few hundred bytes; the spec's limit is ample.
+        let bytes = crate::read_capped(desc_path, crate::spec::MAX_SPEC_BYTES as u64).map_err(read)?;
+        let text =
+            String::from_utf8(bytes).map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         let desc = parse_desc(&text, &desc_path.display().to_string())?;
         Self::new(Network::load(&desc, weights_path)?)
     }

@@ -3,5 +3,5 @@
 pub mod onnx;
 pub mod rl_lab;
 
-pub use onnx::{import_file, ImportError, ImportedNetwork};
+pub use onnx::{import_bytes, import_file, ImportError, ImportedNetwork};
 pub use rl_lab::{import_onnx_metadata, import_rl_lab, DeployError, RlLabImport, RlLabOptions};

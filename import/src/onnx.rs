@@ -15,6 +15,7 @@
 //!
 //! Anything else is refused by name, with the node's name and position.
 use std::collections::HashMap;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use firmware::nn::{LayerDesc, NetworkDesc};
@@ -108,8 +109,29 @@ pub fn import_file(path: &Path) -> Result<ImportedNetwork, ImportError> {
             max: MAX_ONNX_BYTES,
         });
     }
-    let data = std::fs::read(path).map_err(io)?;
-    let model = ModelProto::decode(data.as_slice()).map_err(|e| ImportError::Decode {
+    // `take`: a file that grew since `metadata` (or a device) is still read only up to the limit.
+    let mut data = Vec::with_capacity(bytes as usize);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(MAX_ONNX_BYTES + 1).read_to_end(&mut data))
+        .map_err(io)?;
+    import_bytes_at(&data, path)
+}
+
+/// Converts the bytes of an ONNX model (at most [`MAX_ONNX_BYTES`]).
+pub fn import_bytes(data: &[u8]) -> Result<ImportedNetwork, ImportError> {
+    import_bytes_at(data, Path::new("<bytes>"))
+}
+
+/// `path` names the model in errors.
+fn import_bytes_at(data: &[u8], path: &Path) -> Result<ImportedNetwork, ImportError> {
+    if data.len() as u64 > MAX_ONNX_BYTES {
+        return Err(ImportError::TooLarge {
+            path: path.to_path_buf(),
+            bytes: data.len() as u64,
+            max: MAX_ONNX_BYTES,
+        });
+    }
+    let model = ModelProto::decode(data).map_err(|e| ImportError::Decode {
         path: path.to_path_buf(),
         why: e.to_string(),
     })?;
@@ -117,6 +139,36 @@ pub fn import_file(path: &Path) -> Result<ImportedNetwork, ImportError> {
         ImportError::Graph(why) => ImportError::Graph(format!("{}: {why}", path.display())),
         e => e,
     })
+}
+
+/// Fuzz harness (the `onnx_import` cargo-fuzz target and the stable `fuzz_smoke` test): a model
+/// that imports writes a network table and weights that the firmware loads into a network of the
+/// same shape, and that network steps.
+#[doc(hidden)]
+pub fn fuzz_onnx(data: &[u8]) {
+    let Ok(net) = import_bytes(data) else {
+        return;
+    };
+    let table = net.spec_table().expect("the table of an imported network serialises");
+    #[derive(serde::Deserialize)]
+    struct Wrap {
+        policy: P,
+    }
+    #[derive(serde::Deserialize)]
+    struct P {
+        network: NetworkDesc,
+    }
+    let back: Wrap = toml::from_str(&table).expect("the network table parses back");
+    assert_eq!(back.policy.network, net.desc);
+    let Ok(weights) = net.safetensors_bytes() else {
+        return;
+    };
+    let mut loaded = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
+        .unwrap_or_else(|e| panic!("an imported network does not load: {e}"));
+    assert_eq!(loaded.output_dim(), net.output_dim);
+    let input = vec![0.5f32; loaded.input_dim()];
+    let mut output = vec![0.0f32; loaded.output_dim()];
+    loaded.step(&input, &mut output).expect("steps");
 }
 
 fn tensor_of(t: &TensorProto) -> Result<Tensor, ImportError> {
@@ -276,6 +328,14 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
             Some(proto::tensor_shape_proto::dimension::Value::DimValue(v)) => usize::try_from(v).ok(),
             _ => None,
         });
+    // The importer allocates vectors of this width (a broadcast normaliser); a declared shape is
+    // not yet checked against any weight.
+    if let Some(n) = declared_input.filter(|&n| n > firmware::nn::MAX_ACTIVATION) {
+        return Err(ImportError::Graph(format!(
+            "the input '{input_name}' declares {n} values, more than the {} the executor takes",
+            firmware::nn::MAX_ACTIVATION
+        )));
+    }
     let output_name = g
         .output
         .first()
@@ -463,9 +523,14 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
                     ));
                 }
                 let layer = match op.as_str() {
-                    "Elu" => LayerDesc::Elu {
-                        alpha: attr_f(node, "alpha", 1.0),
-                    },
+                    "Elu" => {
+                        // The executor refuses a non-finite alpha; name the node here.
+                        let alpha = attr_f(node, "alpha", 1.0);
+                        if !alpha.is_finite() {
+                            return Err(bad(format!("alpha {alpha} is not finite")));
+                        }
+                        LayerDesc::Elu { alpha }
+                    }
                     "Relu" => LayerDesc::Relu,
                     _ => LayerDesc::Tanh,
                 };
@@ -476,6 +541,14 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
                 let hidden = usize::try_from(attr_i(node, "hidden_size", 0)).unwrap_or(0);
                 if hidden == 0 {
                     return Err(bad("no hidden_size".into()));
+                }
+                // 8 · hidden values (both biases) must fit an activation; checked before any
+                // arithmetic on it.
+                if hidden > firmware::nn::MAX_ACTIVATION / 8 {
+                    return Err(bad(format!(
+                        "hidden_size {hidden} is more than the {} an LSTM here may have",
+                        firmware::nn::MAX_ACTIVATION / 8
+                    )));
                 }
                 if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {
                     return Err(bad(format!("direction '{d}': only forward LSTMs run step by step")));
@@ -702,6 +775,19 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
                     initial_cell,
                 });
             }
+        }
+    }
+    // The firmware refuses non-finite weights; say so here, where the cause (a NaN initializer, or
+    // a normaliser with a zero std folded in) can still be named.
+    for (name, t) in &tensors {
+        if let Some(i) = t.data.iter().position(|v| !v.is_finite()) {
+            return Err(ImportError::Tensor {
+                name: name.clone(),
+                why: format!(
+                    "value {} at flat index {i} is not finite (a NaN or infinite constant, or a normaliser dividing by zero)",
+                    t.data[i]
+                ),
+            });
         }
     }
     Ok(ImportedNetwork {

@@ -809,7 +809,7 @@ impl<const CAP: usize> Default for FrameAssembler<CAP> {
 // ---------------------------------------------------------------------------------------------
 // Fuzzing entry point
 
-/// Fuzz harness shared by `sensor_io/fuzz` (cargo-fuzz) and the `livox_fuzz_smoke` test: decodes
+/// Fuzz harness shared by `fuzz/` (cargo-fuzz target `livox_packet`) and the `livox_fuzz_smoke` test: decodes
 /// `data` as one packet, then as a stream of packets cut by their own `length` fields (as a capture
 /// file would be read), and feeds both to a small [`FrameAssembler`], asserting invariants.
 #[doc(hidden)]

@@ -73,6 +73,8 @@ pub enum NnError {
     /// A convolution's input or geometry does not fit (no image shape, channels, kernel size).
     #[error("{layer}: {message}")]
     ConvShape { layer: String, message: String },
+    #[error("{layer}: {elements} elements is more than the {max} an activation may have")]
+    TooLarge { layer: String, elements: usize, max: usize },
     #[error("step: input slice has length {found}, network input dimension is {expected}")]
     InputLen { expected: usize, found: usize },
     #[error("step: output slice has length {found}, network output dimension is {expected}")]

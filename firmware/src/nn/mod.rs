@@ -107,10 +107,19 @@ pub struct Network {
     sha256: String,
 }
 
+/// Most elements one activation (the input, or any layer's output) may have: 64 MiB of f32. The
+/// terrain CNN's largest is under 60,000.
+pub const MAX_ACTIVATION: usize = 1 << 24;
+
+/// Largest weight file read (the policies and the terrain CNN here are under 2 MB): a larger file
+/// is refused before it is read, not held in memory whole.
+pub const MAX_WEIGHTS_BYTES: u64 = 256 << 20;
+
 impl Network {
-    /// Reads and validates the weight file at `weights_path` against `desc`.
+    /// Reads and validates the weight file at `weights_path` against `desc` (at most
+    /// [`MAX_WEIGHTS_BYTES`]).
     pub fn load(desc: &NetworkDesc, weights_path: &Path) -> Result<Network, NnError> {
-        let bytes = std::fs::read(weights_path).map_err(|source| NnError::Io {
+        let bytes = crate::read_capped(weights_path, MAX_WEIGHTS_BYTES).map_err(|source| NnError::Io {
             path: weights_path.to_path_buf(),
             source,
         })?;
@@ -124,6 +133,13 @@ impl Network {
         }
         if desc.input == 0 {
             return Err(NnError::ZeroInput);
+        }
+        if desc.input > MAX_ACTIVATION {
+            return Err(NnError::TooLarge {
+                layer: "the network input".into(),
+                elements: desc.input,
+                max: MAX_ACTIVATION,
+            });
         }
         let input_shape = match &desc.input_shape {
             None => vec![desc.input],
@@ -154,7 +170,19 @@ impl Network {
                 layer: format!("layers[{i}] ({})", layer_desc.kind()),
             };
             let (layer, shape, n) = src.build(layer_desc, &shapes[i], &source_desc)?;
-            dims.push(shape.iter().product());
+            // Activations are allocated at load: bound them before (a chain of convolutions can
+            // grow them far beyond the weight file's size).
+            let width = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+            match width {
+                Some(w) if w <= MAX_ACTIVATION => dims.push(w),
+                _ => {
+                    return Err(NnError::TooLarge {
+                        layer: src.layer,
+                        elements: width.unwrap_or(usize::MAX),
+                        max: MAX_ACTIVATION,
+                    })
+                }
+            }
             shapes.push(shape);
             params += n;
             layers.push(layer);

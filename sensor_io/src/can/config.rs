@@ -5,6 +5,12 @@ use serde::Deserialize;
 
 use super::MAX_MOTOR_ID;
 
+/// Largest bus layout read (the layouts here are a few KB).
+pub const MAX_LAYOUT_BYTES: usize = 1 << 20;
+/// Largest MIT range (p_max, v_max, t_max, kp_max, kd_max): real motors use tens to hundreds; far
+/// larger spans quantise to nothing useful and overflow the decoder's float arithmetic.
+pub const MAX_MIT_RANGE: f32 = 1.0e4;
+
 /// The MIT encoding ranges of one motor.
 #[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -63,15 +69,25 @@ pub struct BusLayout {
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("CAN bus layout: {0}")]
-    Toml(#[from] toml::de::Error),
+    Toml(toml::de::Error),
     #[error("CAN bus layout: {0}")]
     Invalid(String),
 }
 
+// Display carries the inner error's text; no `source` link, so `{:#}` chains print it once.
+impl From<toml::de::Error> for ConfigError {
+    fn from(e: toml::de::Error) -> Self {
+        ConfigError::Toml(e)
+    }
+}
+
 impl BusLayout {
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let raw: RawLayout = toml::from_str(text)?;
         let bad = |m: String| Err(ConfigError::Invalid(m));
+        if text.len() > MAX_LAYOUT_BYTES {
+            return bad(format!("more than the {MAX_LAYOUT_BYTES}-byte limit for a bus layout"));
+        }
+        let raw: RawLayout = toml::from_str(text)?;
         if raw.interfaces.is_empty() {
             return bad("`interfaces` is empty: name at least one bus".into());
         }
@@ -121,8 +137,10 @@ impl BusLayout {
                 ("kp_max", r.kp_max),
                 ("kd_max", r.kd_max),
             ] {
-                if !(v.is_finite() && v > 0.0) {
-                    return bad(format!("{at}: {name} must be a positive number, got {v}"));
+                if !(v.is_finite() && v > 0.0 && v <= MAX_MIT_RANGE) {
+                    return bad(format!(
+                        "{at}: {name} must be a positive number up to {MAX_MIT_RANGE}, got {v}"
+                    ));
                 }
             }
         }
@@ -138,8 +156,12 @@ impl BusLayout {
     }
 
     pub fn load(path: &std::path::Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError::Invalid(format!("cannot read {}: {e}", path.display())))?;
+        use std::io::Read;
+        let cannot = |e: &dyn std::fmt::Display| ConfigError::Invalid(format!("cannot read {}: {e}", path.display()));
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_LAYOUT_BYTES as u64 + 1).read_to_string(&mut text))
+            .map_err(|e| cannot(&e))?;
         Self::from_toml(&text)
     }
 

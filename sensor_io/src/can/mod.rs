@@ -3,7 +3,7 @@
 //! [`CanFrame`]; the SocketCAN transport lives in `sim_hal::can`.
 mod config;
 
-pub use config::{BusLayout, ConfigError, MotorConfig, MotorRanges};
+pub use config::{BusLayout, ConfigError, MotorConfig, MotorRanges, MAX_LAYOUT_BYTES, MAX_MIT_RANGE};
 
 use hal::ImuState;
 
@@ -302,6 +302,99 @@ impl ImuAssembler {
 
 pub fn is_imu_id(id: u16) -> bool {
     (IMU_QUAT_ID..=IMU_ACCEL_ID).contains(&id)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fuzzing entry point (the `can_frame` cargo-fuzz target and the stable `fuzz_smoke` test).
+
+/// The ranges of `specs/can/g1_12dof.toml`'s hip motors: frames are decoded with these unless the
+/// input is a bus layout.
+const FUZZ_RANGES: MotorRanges = MotorRanges {
+    p_max: 12.5,
+    v_max: 37.5,
+    t_max: 88.0,
+    kp_max: 500.0,
+    kd_max: 5.0,
+};
+
+/// First byte even: the rest is a stream of 11-byte frames (id u16 LE, len, 8 data bytes) decoded
+/// as motor commands, motor replies and IMU frames. Odd: the rest is a bus layout (TOML); if it
+/// loads, every motor's ranges round-trip a command and a reply.
+#[doc(hidden)]
+pub fn fuzz_can(data: &[u8]) {
+    let Some((&mode, rest)) = data.split_first() else {
+        return;
+    };
+    if mode % 2 == 1 {
+        let Ok(text) = core::str::from_utf8(rest) else {
+            return;
+        };
+        if let Ok(layout) = BusLayout::from_toml(text) {
+            for (k, m) in layout.motors.iter().enumerate() {
+                let c = MitCommand {
+                    q: k as f32 * 0.1,
+                    dq: -0.5,
+                    kp: 20.0,
+                    kd: 0.5,
+                    tau: 1.0,
+                };
+                check_rx(&encode_command(m.id, &c, &m.ranges), &m.ranges);
+                check_reply(&encode_reply(m.id, 0.3, -1.0, 2.0, &m.ranges), m.id, &m.ranges);
+            }
+        }
+        return;
+    }
+    let mut imu = ImuAssembler::default();
+    let mut out = ImuState::default();
+    for chunk in rest.chunks(11).filter(|c| c.len() == 11) {
+        let f = CanFrame {
+            id: u16::from_le_bytes([chunk[0], chunk[1]]) & 0x7FF,
+            len: chunk[2],
+            data: chunk[3..11].try_into().expect("8 bytes"),
+        };
+        assert!(f.payload().len() <= 8);
+        check_rx(&f, &FUZZ_RANGES);
+        check_reply(&f, f.id.wrapping_sub(REPLY_BASE) as u8, &FUZZ_RANGES);
+        if is_imu_id(f.id) {
+            if let Ok(Some(_)) = imu.push(&f, &mut out) {
+                let v = out.quaternion.iter().chain(&out.gyroscope).chain(&out.accelerometer);
+                assert!(v.clone().all(|x| x.is_finite()));
+            }
+        }
+    }
+}
+
+/// A frame that decodes holds values inside its ranges and encodes back to itself.
+fn check_rx(f: &CanFrame, r: &MotorRanges) {
+    match decode_motor_rx(f, r) {
+        Ok(MotorRx::Special(s)) => assert_eq!(encode_special(f.id as u8, s).data, f.data),
+        Ok(MotorRx::Command(c)) => {
+            for (v, lo, hi) in [
+                (c.q, -r.p_max, r.p_max),
+                (c.dq, -r.v_max, r.v_max),
+                (c.kp, 0.0, r.kp_max),
+                (c.kd, 0.0, r.kd_max),
+                (c.tau, -r.t_max, r.t_max),
+            ] {
+                // Quantisation rounds within a part in 10⁶ of the span.
+                let slack = (hi - lo) * 1e-6;
+                assert!(
+                    v.is_finite() && v >= lo - slack && v <= hi + slack,
+                    "{v} outside [{lo}, {hi}]"
+                );
+            }
+            assert_eq!(encode_command(f.id as u8, &c, r).data, f.data, "{c:?}");
+        }
+        Err(_) => {}
+    }
+}
+
+fn check_reply(f: &CanFrame, id: u8, r: &MotorRanges) {
+    if let Ok(m) = decode_reply(f, id, r) {
+        assert!(m.q.is_finite() && m.dq.is_finite() && m.tau.is_finite(), "{m:?}");
+        let again = encode_reply(id, m.q, m.dq, m.tau, r);
+        assert_eq!(again.payload(), f.payload(), "{m:?}");
+    }
 }
 
 #[cfg(test)]

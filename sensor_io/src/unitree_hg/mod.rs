@@ -269,5 +269,125 @@ pub fn decode_low_state(buf: &[u8], out: &mut LowState) -> Result<(), DecodeErro
     Ok(())
 }
 
+// ---------------------------------------------------------------------------------------------
+// Fuzzing entry points (the `unitree_hg_low_state` / `unitree_hg_low_cmd` cargo-fuzz targets and the
+// stable `fuzz_smoke` test). The first byte picks a path, so one corpus covers all three:
+// 0: the bytes as a C-layout frame; 1: the bytes zero-padded/cut to a frame and resealed with a
+// fresh CRC (reaches the checks behind the CRC); 2: the bytes as a DDS CDR sample.
+
+/// Bytes of the C layout that carry a field (not padding, not the CRC word).
+fn field_mask<const N: usize>(fields: &[cdr::Field]) -> [bool; N] {
+    let mut m = [false; N];
+    for f in fields {
+        m[f.c_offset..f.c_offset + f.size * f.count].fill(true);
+    }
+    m[N - 4..].fill(false);
+    m
+}
+
+/// `data` zero-padded or cut to `N` bytes, with a fresh CRC.
+fn resealed<const N: usize>(data: &[u8]) -> [u8; N] {
+    let mut b = [0u8; N];
+    let n = data.len().min(N);
+    b[..n].copy_from_slice(&data[..n]);
+    seal(&mut b);
+    b
+}
+
+#[doc(hidden)]
+pub fn fuzz_low_state(data: &[u8]) {
+    let Some((&mode, rest)) = data.split_first() else {
+        return;
+    };
+    let mut c = [0u8; LOW_STATE_LEN];
+    match mode % 3 {
+        0 => check_low_state(rest, decode_low_state(rest, &mut LowState::default())),
+        1 => {
+            let b: [u8; LOW_STATE_LEN] = resealed(rest);
+            let r = decode_low_state(&b, &mut LowState::default());
+            assert!(
+                !matches!(r, Err(DecodeError::Length { .. } | DecodeError::Crc { .. })),
+                "{r:?}"
+            );
+            check_low_state(&b, r);
+        }
+        _ => {
+            if cdr::low_state_from_cdr(rest, &mut c).is_ok() {
+                // Either byte order: the C frame survives its own little-endian CDR (the sample's
+                // alignment padding is not kept, as in CDR itself).
+                let mut again = [0u8; cdr::LOW_STATE_CDR_LEN];
+                cdr::low_state_to_cdr(&c, &mut again);
+                let mut back = [0u8; LOW_STATE_LEN];
+                cdr::low_state_from_cdr(&again, &mut back).expect("own CDR decodes");
+                assert!(back == c, "C frame changed through its own CDR");
+                check_low_state(&c, decode_low_state(&c, &mut LowState::default()));
+                let b: [u8; LOW_STATE_LEN] = resealed(&c[..LOW_STATE_LEN - 4]);
+                check_low_state(&b, decode_low_state(&b, &mut LowState::default()));
+            }
+        }
+    }
+}
+
+/// A frame that decoded encodes back to the same bytes, padding aside.
+fn check_low_state(buf: &[u8], r: Result<(), DecodeError>) {
+    if r.is_err() {
+        return;
+    }
+    let mut s = LowState::default();
+    decode_low_state(buf, &mut s).expect("decodes twice");
+    let mut out = [0u8; LOW_STATE_LEN];
+    encode_low_state(&s, &mut out);
+    let mask: [bool; LOW_STATE_LEN] = field_mask(&cdr::LOW_STATE_FIELDS);
+    for (i, m) in mask.iter().enumerate() {
+        assert!(!m || out[i] == buf[i], "LowState_ byte {i} changed in a round trip");
+    }
+}
+
+#[doc(hidden)]
+pub fn fuzz_low_cmd(data: &[u8]) {
+    let Some((&mode, rest)) = data.split_first() else {
+        return;
+    };
+    match mode % 3 {
+        0 => check_low_cmd(rest, decode_low_cmd(rest, &mut LowCommand::default())),
+        1 => {
+            let b: [u8; LOW_CMD_LEN] = resealed(rest);
+            let r = decode_low_cmd(&b, &mut LowCommand::default());
+            assert!(
+                !matches!(r, Err(DecodeError::Length { .. } | DecodeError::Crc { .. })),
+                "{r:?}"
+            );
+            check_low_cmd(&b, r);
+        }
+        _ => {
+            let mut c = [0u8; LOW_CMD_LEN];
+            if cdr::low_cmd_from_cdr(rest, &mut c).is_ok() {
+                let mut again = [0u8; cdr::LOW_CMD_CDR_LEN];
+                cdr::low_cmd_to_cdr(&c, &mut again);
+                let mut back = [0u8; LOW_CMD_LEN];
+                cdr::low_cmd_from_cdr(&again, &mut back).expect("own CDR decodes");
+                assert!(back == c, "C frame changed through its own CDR");
+                check_low_cmd(&c, decode_low_cmd(&c, &mut LowCommand::default()));
+                let b: [u8; LOW_CMD_LEN] = resealed(&c[..LOW_CMD_LEN - 4]);
+                check_low_cmd(&b, decode_low_cmd(&b, &mut LowCommand::default()));
+            }
+        }
+    }
+}
+
+fn check_low_cmd(buf: &[u8], r: Result<(), DecodeError>) {
+    if r.is_err() {
+        return;
+    }
+    let mut c = LowCommand::default();
+    decode_low_cmd(buf, &mut c).expect("decodes twice");
+    let mut out = [0u8; LOW_CMD_LEN];
+    encode_low_cmd(&c, &mut out);
+    let mask: [bool; LOW_CMD_LEN] = field_mask(&cdr::LOW_CMD_FIELDS);
+    for (i, m) in mask.iter().enumerate() {
+        assert!(!m || out[i] == buf[i], "LowCmd_ byte {i} changed in a round trip");
+    }
+}
+
 #[cfg(test)]
 mod tests;
