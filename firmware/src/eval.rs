@@ -18,8 +18,8 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
@@ -112,6 +112,9 @@ pub struct EvalOptions {
     pub stop_after_landing_s: Option<f64>,
     pub sim_bin: Option<PathBuf>,
     pub progress: bool,
+    /// Set by SIGINT/SIGTERM: running episodes stop at their next tick (their simulators are
+    /// stopped and reaped) and are not scored; no new one starts; the report covers what finished.
+    pub stop: Arc<AtomicBool>,
 }
 
 /// One episode's result.
@@ -169,6 +172,9 @@ pub struct EvalReport {
     pub table: Vec<Row>,
     pub results: Vec<Episode>,
     pub wall_s: f64,
+    /// Stopped by a signal: `episodes` finished of `episodes_planned`.
+    pub interrupted: bool,
+    pub episodes_planned: u64,
 }
 
 /// Runs every episode (up to `jobs` at once, each with its own simulator) and scores them.
@@ -186,7 +192,9 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
     let wall = std::time::Instant::now();
     let n = opts.episodes.len();
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<Episode, String>>>> = Mutex::new(vec![None; n]);
+    // Per episode: not run yet (`None`), failed to run, interrupted (`Ok(None)`), or its result.
+    type Slot = Option<Result<Option<Episode>, String>>;
+    let results: Mutex<Vec<Slot>> = Mutex::new(vec![None; n]);
     let successes = AtomicUsize::new(0);
     let pb = opts.progress.then(|| {
         let pb = indicatif::ProgressBar::new(n as u64);
@@ -203,11 +211,11 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
         for _ in 0..opts.jobs.min(n).max(1) {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
-                if i >= n {
+                if i >= n || opts.stop.load(Ordering::Relaxed) {
                     break;
                 }
                 let r = episode(&spec, opts, i).map_err(|e| format!("{e:#}"));
-                if matches!(&r, Ok(e) if e.success) {
+                if matches!(&r, Ok(Some(e)) if e.success) {
                     successes.fetch_add(1, Ordering::Relaxed);
                 }
                 results.lock().unwrap_or_else(std::sync::PoisonError::into_inner)[i] = Some(r);
@@ -228,16 +236,21 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
         .into_iter()
         .enumerate()
     {
+        let interrupted = opts.stop.load(Ordering::Relaxed);
         match r {
-            Some(Ok(e)) => episodes.push(e),
+            Some(Ok(Some(e))) => episodes.push(e),
+            Some(Ok(None)) | None if interrupted => {}
             Some(Err(e)) => bail!("episode {i} ({}) failed to run: {e}", opts.episodes[i].world),
-            None => bail!("episode {i} did not run"),
+            Some(Ok(None)) | None => bail!("episode {i} did not run"),
         }
     }
-    Ok(summarise(opts, episodes, wall.elapsed().as_secs_f64()))
+    let mut report = summarise(opts, episodes, wall.elapsed().as_secs_f64());
+    report.interrupted = opts.stop.load(Ordering::Relaxed);
+    Ok(report)
 }
 
-fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Episode> {
+/// `None`: interrupted by a signal (not scored).
+fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Episode>> {
     let w = &opts.episodes[i];
     let seed = opts.seed.wrapping_add(i as u64);
     let sim = SimOptions {
@@ -251,6 +264,7 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Episode> {
         terrain_source: opts.terrain_source,
         heading: Some(Heading::StairAxis),
         stop_after_landing_s: opts.stop_after_landing_s,
+        stop: opts.stop.clone(),
         ..SimOptions::default()
     };
     // Progress along the course (the staircase axis; world x on flat ground, where the target
@@ -269,6 +283,9 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Episode> {
     })
     .with_context(|| format!("episode {i} on {}", w.world))?;
     let stalled = last_t - best_t >= STALL_WINDOW_S;
+    if report.interrupted {
+        return Ok(None);
+    }
     let trip = report.trip.as_ref().map(|t| t.reason.clone());
     let (kind, h, risers, passed, reached_at, stairs_ok) = match &report.stairs {
         Some(s) => (
@@ -305,7 +322,7 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Episode> {
             "short".to_string()
         }
     });
-    Ok(Episode {
+    Ok(Some(Episode {
         index: i,
         world: w.world.clone(),
         drawn: w.drawn,
@@ -323,7 +340,7 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Episode> {
         trip,
         end: report.end,
         state_trace_sha256: report.state_trace_sha256,
-    })
+    }))
 }
 
 fn cause_key(c: &str) -> String {
@@ -380,6 +397,8 @@ fn summarise(opts: &EvalOptions, results: Vec<Episode>, wall_s: f64) -> EvalRepo
         table,
         results,
         wall_s,
+        interrupted: false,
+        episodes_planned: opts.episodes.len() as u64,
     }
 }
 

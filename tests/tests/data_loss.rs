@@ -197,3 +197,67 @@ fn the_simulator_dies_with_a_killed_g1fw() {
         }
     }
 }
+
+/// SIGTERM during `g1fw eval`: running episodes stop (their simulators reaped), no new one
+/// starts, and the report of the finished ones is written, marked interrupted, exit 130.
+#[test]
+fn an_interrupted_eval_reports_what_finished() {
+    let dir = scratch_dir("eval-sigterm");
+    let report = dir.join("eval.json");
+    let child = Command::new(built_bin("g1fw"))
+        .args([
+            "eval",
+            "--model",
+            "g1-12dof",
+            "--spec",
+            "specs/stairs/g1_stairs_lstm.toml",
+        ])
+        .args([
+            "--worlds",
+            "flat,flat,flat,flat,flat,flat",
+            "--time-limit",
+            "2",
+            "--jobs",
+            "1",
+            "--quiet",
+        ])
+        .arg("--report")
+        .arg(&report)
+        .current_dir(repo_root())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("g1fw starts");
+    // Wait for the second episode's simulator (the first has finished by then).
+    let start = Instant::now();
+    let mut seen = Vec::new();
+    while seen.len() < 2 {
+        for c in children(child.id()) {
+            if !seen.contains(&c) {
+                seen.push(c);
+            }
+        }
+        assert!(start.elapsed() < Duration::from_secs(120), "the eval did not get going");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    let r = read_json(&report);
+    assert_eq!(r["interrupted"], true, "{r}");
+    assert_eq!(r["episodes_planned"], 6, "{r}");
+    let done = r["episodes"].as_u64().unwrap();
+    assert!((1..6).contains(&done), "{r}");
+    for sim in seen {
+        assert!(
+            !Path::new(&format!("/proc/{sim}")).exists(),
+            "g1-sim {sim} outlived the eval"
+        );
+    }
+}

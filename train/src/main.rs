@@ -2,7 +2,7 @@
 // The trainer never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
@@ -62,6 +62,10 @@ enum Cmd {
         /// No left–right mirror augmentation.
         #[arg(long)]
         no_mirror: bool,
+        /// Write into an --out that already holds files (an earlier run's export and checkpoint
+        /// are replaced).
+        #[arg(long)]
+        force: bool,
         #[arg(long)]
         quiet: bool,
     },
@@ -240,6 +244,37 @@ fn keep_freed_tensors_in_the_heap() {
     }
 }
 
+/// `fit` writes its export and checkpoint into `out`: refuse to replace an earlier run's files
+/// unless forced, and never let an output be one of the run's inputs.
+fn fit_output_is_free(out: &Path, data: &[PathBuf], init: Option<&Path>, force: bool) -> anyhow::Result<()> {
+    let abs = |p: &Path| {
+        std::fs::canonicalize(p)
+            .or_else(|_| std::path::absolute(p))
+            .unwrap_or(p.into())
+    };
+    for d in data {
+        anyhow::ensure!(
+            abs(d) != abs(out),
+            "--out {} is also a --data directory: write the training run elsewhere",
+            out.display()
+        );
+    }
+    if let Some(init) = init {
+        anyhow::ensure!(
+            abs(init) != abs(&out.join("checkpoint.safetensors")),
+            "--init {} would be overwritten by this run's checkpoint: copy it elsewhere or choose another --out",
+            init.display()
+        );
+    }
+    let occupied = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some());
+    anyhow::ensure!(
+        !occupied || force,
+        "{} exists and is not empty: choose a new --out, or pass --force to replace the run there",
+        out.display()
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     keep_freed_tensors_in_the_heap();
     g1_sim::no_mujoco_log_file();
@@ -333,8 +368,10 @@ fn main() -> anyhow::Result<()> {
             seed,
             init,
             no_mirror,
+            force,
             quiet,
         } => {
+            fit_output_is_free(&out, &data, init.as_deref(), force)?;
             let t_load = Instant::now();
             let ds = Dataset::load_dirs(&data)?;
             let (mut tr, val) = split_by_world(&ds, val_fraction);

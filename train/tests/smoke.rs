@@ -238,3 +238,39 @@ fn eval_terrain_refuses_empty_requests_and_writes_only_what_it_is_asked() {
     );
     std::fs::remove_dir_all(&cwd).ok();
 }
+
+/// `fit` never replaces an earlier run or one of its own inputs unless told to (issue 22). The
+/// checks come before the dataset is read.
+#[test]
+fn fit_refuses_to_overwrite_a_run_or_its_inputs() {
+    let out = temp("fit-out");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("checkpoint.safetensors"), b"an earlier run").unwrap();
+    let fit = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_g1-train"))
+            .arg("fit")
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let o = out.to_str().unwrap();
+    let e = fit(&["--data", "/nonexistent/data", "--out", o]);
+    assert!(e.contains("not empty") && e.contains("--force"), "{e}");
+    let e = fit(&["--data", o, "--out", o, "--force"]);
+    assert!(e.contains("also a --data directory"), "{e}");
+    let init = out.join("checkpoint.safetensors");
+    let e = fit(&[
+        "--data",
+        "/nonexistent/data",
+        "--out",
+        o,
+        "--force",
+        "--init",
+        init.to_str().unwrap(),
+    ]);
+    assert!(e.contains("would be overwritten"), "{e}");
+    assert_eq!(std::fs::read(&init).unwrap(), b"an earlier run");
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -761,6 +761,7 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
         stop_after_landing_s: (a.stop_after_landing > 0.0).then_some(a.stop_after_landing),
         sim_bin: a.sim_bin,
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
+        stop: stop_on_signals()?,
     };
     let report = run_eval(&opts)?;
     print!("{}", report.text());
@@ -768,6 +769,13 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
         let json = serde_json::to_string_pretty(&report)?;
         std::fs::write(path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
         eprintln!("wrote {}", path.display());
+    }
+    if report.interrupted {
+        eprintln!(
+            "interrupted: {} of {} episodes finished and scored",
+            report.episodes, report.episodes_planned
+        );
+        return Ok(ExitCode::from(130));
     }
     Ok(ExitCode::SUCCESS)
 }
