@@ -25,29 +25,35 @@ fn children(pid: u32) -> Vec<u32> {
         .collect()
 }
 
-fn interrupt_a_logged_run(signal: &str, name: &str) {
-    let dir = scratch_dir(name);
-    let (log, report) = (dir.join("run.mcap"), dir.join("report.json"));
-    let child = Command::new(built_bin("g1fw"))
-        .args([
-            "sim",
-            "--quiet",
-            "--keep-going",
-            "--duration",
-            "600",
-            "--cmd",
-            "0.3,0,0",
-        ])
-        .args(["--spec", "specs/test/rl_lab_style.toml"])
-        .arg("--log")
-        .arg(&log)
-        .arg("--report")
-        .arg(&report)
+/// Starts the built `g1fw` from the repository root, stderr captured.
+fn spawn_g1fw(args: &[&str]) -> std::process::Child {
+    Command::new(built_bin("g1fw"))
+        .args(args)
         .current_dir(repo_root())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
-        .expect("g1fw starts");
+        .expect("g1fw starts")
+}
+
+fn interrupt_a_logged_run(signal: &str, name: &str) {
+    let dir = scratch_dir(name);
+    let (log, report) = (dir.join("run.mcap"), dir.join("report.json"));
+    let child = spawn_g1fw(&[
+        "sim",
+        "--quiet",
+        "--keep-going",
+        "--duration",
+        "600",
+        "--cmd",
+        "0.3,0,0",
+        "--spec",
+        "specs/test/rl_lab_style.toml",
+        "--log",
+        log.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
     // Wait until the run is well under way: the simulator is up and the log has its first chunk.
     let start = Instant::now();
     let sim = loop {
@@ -163,14 +169,15 @@ fn a_simulator_that_never_answers_is_a_clear_error() {
 #[test]
 fn the_simulator_dies_with_a_killed_g1fw() {
     for mid_run in [false, true] {
-        let mut child = Command::new(built_bin("g1fw"))
-            .args(["sim", "--quiet", "--keep-going", "--duration", "600"])
-            .args(["--spec", "specs/test/rl_lab_style.toml"])
-            .current_dir(repo_root())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("g1fw starts");
+        let mut child = spawn_g1fw(&[
+            "sim",
+            "--quiet",
+            "--keep-going",
+            "--duration",
+            "600",
+            "--spec",
+            "specs/test/rl_lab_style.toml",
+        ]);
         let start = Instant::now();
         let sim = loop {
             let running =
@@ -204,30 +211,22 @@ fn the_simulator_dies_with_a_killed_g1fw() {
 fn an_interrupted_eval_reports_what_finished() {
     let dir = scratch_dir("eval-sigterm");
     let report = dir.join("eval.json");
-    let child = Command::new(built_bin("g1fw"))
-        .args([
-            "eval",
-            "--model",
-            "g1-12dof",
-            "--spec",
-            "specs/stairs/g1_stairs_lstm.toml",
-        ])
-        .args([
-            "--worlds",
-            "flat,flat,flat,flat,flat,flat",
-            "--time-limit",
-            "2",
-            "--jobs",
-            "1",
-            "--quiet",
-        ])
-        .arg("--report")
-        .arg(&report)
-        .current_dir(repo_root())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("g1fw starts");
+    let child = spawn_g1fw(&[
+        "eval",
+        "--model",
+        "g1-12dof",
+        "--spec",
+        "specs/stairs/g1_stairs_lstm.toml",
+        "--worlds",
+        "flat,flat,flat,flat,flat,flat",
+        "--time-limit",
+        "2",
+        "--jobs",
+        "1",
+        "--quiet",
+        "--report",
+        report.to_str().unwrap(),
+    ]);
     // Wait for the second episode's simulator (the first has finished by then).
     let start = Instant::now();
     let mut seen = Vec::new();
