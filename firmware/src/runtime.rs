@@ -702,6 +702,10 @@ pub enum LoopEnd {
     },
 }
 
+// `run_loop`'s guard catches a panic to damp the motors; with `panic = "abort"` it could not.
+#[cfg(panic = "abort")]
+compile_error!("g1fw's control-loop panic guard needs panic = \"unwind\" (the default); do not set abort");
+
 /// The text of a panic payload (`panic!` with a literal or a formatted message).
 pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     payload
