@@ -69,6 +69,10 @@ struct Slot {
     job: Option<Job>,
     done: Option<(Box<Perception>, PerceptionSummary)>,
     stop: bool,
+    /// The step panicked (a bug): its message. The perception state went with it.
+    failed: Option<String>,
+    /// Tests only: the next step panics.
+    panic_next: bool,
 }
 
 struct Shared {
@@ -115,14 +119,27 @@ impl PerceptionWorker {
     }
 
     /// The finished step, if it is.
+    ///
+    /// A step that panicked on the worker panics here, on the control thread, where `run_loop`'s
+    /// guard damps the motors: the worker must not die quietly and leave the policy an old token
+    /// (or `take` waiting forever).
     pub fn try_take(&self) -> Option<(Box<Perception>, PerceptionSummary)> {
-        lock(&self.shared).done.take()
+        let mut slot = lock(&self.shared);
+        failed(&slot);
+        slot.done.take()
+    }
+
+    /// Tests only: the next step panics on the worker (see [`PerceptionWorker::try_take`]).
+    #[doc(hidden)]
+    pub fn inject_panic(&self) {
+        lock(&self.shared).panic_next = true;
     }
 
     /// Waits for the step to finish.
     pub fn take(&self) -> (Box<Perception>, PerceptionSummary) {
         let mut slot = lock(&self.shared);
         loop {
+            failed(&slot);
             if let Some(d) = slot.done.take() {
                 return d;
             }
@@ -141,6 +158,12 @@ impl Drop for PerceptionWorker {
     }
 }
 
+fn failed(slot: &Slot) {
+    if let Some(why) = &slot.failed {
+        panic!("the perception worker panicked: {why}");
+    }
+}
+
 fn work(shared: &Shared) {
     let mut slot = lock(shared);
     loop {
@@ -148,10 +171,23 @@ fn work(shared: &Shared) {
             return;
         }
         if let Some(mut job) = slot.job.take() {
+            let inject = std::mem::take(&mut slot.panic_next);
             drop(slot);
-            let summary = job.perception.step(job.now_ns, true, &job.estimate);
+            let step = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                if inject {
+                    panic!("injected by PerceptionWorker::inject_panic");
+                }
+                job.perception.step(job.now_ns, true, &job.estimate)
+            }));
             slot = lock(shared);
-            slot.done = Some((job.perception, summary));
+            match step {
+                Ok(summary) => slot.done = Some((job.perception, summary)),
+                Err(payload) => {
+                    slot.failed = Some(crate::runtime::panic_message(payload.as_ref()));
+                    shared.changed.notify_all();
+                    return;
+                }
+            }
             shared.changed.notify_all();
             continue;
         }

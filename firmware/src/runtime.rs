@@ -268,6 +268,14 @@ impl Runtime {
         Ok(())
     }
 
+    /// Tests only: the threaded perception worker panics on its next step.
+    #[doc(hidden)]
+    pub fn inject_perception_panic(&self) {
+        if let Some(w) = &self.worker {
+            w.inject_panic();
+        }
+    }
+
     pub fn perception_exec(&self) -> PerceptionExec {
         self.exec
     }

@@ -18,6 +18,8 @@ use hal::{LidarPoint, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 struct StandingWithLidar {
     k: u64,
     started: bool,
+    /// The last command written.
+    last: LowCommand,
 }
 
 impl TimeBase for StandingWithLidar {
@@ -70,7 +72,8 @@ impl LowLevel for StandingWithLidar {
         }
         Ok(true)
     }
-    fn write_command(&mut self, _cmd: &LowCommand) -> Result<(), Self::Error> {
+    fn write_command(&mut self, cmd: &LowCommand) -> Result<(), Self::Error> {
+        self.last = *cmd;
         Ok(())
     }
 }
@@ -111,15 +114,23 @@ enum Mode {
     Replay(u32, Vec<u64>),
 }
 
+fn stair_spec() -> DeploySpec {
+    DeploySpec::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/stairs/g1_stairs_lstm.toml"))
+        .expect("stair spec")
+}
+
 fn run(mode: Mode) -> Trace {
-    let spec = DeploySpec::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/stairs/g1_stairs_lstm.toml"))
-        .expect("stair spec");
+    let spec = stair_spec();
     let mut rt = Runtime::new(Controller::new(spec).expect("controller"));
     match mode {
         Mode::Live(exec) => rt.set_perception_exec(exec).unwrap(),
         Mode::Replay(l, late) => rt.set_perception_replay(l, late),
     }
-    let mut hal = StandingWithLidar { k: 0, started: false };
+    let mut hal = StandingWithLidar {
+        k: 0,
+        started: false,
+        last: LowCommand::default(),
+    };
     let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
     let mut op = schedule.source(2_000_000);
     let mut t = Trace {
@@ -188,4 +199,44 @@ fn a_waiting_threaded_run_uses_every_result_on_its_tick() {
     );
     let replay = run(Mode::Replay(3, Vec::new()));
     assert_eq!(waited, replay);
+}
+
+/// A panic on the perception worker (a bug) must not leave the policy an old token, nor a waiting
+/// tick blocked forever: it reaches the control thread at the step's due tick, where the loop's
+/// guard sends damping on every enabled motor.
+#[test]
+fn a_panic_on_the_perception_worker_damps_through_the_loop_guard() {
+    for wait in [false, true] {
+        let mut rt = Runtime::new(Controller::new(stair_spec()).expect("controller"));
+        rt.set_perception_exec(PerceptionExec::Threaded { consume_after: 5, wait })
+            .unwrap();
+        rt.inject_perception_panic();
+        let mut damping = LowCommand::default();
+        rt.controller().damping_command(&LowState::default(), &mut damping);
+        let mut hal = StandingWithLidar {
+            k: 0,
+            started: false,
+            last: LowCommand::default(),
+        };
+        let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
+        let mut op = schedule.source(2_000_000);
+        let end = run_loop(&mut hal, &mut rt, &mut op, 1500, |_| true);
+        match end {
+            LoopEnd::Panicked {
+                tick,
+                message,
+                damping_sent,
+            } => {
+                assert!(
+                    message.contains("perception worker panicked") && message.contains("injected"),
+                    "{message}"
+                );
+                // The first perception step comes once start-up (ramp and hold) is over.
+                assert!(damping_sent && tick < 1000, "tick {tick}");
+            }
+            other => panic!("wait {wait}: {other:?}"),
+        }
+        assert_eq!(hal.last, damping, "wait {wait}: the last command is not damping");
+        assert!(damping.motors.iter().any(|m| m.kd > 0.0 && m.kp == 0.0));
+    }
 }
