@@ -3,7 +3,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
-# A full run writes about 2.7 GB (target/, the deploy image, the HIL VM; measured 2.7 GB at 4ac1fbf);
+# A full run writes about 2.7 GB (target/, the deploy image, the HIL VM; measured 2.7 GB at 3c6b75a);
 # on a fuller disk it stops minutes in with "No space left on device", so say so up front.
 need_gb=4
 free_gb=$(( $(df -Pk "$root" | awk 'NR==2 {print $4}') / 1048576 ))
