@@ -46,14 +46,13 @@ pub fn render_bev_png(log: &Path, at_s: Option<f64>, out: &Path) -> Result<Rende
         bail!("--at {t}: give a time in seconds from the start of the log (finite, ≥ 0)");
     }
     let file = LogFile::open(log)?;
-    file.verify()?;
-    // Frame times first, then the chosen one's messages.
+    // Frame times first (and every check of the log), then the chosen one's messages.
     let mut times = Vec::new();
-    file.scan(|topic, t, _| {
+    file.undamaged(file.scan(|topic, t, _| {
         if topic == ch::PERCEPTION_BEV {
             times.push(t);
         }
-    });
+    }))?;
     if times.is_empty() {
         bail!(
             "{} has no {} messages: record it with `g1fw sim --world PRESET --log FILE`",

@@ -66,7 +66,6 @@ pub fn log_info(path: &Path) -> Result<LogInfo> {
 /// Commanded (operator channel) vs measured (simulator truth) body velocity, with safety events.
 pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
     let log = LogFile::open(path)?;
-    log.verify()?;
     let meta = log.run_metadata()?;
     let mut s = VelocitySeries {
         title: format!(
@@ -129,7 +128,8 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
         reason: String,
         joint: String,
     }
-    log.scan(|topic, t_ns, data| match topic {
+    // Nothing is drawn from a damaged log.
+    log.undamaged(log.scan(|topic, t_ns, data| match topic {
         ch::OPERATOR => {
             if let Ok(o) = serde_json::from_slice::<Op>(data) {
                 command = [o.vx, o.vy, o.wz];
@@ -174,7 +174,7 @@ pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
             }
         }
         _ => {}
-    });
+    }))?;
     if !any_estimate {
         // Logs from specs without leg kinematics: no estimate to draw.
         s.estimated.clear();

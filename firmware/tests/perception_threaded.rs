@@ -22,6 +22,16 @@ struct StandingWithLidar {
     last: LowCommand,
 }
 
+impl StandingWithLidar {
+    fn new() -> Self {
+        Self {
+            k: 0,
+            started: false,
+            last: LowCommand::default(),
+        }
+    }
+}
+
 impl TimeBase for StandingWithLidar {
     type Error = Never;
     fn wait_tick(&mut self) -> Result<TickTime, Self::Error> {
@@ -126,11 +136,7 @@ fn run(mode: Mode) -> Trace {
         Mode::Live(exec) => rt.set_perception_exec(exec).unwrap(),
         Mode::Replay(l, late) => rt.set_perception_replay(l, late),
     }
-    let mut hal = StandingWithLidar {
-        k: 0,
-        started: false,
-        last: LowCommand::default(),
-    };
+    let mut hal = StandingWithLidar::new();
     let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
     let mut op = schedule.source(2_000_000);
     let mut t = Trace {
@@ -213,11 +219,7 @@ fn a_panic_on_the_perception_worker_damps_through_the_loop_guard() {
         rt.inject_perception_panic();
         let mut damping = LowCommand::default();
         rt.controller().damping_command(&LowState::default(), &mut damping);
-        let mut hal = StandingWithLidar {
-            k: 0,
-            started: false,
-            last: LowCommand::default(),
-        };
+        let mut hal = StandingWithLidar::new();
         let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
         let mut op = schedule.source(2_000_000);
         let end = run_loop(&mut hal, &mut rt, &mut op, 1500, |_| true);

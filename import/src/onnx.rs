@@ -15,7 +15,6 @@
 //!
 //! Anything else is refused by name, with the node's name and position.
 use std::collections::HashMap;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use firmware::nn::{LayerDesc, NetworkDesc};
@@ -97,23 +96,12 @@ pub struct ImportedNetwork {
 
 /// Reads and converts `path`.
 pub fn import_file(path: &Path) -> Result<ImportedNetwork, ImportError> {
-    let io = |source| ImportError::Io {
+    // The firmware's capped read: refused from its size, and a growing file or a device is still
+    // read only up to the limit.
+    let data = firmware::read_capped(path, MAX_ONNX_BYTES).map_err(|source| ImportError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let bytes = std::fs::metadata(path).map_err(io)?.len();
-    if bytes > MAX_ONNX_BYTES {
-        return Err(ImportError::TooLarge {
-            path: path.to_path_buf(),
-            bytes,
-            max: MAX_ONNX_BYTES,
-        });
-    }
-    // `take`: a file that grew since `metadata` (or a device) is still read only up to the limit.
-    let mut data = Vec::with_capacity(bytes as usize);
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_ONNX_BYTES + 1).read_to_end(&mut data))
-        .map_err(io)?;
+    })?;
     import_bytes_at(&data, path)
 }
 

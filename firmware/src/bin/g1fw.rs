@@ -684,21 +684,18 @@ fn stop_on_signals() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
 }
 
 /// Refuses a run whose outputs would overwrite one another or one of its inputs.
-fn distinct_files(outputs: &[(&str, Option<&Path>)], inputs: &[(&str, Option<&Path>)]) -> Result<()> {
+fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
     let abs = |p: &Path| {
         std::fs::canonicalize(p)
             .or_else(|_| std::path::absolute(p))
             .unwrap_or(p.into())
     };
-    let outs: Vec<(&str, PathBuf)> = outputs.iter().filter_map(|(f, p)| p.map(|p| (*f, abs(p)))).collect();
+    let given = |files: &[(&'static str, Option<&Path>)]| -> Vec<(&'static str, PathBuf)> {
+        files.iter().filter_map(|(f, p)| p.map(|p| (*f, abs(p)))).collect()
+    };
+    let (outs, ins) = (given(outputs), given(inputs));
     for (i, (flag, path)) in outs.iter().enumerate() {
-        for (other, p) in outs[..i].iter().chain(
-            inputs
-                .iter()
-                .filter_map(|(f, p)| p.map(|p| (*f, abs(p))))
-                .collect::<Vec<_>>()
-                .iter(),
-        ) {
+        for (other, p) in outs[..i].iter().chain(&ins) {
             if p == path {
                 bail!(
                     "{flag} {} is also {other}: one would overwrite the other; give it another file",

@@ -150,11 +150,15 @@ impl LogFile {
 
     /// Verifies every check in the file without delivering messages.
     pub fn verify(&self) -> Result<ScanEnd, ReadError> {
-        let end = self.scan(|_, _, _| {});
-        match &end.damaged {
-            Some(d) => Err(ReadError::Damaged {
+        self.undamaged(self.scan(|_, _, _| {}))
+    }
+
+    /// A scan's end as a result: damage is an error naming this log.
+    pub fn undamaged(&self, end: ScanEnd) -> Result<ScanEnd, ReadError> {
+        match end.damaged {
+            Some(damage) => Err(ReadError::Damaged {
                 path: self.path.clone(),
-                damage: d.clone(),
+                damage,
             }),
             None => Ok(end),
         }
