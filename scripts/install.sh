@@ -98,4 +98,55 @@ if [ ! -f "$deps/g1_29dof/g1.xml" ]; then
   mv "$deps/tmp/mjlab/asset_zoo/robots/unitree_g1/xmls" "$deps/g1_29dof"
   rm -rf "$deps/tmp"
 fi
+# --- the CAN HIL's second VM: QEMU software emulation -------------------------------------------
+# User-Mode Linux does not boot on every CPU of our machines (on an AMX Xeon it dies at once with
+# "ptrace set fp regs failed"), so `cargo xtask hil` falls back to QEMU (docs/hil.md): Debian's
+# qemu-system-x86 (+ -common: TCG is a loadable module), its kernel (vmlinuz + the virtio/9p/CAN modules) and busybox-static, unpacked from
+# their .debs into .deps/hil-qemu/ rather than installed (`apt-get install qemu-system-x86` would
+# remove the preinstalled backports qemu-utils 10.0). Libraries the host already has are not fetched.
+qdir="$deps/hil-qemu"
+if [ ! -f "$qdir/ready" ]; then
+  say "HIL: fetching QEMU, a Debian kernel and busybox into .deps/hil-qemu (about 85 MB)"
+  rm -rf "$qdir" && mkdir -p "$qdir/debs" "$qdir/root" "$qdir/kernel"
+  installed() { [ "$(dpkg-query -W -f='${Status}' "$1" 2>/dev/null)" = "install ok installed" ]; }
+  lib_deps() { # the lib* packages $1 depends on that this host lacks
+    apt-cache depends --no-recommends --no-suggests --no-conflicts --no-breaks --no-replaces --no-enhances "$1" \
+      | awk '/^ *\|?(Pre)?Depends: lib/ && !/</ {print $2}' | sort -u \
+      | while read -r d; do installed "$d" || echo "$d"; done
+  }
+  kpkg=$(apt-cache depends linux-image-amd64 | awk '/Depends: linux-image-[0-9]/ {print $2; exit}')
+  [ -n "$kpkg" ] || { echo "error: apt knows no linux-image-amd64 kernel; run apt-get update and re-run $0." >&2; exit 1; }
+  l1=$(lib_deps qemu-system-x86)
+  l2=$(for d in $l1; do lib_deps "$d"; done | sort -u)
+  pkgs=(qemu-system-x86 qemu-system-common qemu-system-data seabios busybox-static "$kpkg" $l1 $l2)
+  fetch() { (cd "$qdir/debs" && apt-get download -q -o APT::Sandbox::User=root "${pkgs[@]}" >/dev/null); }
+  if ! fetch; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq && fetch
+  fi
+  for deb in "$qdir"/debs/*.deb; do
+    case "$(basename "$deb")" in
+      linux-image-*) # the kernel and only the modules the guest loads (docs/hil.md lists them)
+        dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$qdir/kernel" --wildcards './boot/vmlinuz-*' \
+          './lib/modules/*/kernel/drivers/virtio/virtio*.ko' './lib/modules/*/kernel/net/9p/9pnet*.ko' \
+          './lib/modules/*/kernel/fs/9p/*' './lib/modules/*/kernel/fs/netfs/*' './lib/modules/*/kernel/fs/fscache/*' \
+          './lib/modules/*/kernel/net/can/can*.ko' './lib/modules/*/kernel/drivers/net/can/vcan.ko' \
+          './lib/modules/*/kernel/drivers/net/can/dev/*' './lib/modules/*/modules.builtin' ;;
+      *) dpkg-deb -x "$deb" "$qdir/root" ;;
+    esac
+  done
+  rm -rf "$qdir/debs"
+  ld="$qdir/root/usr/lib/x86_64-linux-gnu:$qdir/root/lib/x86_64-linux-gnu"
+  missing_libs=$(LD_LIBRARY_PATH="$ld" ldd "$qdir/root/usr/bin/qemu-system-x86_64" | awk '/not found/ {print $1}' | sort -u)
+  if [ -n "$missing_libs" ]; then
+    echo "error: the unpacked qemu-system-x86_64 lacks libraries: $missing_libs; install the packages that provide them" \
+      "(apt-get install ...) and re-run $0." >&2
+    exit 1
+  fi
+  LD_LIBRARY_PATH="$ld" "$qdir/root/usr/bin/qemu-system-x86_64" --version | head -n1 >"$qdir/qemu_version"
+  echo "$kpkg" >"$qdir/kernel_package"
+  touch "$qdir/ready"
+  say "HIL: $(cat "$qdir/qemu_version"), kernel $kpkg"
+fi
+
 say "dependencies ready in .deps/ and .venv/"

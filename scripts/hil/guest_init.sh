@@ -1,9 +1,13 @@
 #!/bin/bash
-# PID 1 of the HIL guest (User-Mode Linux, see xtask/src/hil.rs). Not meant to run on a host.
+# PID 1 of the HIL guest (see xtask/src/hil/). Not meant to run on a host. Both VMs run it:
+#   - User-Mode Linux: the kernel starts it directly (root = the host / through hostfs);
+#   - QEMU: scripts/hil/qemu_initramfs_init.sh loads the virtio, 9p and CAN modules, mounts the host /
+#     over virtio-9p and switches to it, then execs this script.
 #
-# The host passes two values on the kernel command line, which the kernel hands to init as
-# environment variables: hil_dir (a host directory, mounted read-write at the same path through
-# hostfs; everything the host reads back lands there) and hil_repo (the repository root).
+# The host passes values on the kernel command line, which the kernel hands to init as environment
+# variables: hil_vm (uml or qemu), hil_dir (a host directory, mounted read-write at the same path:
+# hostfs in UML, the 9p tag "hildir" in QEMU; everything the host reads back lands there) and
+# hil_repo (the repository root).
 # Everything else (the suite to run, CI, PATH, …) comes from "$hil_dir/env.sh", written by the host.
 #
 # Protocol on the console (the UML process's stdout), read by the host:
@@ -41,18 +45,25 @@ export TMPDIR=/run/tmp
 
 [ -n "${hil_dir:-}" ] || fail "hil_dir= missing from the kernel command line"
 [ -n "${hil_repo:-}" ] || fail "hil_repo= missing from the kernel command line"
-mount -t hostfs -o "$hil_dir" hostfs "$hil_dir" || fail "cannot mount the host directory $hil_dir (hostfs)"
+case "${hil_vm:-uml}" in
+  uml) mount -t hostfs -o "$hil_dir" hostfs "$hil_dir" || fail "cannot mount the host directory $hil_dir (hostfs)" ;;
+  qemu) mount -t 9p -o trans=virtio,version=9p2000.L,msize=262144 hildir "$hil_dir" \
+    || fail "cannot mount the host directory $hil_dir (virtio-9p tag hildir)" ;;
+  *) fail "unknown hil_vm=$hil_vm (uml or qemu)" ;;
+esac
 [ -f "$hil_dir/env.sh" ] || fail "$hil_dir/env.sh not found (written by cargo xtask hil)"
 
-# CAN: the modules ship with the UML kernel, in dependency order (can-raw and can-gw need can, vcan
-# needs can-dev). can-gw lets a test put a gateway between the firmware's buses (vcan0/vcan1) and the
-# emulator's (vcan2/vcan3), so it can talk to one side only.
-kver=$(uname -r)
-moddir=/usr/lib/uml/modules/$kver/kernel
-for m in net/can/can.ko net/can/can-raw.ko net/can/can-gw.ko drivers/net/can/dev/can-dev.ko drivers/net/can/vcan.ko; do
-  [ -f "$moddir/$m" ] || fail "kernel module $moddir/$m not found (package user-mode-linux for kernel $kver)"
-  insmod "$moddir/$m" || fail "insmod $moddir/$m failed"
-done
+# CAN, in dependency order (can-raw and can-gw need can, vcan needs can-dev). can-gw lets a test put a
+# gateway between the firmware's buses (vcan0/vcan1) and the emulator's (vcan2/vcan3), so it can talk
+# to one side only. UML's modules ship with the UML kernel; QEMU's initramfs has loaded them already.
+if [ "${hil_vm:-uml}" = uml ]; then
+  kver=$(uname -r)
+  moddir=/usr/lib/uml/modules/$kver/kernel
+  for m in net/can/can.ko net/can/can-raw.ko net/can/can-gw.ko drivers/net/can/dev/can-dev.ko drivers/net/can/vcan.ko; do
+    [ -f "$moddir/$m" ] || fail "kernel module $moddir/$m not found (package user-mode-linux for kernel $kver)"
+    insmod "$moddir/$m" || fail "insmod $moddir/$m failed"
+  done
+fi
 ip link set lo up
 for dev in vcan0 vcan1 vcan2 vcan3; do
   ip link add dev "$dev" type vcan || fail "ip link add $dev type vcan failed"

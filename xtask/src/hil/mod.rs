@@ -1,14 +1,21 @@
-//! `cargo xtask hil`: the CAN hardware-in-loop suite, inside a User-Mode Linux VM.
+//! `cargo xtask hil`: the CAN hardware-in-loop suite, inside a VM.
 //!
 //! The host kernel of the development and CI machines has no CAN (`CONFIG_CAN` unset), so the suite
-//! runs in a UML guest (`/usr/bin/linux`, Debian package `user-mode-linux`): the kernel is an ordinary
-//! process, its root is the host `/` read-only through hostfs, and the guest's init is
-//! `scripts/hil/guest_init.sh`. That script loads the CAN modules shipped with the UML kernel, brings
-//! up `vcan0` and `vcan1`, runs the suite and powers the guest off. The host and the guest talk
-//! through one host directory, `<target>/hil/run-<pid>/`, mounted read-write in the guest at the
-//! same path (`env.sh` in, `suite.log`, `status` and whatever the suite writes out), and through
-//! marker lines on the guest console (the UML process's stdout; see the init script).
+//! runs in a guest with vcan. Two VMs can host it, and by default the first that boots is used:
+//! 1. **User-Mode Linux** (`uml.rs`; `/usr/bin/linux`, Debian package `user-mode-linux`): the kernel is
+//!    an ordinary process, its root is the host `/` read-only through hostfs. Boots in 2–5 s, but not
+//!    on every CPU (an AMX Xeon's extended register state kills it at once).
+//! 2. **QEMU, software emulation** (`qemu.rs`): Debian's kernel with a small initramfs that mounts the
+//!    host `/` read-only over virtio-9p. Boots anywhere, in about 10 s, and runs the suite slower.
+//!
+//! Either way the guest's init is `scripts/hil/guest_init.sh`: it brings up `vcan0`..`vcan3`, runs the
+//! suite and powers the guest off. The host and the guest talk through one host directory,
+//! `<target>/hil/run-<pid>/`, mounted read-write in the guest at the same path (`env.sh` in,
+//! `suite.log`, `status` and whatever the suite writes out), and through marker lines on the guest
+//! console (the VM's stdout; see the init script). A VM that never brings vcan up has failed to boot;
+//! that is told apart from a suite that fails.
 use anyhow::{anyhow, bail, Context, Result};
+use serde_json::json;
 use std::fmt::Write as _;
 use std::fs;
 use std::io::{BufRead, BufReader, Write as _};
@@ -19,19 +26,30 @@ use std::sync::atomic::{AtomicI32, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
+mod cpio;
+mod qemu;
+mod uml;
+
 const LONG_HELP: &str = "\
 What it does:
-  1. checks the tools: User-Mode Linux (/usr/bin/linux and its CAN modules under /usr/lib/uml/modules),
-     insmod (kmod), ip (iproute2), can-utils, and python-can in .venv (scripts/install.sh installs all);
+  1. checks the tools the guest runs from the host's /: insmod (kmod), ip (iproute2), can-utils, and
+     python-can in .venv (scripts/install.sh installs all);
   2. builds the host binaries the suite runs (cargo build --release -p firmware -p g1_sim -p sim_hal
      --bins: g1fw, g1-sim, g1-can-emu), unless --no-build;
-  3. boots UML (root = the host / read-only through hostfs, init = scripts/hil/guest_init.sh): the
-     guest mounts proc/sys and tmpfs on /run (TMPDIR=/run/tmp; the host's /tmp stays visible),
-     loads can, can-raw, can-gw, can-dev, vcan, creates vcan0-vcan3, raises the socket receive
-     buffers (net.core.rmem_max/rmem_default), then runs the suite as root with the repository root
-     as its working directory;
-  4. streams the suite's output, and prints the boot time (spawn -> vcan up, host clock, and the guest's
-     uptime at that point), the suite's wall time and the total.
+  3. boots a VM (--vm, or HIL_VM; default auto):
+       uml   User-Mode Linux (/usr/bin/linux, its CAN modules under /usr/lib/uml/modules): root = the
+             host / read-only through hostfs, init = scripts/hil/guest_init.sh;
+       qemu  QEMU software emulation (.deps/hil-qemu, unpacked by scripts/install.sh): Debian's kernel,
+             an initramfs (busybox, virtio/9p/CAN modules, scripts/hil/qemu_initramfs_init.sh) that
+             mounts the host / read-only over virtio-9p and runs the same guest_init.sh;
+       auto  UML, and QEMU if UML is missing or fails to boot (\"UML failed to boot: ...; using QEMU\").
+     A VM has booted once its guest reports vcan up; one that does not within its boot timeout (UML
+     60 s, QEMU 240 s) or that ends first has failed to boot. In the guest: proc/sys and tmpfs on /run
+     (TMPDIR=/run/tmp; the host's /tmp stays visible), CAN modules loaded, vcan0-vcan3 created, socket
+     receive buffers raised (net.core.rmem_max/rmem_default), then the suite runs as root with the
+     repository root as its working directory;
+  4. streams the suite's output, and prints which VM ran, the boot time (spawn -> vcan up, host clock,
+     and the guest's uptime at that point), the suite's wall time and the total.
 
 The suite is scripts/hil/suite.sh: a smoke test of the plumbing (candump/cansend on both buses, a
 python-can round trip) followed by tests/hil/peer_test.py, the independent python-can implementation
@@ -39,14 +57,17 @@ of docs/can.md that drives g1fw and g1-can-emu on vcan0/vcan1. `--suite FILE` ru
 `cargo xtask hil -- CMD ARGS...` any command (e.g. `cargo xtask hil -- ip -details link`).
 
 The guest sees no host environment except what is written to <run dir>/env.sh: PATH (with .venv/bin
-and the release binaries first), HIL_DIR (the writable run directory), HIL_REPO, HIL_BIN_DIR, and the
-host's CI, RUST_LOG, RUST_BACKTRACE and every HIL_* variable (e.g. HIL_WALK_S=20 for the peer test).
+and the release binaries first), HIL_DIR (the writable run directory), HIL_REPO, HIL_BIN_DIR, HIL_VM
+(the VM that runs), and the host's CI, RUST_LOG, RUST_BACKTRACE and every other HIL_* variable (e.g.
+HIL_WALK_S=20 for the peer test).
 
-Output lands in <target>/hil/run-<pid>/ (target/hil/last points at the newest): console.log (the whole
-guest console), suite.log, status, summary.json (timings) and what the suite writes there.
+Output lands in <target>/hil/run-<pid>/ (target/hil/last points at the newest): console-<vm>.log (the
+whole guest console of each VM tried), stderr-<vm>.log, suite.log, status, summary.json (which VM ran,
+every VM tried and why it failed to boot, timings) and what the suite writes there.
 
-Exit status: the suite's. 124 if the watchdog (--timeout-min) killed the VM, 125 if the guest ended
-without reporting a status (the reason and the console's tail are printed), 130 on Ctrl-C.";
+Exit status: the suite's when it ran. 125 if no VM booted (each one tried and why is printed), 126 if
+the VM booted but ended without reporting the suite's status, 124 if the watchdog (--timeout-min)
+killed the VM, 130 on Ctrl-C.";
 
 #[derive(clap::Args)]
 #[command(after_long_help = LONG_HELP)]
@@ -58,9 +79,16 @@ pub struct Args {
     /// repository root, or absolute).
     #[arg(long, value_name = "FILE", conflicts_with = "cmd")]
     suite: Option<PathBuf>,
-    /// Guest memory (UML `mem=`); the suite runs MuJoCo, the firmware and python-can at once.
+    /// Guest memory (UML `mem=`, QEMU `-m`); the suite runs MuJoCo, the firmware and python-can at once.
     #[arg(long, value_name = "SIZE", default_value = "1024M")]
     mem: String,
+    /// Which VM hosts the suite: uml, qemu, or auto (UML, then QEMU if UML cannot boot).
+    #[arg(long, value_enum, env = "HIL_VM", default_value = "auto")]
+    vm: VmChoice,
+    /// Make UML fail at boot as it does on an AMX Xeon (its init exits at once, the kernel panics),
+    /// to show the fallback to QEMU on a host where UML boots.
+    #[arg(long, env = "HIL_SIMULATE_UML_BOOT_FAILURE", value_parser = clap::builder::BoolishValueParser::new(), default_value = "false")]
+    simulate_uml_boot_failure: bool,
     /// Do not build the host binaries first (use what is in target/release).
     #[arg(long)]
     no_build: bool,
@@ -72,6 +100,59 @@ pub struct Args {
     cmd: Vec<String>,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, Debug, clap::ValueEnum)]
+enum VmChoice {
+    Auto,
+    Uml,
+    Qemu,
+}
+
+/// A VM that can host the suite.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Vm {
+    Uml,
+    Qemu,
+}
+
+impl Vm {
+    fn name(self) -> &'static str {
+        match self {
+            Vm::Uml => "UML",
+            Vm::Qemu => "QEMU",
+        }
+    }
+    fn key(self) -> &'static str {
+        match self {
+            Vm::Uml => "uml",
+            Vm::Qemu => "qemu",
+        }
+    }
+    /// How long the guest may take to report vcan up before the boot counts as failed.
+    fn boot_timeout(self) -> Duration {
+        match self {
+            Vm::Uml => Duration::from_secs(60),
+            Vm::Qemu => Duration::from_secs(240),
+        }
+    }
+}
+
+impl VmChoice {
+    /// The VMs to try, in order.
+    fn plan(self) -> &'static [Vm] {
+        match self {
+            VmChoice::Auto => &[Vm::Uml, Vm::Qemu],
+            VmChoice::Uml => &[Vm::Uml],
+            VmChoice::Qemu => &[Vm::Qemu],
+        }
+    }
+}
+
+/// One VM tried and why it did not host the suite.
+struct Failed {
+    vm: Vm,
+    reason: String,
+}
+
 /// Set by SIGINT/SIGTERM/SIGHUP: the VM runs in its own process group, so the terminal's Ctrl-C does
 /// not reach it; the main loop kills the group instead.
 static SIGNAL: AtomicI32 = AtomicI32::new(0);
@@ -79,9 +160,6 @@ static SIGNAL: AtomicI32 = AtomicI32::new(0);
 extern "C" fn on_signal(sig: libc::c_int) {
     SIGNAL.store(sig, Ordering::SeqCst);
 }
-
-const UML: &str = "/usr/bin/linux";
-const UML_MODULES: &str = "/usr/lib/uml/modules";
 
 pub fn run(args: Args) -> Result<()> {
     let t_all = Instant::now();
@@ -119,42 +197,98 @@ pub fn run(args: Args) -> Result<()> {
             init.display()
         );
     }
-    fs::write(run_dir.join("env.sh"), guest_env(&repo, &run_dir, &bin_dir, &suite))
-        .with_context(|| format!("writing {}/env.sh", run_dir.display()))?;
-
     let timeout = Duration::from_secs_f64(args.timeout_min * 60.0);
-    eprintln!(
-        "[hil] booting User-Mode Linux (mem={}, watchdog {:.0} min), run dir {}",
-        args.mem,
-        args.timeout_min,
-        run_dir.display()
-    );
     eprintln!("[hil] guest runs: {}", suite.join(" "));
-    let outcome = boot(&args, &repo, &run_dir, &init, timeout)?;
-    report(&run_dir, &outcome, t_all.elapsed(), args.verbose)
+    if args.simulate_uml_boot_failure {
+        eprintln!("[hil] HIL_SIMULATE_UML_BOOT_FAILURE: UML will boot with init=/bin/false and fail");
+    }
+
+    let plan = args.vm.plan();
+    let mut failed: Vec<Failed> = Vec::new();
+    let mut ran: Option<(Vm, Outcome)> = None;
+    for (i, &vm) in plan.iter().enumerate() {
+        let next = plan
+            .get(i + 1)
+            .map(|v| format!("; using {}", v.name()))
+            .unwrap_or_default();
+        let launch = match prepare_vm(vm, &args, &repo, &run_dir, &init) {
+            Ok(l) => l,
+            Err(e) => {
+                eprintln!("[hil] {} is not available: {e:#}{next}", vm.name());
+                failed.push(Failed {
+                    vm,
+                    reason: format!("not available: {e:#}"),
+                });
+                continue;
+            }
+        };
+        fs::write(run_dir.join("env.sh"), guest_env(&repo, &run_dir, &bin_dir, &suite, vm))
+            .with_context(|| format!("writing {}/env.sh", run_dir.display()))?;
+        for stale in ["status", "error", "vcan_up_uptime"] {
+            let _ = fs::remove_file(run_dir.join(stale));
+        }
+        eprintln!(
+            "[hil] booting {} (mem={}, boot timeout {:.0} s, watchdog {:.0} min), run dir {}",
+            vm.name(),
+            args.mem,
+            vm.boot_timeout().as_secs_f64(),
+            args.timeout_min,
+            run_dir.display()
+        );
+        let o = boot(vm, launch, &args, &run_dir, timeout)?;
+        if let Some(why) = o.boot_failure() {
+            eprintln!("[hil] {} failed to boot: {why}{next}", vm.name());
+            if next.is_empty() || args.verbose {
+                print_console_tail(vm, &run_dir, &o);
+            }
+            failed.push(Failed { vm, reason: why });
+            continue;
+        }
+        ran = Some((vm, o));
+        break;
+    }
+    report(&run_dir, ran, &failed, t_all.elapsed(), args.verbose)
+}
+
+/// The command that boots `vm`, after checking what it needs.
+fn prepare_vm(vm: Vm, args: &Args, repo: &Path, run_dir: &Path, init: &Path) -> Result<Command> {
+    let params = vec![
+        format!("hil_vm={}", vm.key()),
+        format!("hil_dir={}", run_dir.display()),
+        format!("hil_repo={}", repo.display()),
+    ];
+    match vm {
+        Vm::Uml => {
+            uml::preflight()?;
+            Ok(uml::command(
+                &args.mem,
+                init,
+                run_dir,
+                &params,
+                args.simulate_uml_boot_failure,
+            ))
+        }
+        Vm::Qemu => {
+            let q = qemu::Qemu::find(repo)?;
+            let initrd = run_dir.join("initramfs.cpio");
+            let stage = repo.join("scripts/hil/qemu_initramfs_init.sh");
+            fs::write(&initrd, q.initramfs(&stage)?).with_context(|| format!("writing {}", initrd.display()))?;
+            // quiet: only warnings from the kernel on the console; panic=-1: a guest panic reboots,
+            // and -no-reboot turns that into QEMU's exit.
+            let append = format!(
+                "console=ttyS0 quiet panic=-1 hil_init={} {}",
+                init.display(),
+                params.join(" ")
+            );
+            Ok(q.command(&args.mem, &initrd, run_dir, &append))
+        }
+    }
 }
 
 /// Everything the guest needs is on the host `/` (the guest's root): check it here, where the error
 /// can say what to install, rather than in a guest that can only fail.
 fn preflight(repo: &Path) -> Result<()> {
     let install = "run scripts/install.sh";
-    if !Path::new(UML).is_file() {
-        bail!(
-            "User-Mode Linux is not installed ({UML} not found): {install}, or `sudo apt-get install user-mode-linux`"
-        );
-    }
-    let vcan = fs::read_dir(UML_MODULES)
-        .ok()
-        .into_iter()
-        .flatten()
-        .flatten()
-        .any(|e| e.path().join("kernel/drivers/net/can/vcan.ko").is_file());
-    if !vcan {
-        bail!(
-            "no vcan module for the UML kernel under {UML_MODULES}/<version>/kernel/drivers/net/can/: \
-             reinstall user-mode-linux (`sudo apt-get install --reinstall user-mode-linux`)"
-        );
-    }
     for (tool, pkg) in [
         ("insmod", "kmod"),
         ("ip", "iproute2"),
@@ -273,7 +407,7 @@ fn sh_quote(s: &str) -> String {
 }
 
 /// `env.sh`, sourced by the guest's init before it runs `"${HIL_SUITE[@]}"`.
-fn guest_env(repo: &Path, run_dir: &Path, bin_dir: &Path, suite: &[String]) -> String {
+fn guest_env(repo: &Path, run_dir: &Path, bin_dir: &Path, suite: &[String], vm: Vm) -> String {
     let mut vars: Vec<(String, String)> = vec![
         (
             "PATH".into(),
@@ -293,6 +427,7 @@ fn guest_env(repo: &Path, run_dir: &Path, bin_dir: &Path, suite: &[String]) -> S
         ("HIL_DIR".into(), run_dir.display().to_string()),
         ("HIL_REPO".into(), repo.display().to_string()),
         ("HIL_BIN_DIR".into(), bin_dir.display().to_string()),
+        ("HIL_VM".into(), vm.key().into()),
     ];
     let ours: Vec<String> = vars.iter().map(|(k, _)| k.clone()).collect();
     let mut passed: Vec<(String, String)> = std::env::vars()
@@ -317,6 +452,8 @@ fn guest_env(repo: &Path, run_dir: &Path, bin_dir: &Path, suite: &[String]) -> S
 struct Outcome {
     exit: Option<ExitStatus>,
     watchdog: bool,
+    /// Killed because vcan was not up within the VM's boot timeout.
+    boot_timeout: bool,
     signal: i32,
     vcan_up_host: Option<Duration>,
     vcan_up_guest: Option<f64>,
@@ -325,8 +462,54 @@ struct Outcome {
     /// (status, guest wall seconds) from the `HIL:SUITE_EXIT` console line.
     console_exit: Option<(i32, f64)>,
     guest_error: Option<String>,
+    /// The first console lines before vcan came up that say why the kernel or init died
+    /// (`Kernel panic`, `failed`, ...), at most four.
+    fatal_lines: Vec<String>,
     console_tail: Vec<String>,
     total: Duration,
+}
+
+impl Outcome {
+    /// Why the VM did not boot, or `None` if it booted (vcan came up), or it was stopped by a signal
+    /// or the watchdog (not the VM's fault).
+    fn boot_failure(&self) -> Option<String> {
+        if self.vcan_up_host.is_some() || self.signal != 0 || self.watchdog {
+            return None;
+        }
+        let mut why = if self.boot_timeout {
+            "vcan was not up within the boot timeout".to_string()
+        } else if let Some(e) = &self.guest_error {
+            format!("its init failed: {e}")
+        } else {
+            "it ended before vcan came up".to_string()
+        };
+        if !self.fatal_lines.is_empty() {
+            let quoted: Vec<String> = self.fatal_lines.iter().map(|l| format!("\"{}\"", l.trim())).collect();
+            let _ = write!(why, " (console: {})", quoted.join(", "));
+        }
+        if let Some(st) = self.exit.filter(|_| !self.boot_timeout) {
+            let _ = write!(why, "; the VM exited with {st}");
+        }
+        Some(why)
+    }
+}
+
+/// A console line that names why a boot died. UML prints two harmless "failed" lines on every boot
+/// (no iomem region, no ubd disk file): they are not it.
+fn is_fatal_line(l: &str) -> bool {
+    let l = l.to_ascii_lowercase();
+    let benign = ["mmapper_init - find_iomem failed", "failed to initialize ubd device"];
+    !benign.iter().any(|b| l.contains(b))
+        && ["kernel panic", "failed", "error", "not syncing", "unable to"]
+            .iter()
+            .any(|k| l.contains(k))
+}
+
+/// Keeps the first few fatal lines seen before vcan came up.
+fn note_fatal(o: &mut Outcome, line: &str) {
+    if o.vcan_up_host.is_none() && o.fatal_lines.len() < 4 && is_fatal_line(line) {
+        o.fatal_lines.push(line.to_string());
+    }
 }
 
 enum Event {
@@ -334,34 +517,25 @@ enum Event {
     Eof,
 }
 
-fn boot(args: &Args, repo: &Path, run_dir: &Path, init: &Path, timeout: Duration) -> Result<Outcome> {
-    let console_path = run_dir.join("console.log");
+fn boot(vm: Vm, mut cmd: Command, args: &Args, run_dir: &Path, timeout: Duration) -> Result<Outcome> {
+    let console_path = run_dir.join(format!("console-{}.log", vm.key()));
     let mut console =
         fs::File::create(&console_path).with_context(|| format!("creating {}", console_path.display()))?;
-    let stderr = fs::File::create(run_dir.join("uml_stderr.log"))?;
-    let umid = format!("g1hil-{}", std::process::id());
-    let mut cmd = Command::new(UML);
-    cmd.arg(format!("mem={}", args.mem))
-        .args(["root=/dev/root", "rootfstype=hostfs", "rootflags=/", "ro"])
-        .arg(format!("init={}", init.display()))
-        // Unknown `key=value` parameters reach init as environment variables.
-        .arg(format!("hil_dir={}", run_dir.display()))
-        .arg(format!("hil_repo={}", repo.display()))
-        .arg(format!("umid={umid}"))
-        .arg(format!("uml_dir={}", run_dir.display()))
-        .args(["con=null", "con0=fd:0,fd:1", "quiet"])
-        .current_dir(run_dir)
+    let stderr = fs::File::create(run_dir.join(format!("stderr-{}.log", vm.key())))?;
+    cmd.current_dir(run_dir)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::from(stderr))
-        // UML forks helper processes; its own group lets the watchdog kill them all.
+        // The VM may fork helper processes (UML does); its own group lets the watchdog kill them all.
         .process_group(0);
     // SAFETY: plain syscall; makes the VM's helpers our children if its main process is killed.
     unsafe {
         libc::prctl(libc::PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0);
     }
     let t0 = Instant::now();
-    let mut child = cmd.spawn().with_context(|| format!("starting {UML}"))?;
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("starting {}", cmd.get_program().to_string_lossy()))?;
     install_signal_handlers();
 
     let stdout = child.stdout.take().expect("stdout is piped");
@@ -399,11 +573,13 @@ fn boot(args: &Args, repo: &Path, run_dir: &Path, init: &Path, timeout: Duration
                 }
                 tail.push_back(line.clone());
                 let now = t0.elapsed();
+                note_fatal(&mut o, &line);
                 if let Some(rest) = line.strip_prefix("HIL:VCAN_UP ") {
                     o.vcan_up_host = Some(now);
                     o.vcan_up_guest = rest.trim().parse().ok();
                     eprintln!(
-                        "[hil] vcan0/vcan1 up {:.2} s after spawn (guest uptime {})",
+                        "[hil] {}: vcan0..vcan3 up {:.2} s after spawn (guest uptime {})",
+                        vm.name(),
                         now.as_secs_f64(),
                         rest.trim()
                     );
@@ -419,7 +595,7 @@ fn boot(args: &Args, repo: &Path, run_dir: &Path, init: &Path, timeout: Duration
                     o.console_exit = st.map(|s| (s, wall));
                 } else if let Some(rest) = line.strip_prefix("HIL:ERROR ") {
                     o.guest_error = Some(rest.to_string());
-                    eprintln!("[hil] guest set-up failed: {rest}");
+                    eprintln!("[hil] {}: guest set-up failed: {rest}", vm.name());
                 } else if in_suite || args.verbose {
                     let mut out = stdout.lock();
                     let _ = writeln!(out, "{line}");
@@ -449,6 +625,17 @@ fn boot(args: &Args, repo: &Path, run_dir: &Path, init: &Path, timeout: Duration
         if sig != 0 {
             eprintln!("[hil] signal {sig}: killing the VM");
             o.signal = sig;
+            kill_group(&child);
+            o.exit = Some(child.wait()?);
+            break;
+        }
+        if o.vcan_up_host.is_none() && t0.elapsed() > vm.boot_timeout() {
+            eprintln!(
+                "[hil] {}: vcan not up after {:.0} s; killing the VM",
+                vm.name(),
+                t0.elapsed().as_secs_f64()
+            );
+            o.boot_timeout = true;
             kill_group(&child);
             o.exit = Some(child.wait()?);
             break;
@@ -504,7 +691,41 @@ fn reap_orphans() {
     }
 }
 
-fn report(run_dir: &Path, o: &Outcome, total: Duration, verbose: bool) -> Result<()> {
+fn print_console_tail(vm: Vm, run_dir: &Path, o: &Outcome) {
+    eprintln!("[hil] last console lines of {}:", vm.name());
+    for l in &o.console_tail {
+        eprintln!("[hil] | {l}");
+    }
+    if let Ok(e) = fs::read_to_string(run_dir.join(format!("stderr-{}.log", vm.key()))) {
+        for l in e.lines().rev().take(20).collect::<Vec<_>>().into_iter().rev() {
+            eprintln!("[hil] stderr | {l}");
+        }
+    }
+}
+
+/// Exit statuses other than the suite's own.
+const EXIT_NO_VM_BOOTED: i32 = 125;
+const EXIT_GUEST_DIED: i32 = 126;
+
+fn report(run_dir: &Path, ran: Option<(Vm, Outcome)>, failed: &[Failed], total: Duration, verbose: bool) -> Result<()> {
+    let tried: Vec<serde_json::Value> = failed
+        .iter()
+        .map(|f| json!({"vm": f.vm.key(), "booted": false, "reason": f.reason}))
+        .collect();
+    let Some((vm, o)) = ran else {
+        let summary = json!({"vm": null, "tried": tried, "status": null, "total_s": total.as_secs_f64()});
+        let _ = fs::write(run_dir.join("summary.json"), format!("{summary:#}\n"));
+        let list: Vec<String> = failed
+            .iter()
+            .map(|f| format!("{} ({})", f.vm.name(), f.reason))
+            .collect();
+        eprintln!(
+            "[hil] FAILED: no VM booted, so the suite did not run. Tried: {}. Logs in {}",
+            list.join("; "),
+            run_dir.display()
+        );
+        std::process::exit(EXIT_NO_VM_BOOTED);
+    };
     // The status file is the guest's own record; the console line is the fallback.
     let from_file = fs::read_to_string(run_dir.join("status")).ok().and_then(|s| {
         let mut it = s.split_whitespace();
@@ -523,22 +744,28 @@ fn report(run_dir: &Path, o: &Outcome, total: Duration, verbose: bool) -> Result
         (Some(a), Some(b)) => Some(b.saturating_sub(a).as_secs_f64()),
         _ => None,
     };
-    let fmt_opt = |v: Option<f64>| v.map_or("null".to_string(), |v| format!("{v:.3}"));
-    let summary = format!(
-        "{{\"vcan_up_host_s\": {}, \"vcan_up_guest_uptime_s\": {}, \"suite_host_s\": {}, \"suite_guest_s\": {}, \
-         \"vm_s\": {:.3}, \"total_s\": {:.3}, \"status\": {}, \"watchdog\": {}}}\n",
-        fmt_opt(o.vcan_up_host.map(|d| d.as_secs_f64())),
-        fmt_opt(o.vcan_up_guest),
-        fmt_opt(suite_host),
-        fmt_opt(status.map(|s| s.1).filter(|w| w.is_finite())),
-        o.total.as_secs_f64(),
-        total.as_secs_f64(),
-        status.map_or("null".to_string(), |s| s.0.to_string()),
-        o.watchdog
-    );
-    let _ = fs::write(run_dir.join("summary.json"), &summary);
+    let mut tried = tried;
+    tried.push(json!({"vm": vm.key(), "booted": o.vcan_up_host.is_some()}));
+    let summary = json!({
+        "vm": vm.key(),
+        "tried": tried,
+        "vcan_up_host_s": o.vcan_up_host.map(|d| d.as_secs_f64()),
+        "vcan_up_guest_uptime_s": o.vcan_up_guest,
+        "suite_host_s": suite_host,
+        "suite_guest_s": status.map(|s| s.1).filter(|w| w.is_finite()),
+        "vm_s": o.total.as_secs_f64(),
+        "total_s": total.as_secs_f64(),
+        "status": status.map(|s| s.0),
+        "watchdog": o.watchdog,
+    });
+    let _ = fs::write(run_dir.join("summary.json"), format!("{summary:#}\n"));
 
     eprintln!("[hil] ---------------------------------------------------------------");
+    let fell_back = failed
+        .iter()
+        .map(|f| format!(" (after {} failed to boot)", f.vm.name()))
+        .collect::<String>();
+    eprintln!("[hil] vm:    {}{fell_back}", vm.name());
     match (o.vcan_up_host, o.vcan_up_guest) {
         (Some(h), g) => eprintln!(
             "[hil] boot:  {:.2} s spawn -> vcan up (guest uptime {})",
@@ -569,41 +796,92 @@ fn report(run_dir: &Path, o: &Outcome, total: Duration, verbose: bool) -> Result
             "the watchdog killed the VM (raise --timeout-min if the suite is just slow)".to_string(),
         ))
     } else if status.is_none() {
-        let mut why = String::from("the guest ended without reporting the suite's status: ");
+        let mut why = format!(
+            "{} booted (vcan up), but the guest ended without reporting the suite's status: ",
+            vm.name()
+        );
         if let Some(e) = &guest_error {
             let _ = write!(why, "its init failed: {e}");
-        } else if o.vcan_up_host.is_none() {
-            why.push_str("it never brought vcan up (see the console below and uml_stderr.log)");
         } else {
             why.push_str("it died while the suite ran (see the console below)");
         }
         if let Some(st) = o.exit {
-            let _ = write!(why, "; UML exited with {st}");
+            let _ = write!(why, "; the VM exited with {st}");
         }
-        Some((125, why))
+        Some((EXIT_GUEST_DIED, why))
     } else {
         None
     };
     if let Some((code, why)) = reason {
         if !verbose {
-            eprintln!("[hil] last console lines:");
-            for l in &o.console_tail {
-                eprintln!("[hil] | {l}");
-            }
-            if let Ok(e) = fs::read_to_string(run_dir.join("uml_stderr.log")) {
-                for l in e.lines().rev().take(20).collect::<Vec<_>>().into_iter().rev() {
-                    eprintln!("[hil] stderr | {l}");
-                }
-            }
+            print_console_tail(vm, run_dir, &o);
         }
         eprintln!("[hil] FAILED: {why}");
         std::process::exit(code);
     }
     let (st, _) = status.ok_or_else(|| anyhow!("unreachable: no status"))?;
     if st == 0 {
-        eprintln!("[hil] suite passed");
+        eprintln!("[hil] suite passed on {}", vm.name());
     } else {
-        eprintln!("[hil] FAILED: the suite exited with status {st} (its output is above and in suite.log)");
+        eprintln!(
+            "[hil] FAILED: the suite exited with status {st} on {} (its output is above and in suite.log)",
+            vm.name()
+        );
     }
     std::process::exit(st);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_tries_uml_then_qemu() {
+        assert_eq!(VmChoice::Auto.plan(), &[Vm::Uml, Vm::Qemu]);
+        assert_eq!(VmChoice::Uml.plan(), &[Vm::Uml]);
+        assert_eq!(VmChoice::Qemu.plan(), &[Vm::Qemu]);
+    }
+
+    #[test]
+    fn a_boot_failure_is_told_apart_from_a_booted_guest() {
+        // The console of UML on the AMX Xeon (issue 28).
+        let mut o = Outcome::default();
+        for l in [
+            "mmapper_init - find_iomem failed",
+            "Failed to initialize ubd device 0 :Couldn't determine size of device's file",
+            "userspace - ptrace set fp regs failed, errno = 14",
+            "Kernel panic - not syncing: Attempted to kill init! exitcode=0x0000000b",
+        ] {
+            note_fatal(&mut o, l);
+        }
+        let why = o.boot_failure().expect("no vcan: a boot failure");
+        assert!(why.contains("ended before vcan came up"), "{why}");
+        assert!(
+            why.contains("(console: \"userspace - ptrace set fp regs failed, errno = 14\", \"Kernel panic"),
+            "the benign lines are skipped: {why}"
+        );
+
+        o.boot_timeout = true;
+        assert!(o.boot_failure().unwrap().contains("boot timeout"));
+
+        // Once vcan is up, whatever happens next is the suite's (or the guest's), not the boot's.
+        o.vcan_up_host = Some(Duration::from_secs(3));
+        assert_eq!(o.boot_failure(), None);
+        // A signal or the watchdog is not the VM's fault either.
+        let o = Outcome {
+            signal: 2,
+            ..Default::default()
+        };
+        assert_eq!(o.boot_failure(), None);
+        let o = Outcome {
+            watchdog: true,
+            ..Default::default()
+        };
+        assert_eq!(o.boot_failure(), None);
+        let o = Outcome {
+            guest_error: Some("insmod vcan.ko failed".into()),
+            ..Default::default()
+        };
+        assert!(o.boot_failure().unwrap().contains("insmod vcan.ko failed"));
+    }
 }
