@@ -100,7 +100,7 @@ if [ ! -f "$deps/g1_29dof/g1.xml" ]; then
 fi
 # --- the CAN HIL's second VM: QEMU software emulation -------------------------------------------
 # User-Mode Linux does not boot on every CPU of our machines (on an AMX Xeon it dies at once with
-# "ptrace set fp regs failed"), so `cargo xtask hil` falls back to QEMU (docs/hil.md): Debian's
+# "ptrace set fp regs failed"), so `cargo xtask hil` falls back to QEMU (ARCHITECTURE.md, "The HIL VM"): Debian's
 # qemu-system-x86 (+ -common: TCG is a loadable module), its kernel (vmlinuz + the virtio/9p/CAN modules) and busybox-static, unpacked from
 # their .debs into .deps/hil-qemu/ rather than installed (`apt-get install qemu-system-x86` would
 # remove the preinstalled backports qemu-utils 10.0). Libraries the host already has are not fetched.

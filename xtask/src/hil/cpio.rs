@@ -17,7 +17,7 @@ const S_IFREG: u32 = 0o100000;
 const S_IFCHR: u32 = 0o020000;
 
 fn pad4(out: &mut Vec<u8>) {
-    while out.len() % 4 != 0 {
+    while !out.len().is_multiple_of(4) {
         out.push(0);
     }
 }
@@ -70,8 +70,11 @@ pub fn archive(entries: &[Entry]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    /// Name, mode, data, (rdev major, minor).
+    type Parsed = (String, u32, Vec<u8>, (u32, u32));
+
     /// Parses the archive back (a reader written from the format description, not from the writer).
-    fn parse(mut b: &[u8]) -> Vec<(String, u32, Vec<u8>, (u32, u32))> {
+    fn parse(mut b: &[u8]) -> Vec<Parsed> {
         let mut out = Vec::new();
         let total = b.len();
         loop {

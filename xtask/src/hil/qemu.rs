@@ -142,6 +142,7 @@ impl Qemu {
             .arg(share.join("qemu"))
             .arg("-L")
             .arg(share.join("seabios"))
+            // -cpu max: the MuJoCo library and our binaries need AVX (qemu64 dies with SIGILL).
             .args([
                 "-M",
                 "pc",
