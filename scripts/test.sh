@@ -27,7 +27,8 @@ echo "[test] flip experiment: $(python3 -c 'import json; d=json.load(open("targe
 aarch64_start=$(date +%s)
 cargo xtask cross-replay
 cargo xtask image
-cargo test --release -p integration_tests --test image -- --ignored
+# --workspace, not -p integration_tests: a subset resolves features differently and recompiles (132 s).
+cargo test --release --workspace --test image -- --ignored
 echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64_start )) s" >&2
 # The CAN hardware-in-loop suite in a VM (the host kernel has no CAN): User-Mode Linux, or QEMU where UML
 # cannot boot (chosen by itself; ARCHITECTURE.md, "The HIL VM"). Smoke test of the plumbing, then the
@@ -35,10 +36,10 @@ echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64
 hil_start=$(date +%s)
 cargo xtask hil
 echo "[test] HIL suite passed in $(( $(date +%s) - hil_start )) s on $(python3 -c 'import json; print(json.load(open("target/hil/last/summary.json"))["vm"])')" >&2
-# The fallback itself (~20 s): UML made to fail at boot as on an AMX Xeon, so the automatic choice must
+# The fallback itself (~25 s): UML made to fail at boot as on an AMX Xeon, so the automatic choice must
 # take QEMU and run the smoke suite there; a failing suite must not read as a boot failure.
 fallback_log=target/hil_fallback.log
-HIL_SIMULATE_UML_BOOT_FAILURE=1 HIL_SMOKE_ONLY=1 cargo xtask hil --no-build 2>"$fallback_log"
+HIL_VM=auto HIL_SIMULATE_UML_BOOT_FAILURE=1 HIL_SMOKE_ONLY=1 cargo xtask hil --no-build 2>"$fallback_log"
 python3 - "$fallback_log" <<'PY'
 import json, sys
 log = open(sys.argv[1]).read()

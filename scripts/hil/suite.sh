@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The CAN hardware-in-loop suite. Runs inside the User-Mode Linux guest booted by `cargo xtask hil`
+# The CAN hardware-in-loop suite. Runs inside the VM (User-Mode Linux or QEMU) booted by `cargo xtask hil`
 # (as root, cwd = repository root, vcan0 and vcan1 up, env from the host in $HIL_DIR/env.sh).
 #   1. smoke: the plumbing — can-utils and python-can round trips on both buses;
 #   2. tests/hil/peer_test.py: the independent python-can peer drives g1fw and g1-can-emu.
@@ -78,6 +78,9 @@ say "smoke python-can: $(since "$t") s"
 if [ "${HIL_SMOKE_ONLY:-0}" = 1 ]; then
   say "HIL_SMOKE_ONLY=1: skipping the peer test"
 else
+  # Every run starts its own g1-sim (under g1-can-emu); compile the model once per suite, not per
+  # run (80-90 s each under QEMU's emulation, ~1 s on UML; g1-sim --help, G1_SIM_MODEL_CACHE).
+  export G1_SIM_MODEL_CACHE="$HIL_DIR/model-cache"
   "$py" tests/hil/peer_test.py
 fi
 say "suite passed in $(since "$t_suite") s"

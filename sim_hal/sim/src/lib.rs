@@ -38,6 +38,7 @@ pub mod dds_serve;
 pub mod faults;
 pub mod lidar;
 pub mod model;
+pub mod model_cache;
 pub mod progress;
 pub mod rng;
 pub mod server;
@@ -322,6 +323,8 @@ pub struct Simulator {
     start_offset: [f64; 3],
     /// The initial `qpos` on flat ground at the origin, before any world's start pose.
     base_qpos: Vec<f64>,
+    /// What the model cache did at load (`$G1_SIM_MODEL_CACHE`), if one is configured.
+    model_cache_note: Option<String>,
 }
 
 /// The simulated MID-360 and its packet stream, with per-tick buffers sized at attach time.
@@ -340,7 +343,19 @@ impl Simulator {
 
     /// [`Simulator::load`] in a terrain world (stairs); the robot starts on the world's start pose.
     pub fn load_in(choice: ModelChoice, config: SimConfig, world: Option<&world::World>) -> Result<Self, SimError> {
-        Self::load_full(choice, config, world, model::TerrainPool::default())
+        let cache = model_cache::dir_from_env();
+        Self::load_full(choice, config, world, model::TerrainPool::default(), cache.as_deref())
+    }
+
+    /// [`Simulator::load_in`] with an explicit model cache directory (`None`: always compile),
+    /// instead of `$G1_SIM_MODEL_CACHE`. See [`model_cache`].
+    pub fn load_with_model_cache(
+        choice: ModelChoice,
+        config: SimConfig,
+        world: Option<&world::World>,
+        cache_dir: Option<&std::path::Path>,
+    ) -> Result<Self, SimError> {
+        Self::load_full(choice, config, world, model::TerrainPool::default(), cache_dir)
     }
 
     /// [`Simulator::load`] with a pool of `n_boxes` static boxes and `n_cylinders` cylinders that
@@ -356,7 +371,8 @@ impl Simulator {
             boxes: n_boxes,
             cylinders: n_cylinders,
         };
-        Self::load_full(choice, config, None, pool)
+        let cache = model_cache::dir_from_env();
+        Self::load_full(choice, config, None, pool, cache.as_deref())
     }
 
     fn load_full(
@@ -364,6 +380,7 @@ impl Simulator {
         config: SimConfig,
         world: Option<&world::World>,
         pool: model::TerrainPool,
+        cache_dir: Option<&std::path::Path>,
     ) -> Result<Self, SimError> {
         let substeps = config.substeps()?;
         if let Some(n) = config.imu_noise {
@@ -373,7 +390,7 @@ impl Simulator {
                 )));
             }
         }
-        let l = model::load(&choice, &config, world, pool)?;
+        let l = model::load(&choice, &config, world, pool, cache_dir)?;
         let robot_root = l.model.body_rootid()[l.pelvis_body];
         let friction0 = l.model.geom_friction().to_vec();
         let pelvis_mass0 = l.model.body_mass()[l.pelvis_body];
@@ -417,9 +434,16 @@ impl Simulator {
             pelvis_inertia0,
             start_offset: [0.0; 3],
             base_qpos: l.base_qpos,
+            model_cache_note: l.cache_note,
         };
         sim.reset();
         Ok(sim)
+    }
+
+    /// What the model cache (`$G1_SIM_MODEL_CACHE`, [`model_cache`]) did at load: loaded, compiled
+    /// and stored, or why it could not be used. `None` without a cache.
+    pub fn model_cache_note(&self) -> Option<&str> {
+        self.model_cache_note.as_deref()
     }
 
     /// Back to the initial state: all motors disabled and healthy, step counter 0, noise generator

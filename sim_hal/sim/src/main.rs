@@ -19,6 +19,10 @@ use hal::LowState;
 /// length or non-finite value); 2: another protocol error; 1: setup failure (including a bad
 /// --fault); 4: a `disconnect` fault closed the connection as planned. An Error message with the
 /// reason is sent to the client before exiting on an error.
+///
+/// $G1_SIM_MODEL_CACHE: a directory where compiled models are kept (MuJoCo's MJB, keyed by the
+/// model files, this executable and the options), so later starts skip the compile; the CAN HIL
+/// uses it, where a compile under QEMU takes 80-90 s.
 #[derive(Parser, Debug)]
 #[command(name = "g1-sim", version)]
 struct Cli {
@@ -178,6 +182,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
         .context("--world")?;
     let mut sim =
         Simulator::load_in(cli.model, config, world.as_ref()).with_context(|| format!("loading model {model_name}"))?;
+    if let (Some(note), false) = (sim.model_cache_note(), cli.quiet) {
+        eprintln!("g1-sim: {note}");
+    }
     if cli.lidar || cli.lidar_udp_to.is_some() {
         let lidar = g1_sim::lidar::LidarConfig {
             range_noise_std: cli.lidar_noise,

@@ -26,6 +26,7 @@ use mujoco_rs::mujoco_c::{
 };
 use mujoco_rs::prelude::*;
 
+use crate::model_cache;
 use crate::slots;
 use crate::SimError;
 
@@ -143,6 +144,8 @@ pub struct Loaded {
     pub pool_cylinders: Vec<PoolGeom>,
     /// `initial_qpos` before a world's start pose was applied (flat ground at the origin).
     pub base_qpos: Vec<f64>,
+    /// What the model cache did ([`model_cache`]), if one is configured.
+    pub cache_note: Option<String>,
 }
 
 /// Which physics settings the model is compiled with (see [`crate::SimConfig::physics`]).
@@ -204,12 +207,14 @@ fn is_direct_motor(trn: mjtTrn, gain: mjtGain, gainprm0: f64, bias: mjtBias, dyn
         && gear[0] == 1.0
 }
 
-/// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map.
+/// Loads `choice`, applies the edits above, sets the timestep and resolves the slot map. With
+/// `cache_dir`, a compile of the same inputs is taken from there, or stored there ([`model_cache`]).
 pub fn load(
     choice: &ModelChoice,
     config: &crate::SimConfig,
     world: Option<&World>,
     pool: TerrainPool,
+    cache_dir: Option<&std::path::Path>,
 ) -> Result<Loaded, SimError> {
     let profile = config.physics;
     let path = choice.path();
@@ -218,6 +223,18 @@ pub fn load(
             path: path.clone(),
             hint: choice.missing_hint(),
         });
+    }
+    let cache_entry = cache_dir.map(|d| model_cache::entry_path(d, &path, &format!("{config:?} {world:?} {pool:?}")));
+    let mut cache_note = None;
+    if let Some(entry) = &cache_entry {
+        match model_cache::read(entry) {
+            Some(Ok((model, limits))) => {
+                let note = format!("model from cache {}", entry.display());
+                return finish_load(choice, config, world, model, &limits, Some(note));
+            }
+            Some(Err(e)) => cache_note = Some(format!("model cache entry unusable ({e}); compiled again")),
+            None => {}
+        }
     }
     let mut spec = MjSpec::from_xml(&path).map_err(|e| edit_err(&format!("parsing {}", path.display()), e))?;
     spec.option_mut().timestep = config.physics_dt;
@@ -244,13 +261,35 @@ pub fn load(
     }
     add_pool(&mut spec, pool)?;
 
-    let mut model = spec
+    let model = spec
         .compile()
         .map_err(|e| edit_err(&format!("compiling {}", path.display()), e))?;
-    if profile == PhysicsProfile::Training {
+    if let Some(entry) = &cache_entry {
+        let written = model_cache::write(entry, &model, &limits);
+        let note = match written {
+            Ok(()) => format!("model compiled and cached in {}", entry.display()),
+            Err(e) => format!("model compiled; the cache could not be written ({e})"),
+        };
+        cache_note = Some(cache_note.map_or(note.clone(), |n| format!("{n}; {note}")));
+    }
+    finish_load(choice, config, world, model, &limits, cache_note)
+}
+
+/// The steps after compiling (or loading a cached compile): the training profile's collision
+/// bits, the slot map, the start pose.
+fn finish_load(
+    choice: &ModelChoice,
+    config: &crate::SimConfig,
+    world: Option<&World>,
+    mut model: MjModel,
+    limits: &model_cache::Limits,
+    cache_note: Option<String>,
+) -> Result<Loaded, SimError> {
+    if config.physics == PhysicsProfile::Training {
         lean_collisions(&mut model);
     }
-    let mut loaded = resolve(choice, model, &limits)?;
+    let mut loaded = resolve(choice, model, limits)?;
+    loaded.cache_note = cache_note;
     loaded.base_qpos = loaded.initial_qpos.clone();
     if let (Some(w), Some(qa)) = (world, loaded.root_qpos_adr) {
         // Stand the robot on the world's start pose (its ground may be a raised landing).
@@ -671,5 +710,6 @@ fn resolve(
         pool_boxes,
         pool_cylinders,
         base_qpos: Vec::new(),
+        cache_note: None,
     })
 }

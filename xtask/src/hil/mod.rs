@@ -34,8 +34,9 @@ const LONG_HELP: &str = "\
 What it does:
   1. checks the tools the guest runs from the host's /: insmod (kmod), ip (iproute2), can-utils, and
      python-can in .venv (scripts/install.sh installs all);
-  2. builds the host binaries the suite runs (cargo build --release -p firmware -p g1_sim -p sim_hal
-     --bins: g1fw, g1-sim, g1-can-emu), unless --no-build;
+  2. builds the host binaries the suite runs (g1fw, g1-sim, g1-can-emu) with cargo build --release
+     --workspace --bins, unless --no-build (the whole workspace, so features resolve as in
+     scripts/test.sh's build and nothing is compiled twice);
   3. boots a VM (--vm, or HIL_VM; default auto):
        uml   User-Mode Linux (/usr/bin/linux, its CAN modules under /usr/lib/uml/modules): root = the
              host / read-only through hostfs, init = scripts/hil/guest_init.sh;
@@ -329,7 +330,9 @@ fn preflight(repo: &Path) -> Result<()> {
 
 fn build(repo: &Path) -> Result<()> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let pkgs = ["-p", "firmware", "-p", "g1_sim", "-p", "sim_hal"];
+    // The whole workspace: a `-p` subset resolves dependency features differently and rebuilds
+    // them (68 s on a fresh clone after test.sh's workspace build).
+    let pkgs = ["--workspace"];
     eprintln!("[hil] cargo build --release {} --bins", pkgs.join(" "));
     let t = Instant::now();
     let st = Command::new(cargo)
