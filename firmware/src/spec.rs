@@ -4,6 +4,7 @@
 //! unitree_rl_lab-style policies (29 joints through a `joint_ids_map`, per-term history laid out
 //! term by term, command clamps). Paths inside the spec are relative to the spec file. Every
 //! validation error names the offending field.
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
@@ -349,9 +350,14 @@ pub struct Safety {
     pub damping_kd: f32,
     /// Tilt from upright beyond which the robot is considered fallen, rad.
     pub tilt_limit_rad: f32,
-    /// Any supervised joint faster than this trips, rad/s (Unitree: 10).
-    pub joint_speed_limit_rad_s: f32,
-    /// Base angular speed (gyro norm) limit, rad/s (Unitree: 6).
+    /// A joint-speed limit for every supervised joint, rad/s. Unset (the default), each joint is
+    /// limited by its motor's own velocity limit (`hal::g1_motor_velocity_limit`: 20–37 rad/s); set,
+    /// it may only be stricter. (Unitree's 10 rad/s `joint_vel_out_of_limit` is an optional "soft"
+    /// helper that none of their deploy loops calls.)
+    pub joint_speed_limit_rad_s: Option<f32>,
+    /// Stricter limits for single joints, rad/s, by slot name (`left_knee = 15.0`).
+    pub joint_speed_limits_rad_s: BTreeMap<String, f32>,
+    /// Base angular speed limit, rad/s, on each gyro axis (as Unitree's `ang_vel_out_of_limit`: 6).
     pub base_ang_speed_limit_rad_s: f32,
     /// Motor winding / casing temperature limits, °C (Unitree: 120 / 85).
     pub motor_winding_limit_c: i16,
@@ -373,7 +379,8 @@ impl Default for Safety {
         Self {
             damping_kd: 5.0,
             tilt_limit_rad: 1.0,
-            joint_speed_limit_rad_s: 10.0,
+            joint_speed_limit_rad_s: None,
+            joint_speed_limits_rad_s: BTreeMap::new(),
             base_ang_speed_limit_rad_s: 6.0,
             motor_winding_limit_c: 120,
             motor_casing_limit_c: 85,
@@ -627,11 +634,32 @@ impl DeploySpec {
         let positive = [
             ("safety.damping_kd", s.damping_kd as f64),
             ("safety.tilt_limit_rad", s.tilt_limit_rad as f64),
-            ("safety.joint_speed_limit_rad_s", s.joint_speed_limit_rad_s as f64),
             ("safety.base_ang_speed_limit_rad_s", s.base_ang_speed_limit_rad_s as f64),
             ("safety.state_timeout_s", s.state_timeout_s),
         ];
         self.require_positive(&positive)?;
+        // Joint speed: a spec may tighten the motors' own limits, never loosen them.
+        if let Some(v) = s.joint_speed_limit_rad_s {
+            self.require_positive(&[("safety.joint_speed_limit_rad_s", v as f64)])?;
+        }
+        for (name, &v) in &s.joint_speed_limits_rad_s {
+            let field = format!("safety.joint_speed_limits_rad_s.{name}");
+            self.require_positive(&[(&field, v as f64)])?;
+            let Some(motor) =
+                hal::g1_motor_slot(name).and_then(|slot| hal::g1_motor_velocity_limit(hal::G1_MOTOR_NAMES[slot]))
+            else {
+                return Err(self.invalid(
+                    &field,
+                    "is not a G1 joint (slot names as in hal::G1_MOTOR_NAMES, e.g. left_knee)",
+                ));
+            };
+            if v > motor {
+                return Err(self.invalid(
+                    &field,
+                    format!("{v} rad/s is above the motor's own limit of {motor} rad/s; a spec may only be stricter"),
+                ));
+            }
+        }
         if s.crc_failure_streak == 0 || s.frozen_state_frames < 2 {
             return Err(self.invalid("safety", "crc_failure_streak must be >= 1 and frozen_state_frames >= 2"));
         }

@@ -150,6 +150,57 @@ impl FrameStatus {
     }
 }
 
+/// The limits a policy's motion must stay inside, resolved once from a spec's `[safety]`: what the
+/// supervisor trips on, and what the trainer (`g1-train ppo`) ends an episode on and penalises near.
+/// One type for both, so a policy is trained against exactly the walls it is deployed with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionLimits {
+    /// Tilt from upright, rad.
+    pub tilt_rad: f32,
+    /// Per slot: the motor's velocity limit, or the spec's stricter one, rad/s (∞ for slots that
+    /// name no motor).
+    pub joint_speed_rad_s: [f32; NUM_MOTORS],
+    /// Base angular speed on each gyro axis, rad/s.
+    pub base_ang_speed_rad_s: f32,
+}
+
+impl MotionLimits {
+    pub fn from_spec(spec: &DeploySpec) -> Self {
+        let s = &spec.safety;
+        let joint_speed_rad_s = std::array::from_fn(|slot| {
+            let name = hal::G1_MOTOR_NAMES[slot];
+            let mut v = hal::g1_motor_velocity_limit(name).unwrap_or(f32::INFINITY);
+            if let Some(all) = s.joint_speed_limit_rad_s {
+                v = v.min(all);
+            }
+            if let Some(&one) = s.joint_speed_limits_rad_s.get(name) {
+                v = v.min(one);
+            }
+            v
+        });
+        Self {
+            tilt_rad: s.tilt_limit_rad,
+            joint_speed_rad_s,
+            base_ang_speed_rad_s: s.base_ang_speed_limit_rad_s,
+        }
+    }
+
+    /// Whether a base whose up axis has vertical component `up` (= −projected gravity z) is tilted
+    /// past the limit.
+    pub fn tilted(&self, up: f32) -> bool {
+        up < libm::cosf(self.tilt_rad)
+    }
+
+    pub fn joint_too_fast(&self, slot: usize, dq: f32) -> bool {
+        dq.abs() > self.joint_speed_rad_s[slot]
+    }
+
+    /// Any gyro axis over the limit (per axis, as Unitree's `ang_vel_out_of_limit`, not the norm).
+    pub fn base_spinning(&self, gyro: [f32; 3]) -> bool {
+        gyro.iter().any(|w| w.abs() > self.base_ang_speed_rad_s)
+    }
+}
+
 /// Counters the supervisor keeps (logged every tick).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SafetyCounters {
@@ -165,9 +216,7 @@ pub struct SafetyCounters {
 
 pub struct Supervisor {
     /// Limits, resolved once.
-    cos_tilt_limit: f32,
-    joint_speed_limit: f32,
-    ang_speed_limit_sq: f32,
+    limits: MotionLimits,
     winding_limit: i16,
     casing_limit: i16,
     timeout_ticks: u64,
@@ -184,6 +233,11 @@ pub struct Supervisor {
 }
 
 impl Supervisor {
+    /// The motion limits it trips on (the trainer ends episodes on the same, from the same spec).
+    pub fn limits(&self) -> &MotionLimits {
+        &self.limits
+    }
+
     pub fn new(spec: &DeploySpec, supervised: [bool; NUM_MOTORS]) -> Self {
         let s = &spec.safety;
         let mut frozen_watch = [false; NUM_MOTORS];
@@ -191,9 +245,7 @@ impl Supervisor {
             frozen_watch[slot] = true;
         }
         Self {
-            cos_tilt_limit: libm::cosf(s.tilt_limit_rad),
-            joint_speed_limit: s.joint_speed_limit_rad_s,
-            ang_speed_limit_sq: s.base_ang_speed_limit_rad_s * s.base_ang_speed_limit_rad_s,
+            limits: MotionLimits::from_spec(spec),
             winding_limit: s.motor_winding_limit_c,
             casing_limit: s.motor_casing_limit_c,
             timeout_ticks: ((s.state_timeout_s * spec.rates.control_hz as f64).round() as u64).max(1),
@@ -277,11 +329,10 @@ impl Supervisor {
             return Some(DampingReason::NonFiniteInput);
         }
         let up = -estimator::projected_gravity(imu.quaternion)[2];
-        if up < self.cos_tilt_limit {
+        if self.limits.tilted(up) {
             return Some(DampingReason::Tilt);
         }
-        let g = imu.gyroscope;
-        if g[0] * g[0] + g[1] * g[1] + g[2] * g[2] > self.ang_speed_limit_sq {
+        if self.limits.base_spinning(imu.gyroscope) {
             return Some(DampingReason::BaseAngularSpeed);
         }
         let mut trip = None;
@@ -297,7 +348,7 @@ impl Supervisor {
             if !(m.q.is_finite() && m.dq.is_finite()) {
                 return Some(DampingReason::NonFiniteInput);
             }
-            if trip.is_none() && m.dq.abs() > self.joint_speed_limit {
+            if trip.is_none() && self.limits.joint_too_fast(s, m.dq) {
                 trip = Some(DampingReason::JointSpeed { slot });
             }
             if trip.is_none() && (m.temperature[0] > self.casing_limit || m.temperature[1] > self.winding_limit) {

@@ -113,24 +113,87 @@ fn tilt_over_one_radian_trips() {
 
 #[test]
 fn joint_speed_base_rate_and_temperature_limits_trip() {
-    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
-        let mut s = healthy(k);
-        s.motors[9].dq = -10.5;
-        (FrameStatus::Fresh, s, OP)
-    });
-    assert_eq!(trip, Some((50, DampingReason::JointSpeed { slot: 9 })));
-    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
-        let mut s = healthy(k);
-        s.imu.gyroscope = [4.0, 4.0, 2.5]; // |w| = 6.18 > 6
-        (FrameStatus::Fresh, s, OP)
-    });
-    assert_eq!(trip, Some((50, DampingReason::BaseAngularSpeed)));
+    // Joint speed: each motor's own limit by default (knee 20 rad/s, hip pitch 32), not Unitree's
+    // optional 10 rad/s helper.
+    let fast = |slot: usize, dq: f32| {
+        trip_after(runtime(), 50, 1, move |k| {
+            let mut s = healthy(k);
+            s.motors[slot].dq = dq;
+            (FrameStatus::Fresh, s, OP)
+        })
+        .1
+    };
+    assert_eq!(fast(9, -15.0), None, "right knee at 15 rad/s is inside its motor's 20");
+    assert_eq!(fast(9, -20.5), Some((50, DampingReason::JointSpeed { slot: 9 })));
+    assert_eq!(
+        fast(0, 25.0),
+        None,
+        "left hip pitch at 25 rad/s is inside its motor's 32"
+    );
+    assert_eq!(fast(0, 32.5), Some((50, DampingReason::JointSpeed { slot: 0 })));
+    // Base angular speed, per axis: a norm of 6.18 with every axis under 6 is fine, one axis over trips.
+    let spin = |w: [f32; 3]| {
+        trip_after(runtime(), 50, 1, move |k| {
+            let mut s = healthy(k);
+            s.imu.gyroscope = w;
+            (FrameStatus::Fresh, s, OP)
+        })
+        .1
+    };
+    assert_eq!(spin([4.0, 4.0, 2.5]), None);
+    assert_eq!(spin([0.0, -6.1, 0.0]), Some((50, DampingReason::BaseAngularSpeed)));
     let (_, trip) = trip_after(runtime(), 50, 1, |k| {
         let mut s = healthy(k);
         s.motors[20].temperature = [40, 121];
         (FrameStatus::Fresh, s, OP)
     });
     assert_eq!(trip, Some((50, DampingReason::MotorTemperature { slot: 20 })));
+}
+
+/// The test spec with `safety` (TOML) appended; it has no `[safety]` table of its own.
+fn spec_with_safety(safety: &str) -> Result<DeploySpec, firmware::spec::SpecError> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(!text.contains("[safety]"));
+    DeploySpec::from_toml(&format!("{text}\n{safety}"), &path)
+}
+
+#[test]
+fn a_spec_may_tighten_joint_speed_limits_but_not_loosen_them() {
+    let strict = spec_with_safety(
+        "[safety]\njoint_speed_limit_rad_s = 12.0\n[safety.joint_speed_limits_rad_s]\nleft_knee = 8.0\n",
+    )
+    .unwrap();
+    let lim = firmware::supervisor::MotionLimits::from_spec(&strict);
+    assert_eq!(lim.joint_speed_rad_s[3], 8.0, "left knee: its own entry");
+    assert_eq!(
+        lim.joint_speed_rad_s[9], 12.0,
+        "right knee: the spec's 12 under the motor's 20"
+    );
+    assert_eq!(lim.joint_speed_rad_s[4], 12.0, "left ankle: 12 under 37");
+    let (_, trip) = trip_after(Runtime::new(Controller::new(strict).unwrap()), 50, 1, |k| {
+        let mut s = healthy(k);
+        s.motors[3].dq = 9.0;
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::JointSpeed { slot: 3 })));
+
+    // Looser than the motor, or a joint the G1 does not have: refused, naming the field.
+    let err = spec_with_safety("[safety.joint_speed_limits_rad_s]\nleft_knee = 25.0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("safety.joint_speed_limits_rad_s.left_knee") && err.contains("20"),
+        "{err}"
+    );
+    let err = spec_with_safety("[safety.joint_speed_limits_rad_s]\nleft_tail = 5.0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("left_tail"), "{err}");
+    let err = spec_with_safety("[safety]\njoint_speed_limit_rad_s = -1.0\n")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("safety.joint_speed_limit_rad_s"), "{err}");
 }
 
 #[test]

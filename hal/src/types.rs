@@ -189,6 +189,22 @@ pub fn g1_motor_slot(name: &str) -> Option<usize> {
     G1_MOTOR_NAMES.iter().position(|n| *n == base)
 }
 
+/// Velocity limit of a G1 joint's motor, rad/s (`<limit velocity>` in Unitree's
+/// g1_29dof_rev_1_0.urdf), by slot name with or without its side. This is the physical bound the
+/// supervisor and the trainer use by default; a deploy spec may only be stricter
+/// (`[safety] joint_speed_limit_rad_s`, `joint_speed_limits_rad_s`).
+pub fn g1_motor_velocity_limit(slot_name: &str) -> Option<f32> {
+    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
+    Some(match n {
+        "hip_pitch" | "hip_yaw" | "waist_yaw" => 32.0,
+        "hip_roll" | "knee" => 20.0,
+        "ankle_pitch" | "ankle_roll" | "waist_roll" | "waist_pitch" => 37.0,
+        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 37.0,
+        "wrist_pitch" | "wrist_yaw" => 22.0,
+        _ => return None,
+    })
+}
+
 /// Reflected rotor inertia (MuJoCo `armature`) of a G1 joint, kg·m², by slot name with or without
 /// its side (mjlab's `g1_constants.py`): the simulator adds it to the 29-dof MJCF, and `check-spec`
 /// judges gains against it. A joint's inertia is at least this.

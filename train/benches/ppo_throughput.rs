@@ -1,10 +1,14 @@
 //! PPO trainer throughput against the physics it is built on, in one run (ratios, because this
 //! machine is shared and noisy): `cargo bench -p train --bench ppo_throughput`.
 //!
-//! 1. a bare `mj_step` loop of the training model (12-dof G1, training physics, a staircase);
+//! 1. a bare `mj_step` loop of the training model (12-dof G1, training physics, a staircase), on one
+//!    thread and on every thread at once (the machine's ceiling);
 //! 2. one training environment on one thread: observation (firmware `PolicyIo`), actor (firmware
-//!    executor), 4 physics steps, rewards, resets — env steps/s and its ratio to (1) / 4;
-//! 3. `g1-train ppo`'s loop with every core: env steps/s and the learner's share of wall time.
+//!    executor), 4 physics steps, rewards, resets — env steps/s and its ratio to (1) / 4; for the
+//!    LSTM spec and the MLP spec;
+//! 3. `g1-train ppo`'s loop with every core, 128 environments: the warm-started LSTM, and a fresh
+//!    MLP with symmetry augmentation — env steps/s against the ceiling, rollout and update time per
+//!    iteration, and the learner's share of wall time.
 //!
 //! Needs `../shared` (the 12-dof model and the peer walker for the warm start).
 #![allow(clippy::disallowed_methods)]
@@ -14,51 +18,25 @@ use std::time::Instant;
 use firmware::spec::DeploySpec;
 use g1_sim::world::World;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
-use train::ppo::env::{EnvConfig, Randomization, StairEnv, DECIMATION, PHYSICS_DT};
-use train::ppo::policy::ActorCritic;
+use train::ppo::env::{EnvConfig, Randomization, StairEnv, Timing, PHYSICS_DT};
+use train::ppo::policy::{ActorArch, ActorCritic, Sizes};
 
-fn main() -> anyhow::Result<()> {
-    let root = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
-    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
-    if !peer.exists() {
-        anyhow::bail!("{} is missing: put ../shared beside the checkout", peer.display());
-    }
-    let spec_path = root.join("specs/stairs/g1_stairs_lstm.toml");
-    let spec = DeploySpec::load(&spec_path)?;
-    let obs = spec.observation_dim();
-
-    // 1. Bare mj_step.
-    let world = World::preset("stairs-up").expect("preset");
-    let cfg = train::ppo::env::sim_config(0);
-    let mut sim = Simulator::load_in(ModelChoice::G1_12Dof, cfg, Some(&world))?;
-    let hold = sim.hold_initial_pose_command();
-    sim.apply_command(&hold)?;
-    let n = 20_000;
-    let t = Instant::now();
-    for _ in 0..n {
-        sim.data_mut().step();
-    }
-    let mj_us = t.elapsed().as_secs_f64() * 1e6 / n as f64;
-    let bare_env_steps = 1e6 / (mj_us * DECIMATION as f64);
-    let _ = SimConfig::default();
-
-    // 2. One environment, one thread (the warm-started actor on the curriculum's mix).
-    let ac = ActorCritic::new(obs, obs + train::ppo::env::CRITIC_EXTRA, spec.num_joints(), 0.3, 0)?;
-    ac.load_actor_widened(&peer)?;
-    let weights = ac.actor_safetensors()?;
+/// One training environment on one thread for `steps` policy steps: env steps/s.
+fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f64, usize)> {
     let env_cfg = EnvConfig {
         model: ModelChoice::G1_12Dof,
-        spec: Arc::new(spec),
+        spec: Arc::new(spec.clone()),
         episode_s: 12.0,
         random: Randomization::DEFAULT,
         vx: (0.3, 0.8),
         max_init_level: 2,
         only: None,
     };
-    let mut env = StairEnv::new(env_cfg, 1, &weights)?;
-    let mut mean = vec![0.0; 12];
+    let mut env = StairEnv::new(env_cfg, 1, weights)?;
+    let a = spec.num_joints();
+    let mut mean = vec![0.0; a];
     let mut extra = vec![0.0; train::ppo::env::CRITIC_EXTRA];
-    let (steps, mut resets) = (3000, 0);
+    let mut resets = 0;
     let t = Instant::now();
     for _ in 0..steps {
         env.observe_and_act(&mut mean)?;
@@ -69,20 +47,32 @@ fn main() -> anyhow::Result<()> {
             resets += 1;
         }
     }
-    let env_rate = steps as f64 / t.elapsed().as_secs_f64();
+    Ok((steps as f64 / t.elapsed().as_secs_f64(), resets))
+}
 
-    // 3. The whole loop.
+/// `g1-train ppo`'s whole loop for a few iterations: (env steps/s, learner's share of wall time,
+/// rollout s and update s per iteration).
+fn whole_loop(
+    spec_path: &std::path::Path,
+    init_actor: Option<std::path::PathBuf>,
+    actor_hidden: Vec<usize>,
+    symmetry: bool,
+    threads: usize,
+    envs: usize,
+) -> anyhow::Result<(f64, f64, f64, f64)> {
     let out = std::env::temp_dir().join(format!("g1_ppo_bench_{}", std::process::id()));
-    let threads = g1_sim::progress::default_jobs();
+    let _ = std::fs::remove_dir_all(&out);
     let run = train::ppo::runner::RunConfig {
-        spec: spec_path,
+        spec: spec_path.to_path_buf(),
         model: ModelChoice::G1_12Dof,
         out: out.clone(),
-        envs: 128,
+        envs,
         threads,
-        iterations: 4,
+        iterations: 5,
         seed: 0,
-        init_actor: Some(peer),
+        init_actor,
+        actor_hidden,
+        symmetry,
         init_std: 0.3,
         critic_warmup: 0,
         episode_s: 12.0,
@@ -97,19 +87,96 @@ fn main() -> anyhow::Result<()> {
     let history = train::ppo::runner::train(&run)?;
     let _ = std::fs::remove_dir_all(&out);
     let tail = &history[1..];
-    let loop_rate = tail.iter().map(|l| l.env_steps_per_s).sum::<f64>() / tail.len() as f64;
-    let share = tail.iter().map(|l| l.learner_share).sum::<f64>() / tail.len() as f64;
+    let mean = |f: &dyn Fn(&train::ppo::runner::IterLog) -> f64| tail.iter().map(f).sum::<f64>() / tail.len() as f64;
+    Ok((
+        mean(&|l| l.env_steps_per_s),
+        mean(&|l| l.learner_share),
+        mean(&|l| l.rollout_s),
+        mean(&|l| l.update_s),
+    ))
+}
 
-    println!("PPO throughput (12-dof G1, physics dt {PHYSICS_DT} s, decimation {DECIMATION})");
-    println!("  bare mj_step (stairs world)     {mj_us:8.1} µs/step  = {bare_env_steps:8.0} env steps/s (one core)");
+fn main() -> anyhow::Result<()> {
+    let root = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
+    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    if !peer.exists() {
+        anyhow::bail!("{} is missing: put ../shared beside the checkout", peer.display());
+    }
+    let lstm_path = root.join("specs/stairs/g1_stairs_lstm.toml");
+    let mlp_path = root.join("specs/stairs/g1_stairs_mlp.toml");
+    let lstm = DeploySpec::load(&lstm_path)?;
+    let mlp = DeploySpec::load(&mlp_path)?;
+    let decimation = Timing::from_spec(&lstm)?.decimation;
+    let threads = g1_sim::progress::default_jobs();
+
+    // 1. Bare mj_step, one loop per thread at once (the ceiling of the machine).
+    let bare = |n: usize| -> anyhow::Result<f64> {
+        let world = World::preset("stairs-up").expect("preset");
+        let cfg = train::ppo::env::sim_config(0);
+        let mut sim = Simulator::load_in(ModelChoice::G1_12Dof, cfg, Some(&world))?;
+        let hold = sim.hold_initial_pose_command();
+        sim.apply_command(&hold)?;
+        let t = Instant::now();
+        for _ in 0..n {
+            sim.data_mut().step();
+        }
+        Ok(t.elapsed().as_secs_f64() * 1e6 / n as f64)
+    };
+    let mj_us = bare(20_000)?;
+    let bare_one = 1e6 / (mj_us * decimation as f64);
+    let per_thread: Vec<f64> = std::thread::scope(|s| {
+        let h: Vec<_> = (0..threads).map(|_| s.spawn(|| bare(20_000))).collect();
+        h.into_iter()
+            .map(|h| h.join().expect("bare loop"))
+            .collect::<anyhow::Result<_>>()
+    })?;
+    let bare_all: f64 = per_thread.iter().map(|us| 1e6 / (us * decimation as f64)).sum();
+    let _ = SimConfig::default();
+
+    // 2. One environment, one thread: the warm-started LSTM, and a fresh MLP.
+    let ac = ActorCritic::new(
+        lstm.observation_dim(),
+        lstm.observation_dim() + train::ppo::env::CRITIC_EXTRA,
+        lstm.num_joints(),
+        0.3,
+        0,
+    )?;
+    ac.load_actor_widened(&peer)?;
+    let (lstm_env, lstm_resets) = one_env(&lstm, &ac.actor_safetensors()?, 3000)?;
+    let mlp_arch = ActorArch::from_desc(&mlp.policy.network, mlp.num_joints(), Sizes::Hidden(&MLP_HIDDEN))?;
+    let mlp_ac = ActorCritic::with_arch(mlp_arch, mlp.observation_dim() + train::ppo::env::CRITIC_EXTRA, 0.3, 0)?;
+    let (mlp_env, mlp_resets) = one_env(&mlp, &mlp_ac.actor_safetensors()?, 3000)?;
+
+    // 3. The whole loop.
+    let (lstm_loop, lstm_share, lstm_roll, lstm_upd) =
+        whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, threads, 128)?;
+    let (mlp_loop, mlp_share, mlp_roll, mlp_upd) =
+        whole_loop(&mlp_path, None, MLP_HIDDEN.to_vec(), true, threads, 128)?;
+
+    println!("PPO throughput (12-dof G1, physics dt {PHYSICS_DT} s, decimation {decimation}, {threads} threads)");
+    println!("  bare mj_step (stairs world), one thread  {mj_us:8.1} µs/step  = {bare_one:8.0} env steps/s");
+    println!("  bare mj_step, {threads} threads at once          {bare_all:8.0} env steps/s  (the ceiling)");
     println!(
-        "  one environment, one thread     {env_rate:8.0} env steps/s  = {:.2} × bare ({resets} resets in {steps} steps)",
-        env_rate / bare_env_steps
+        "  one environment, one thread, LSTM-64    {lstm_env:8.0} env steps/s  = {:.2} × bare ({lstm_resets} resets)",
+        lstm_env / bare_one
     );
     println!(
-        "  g1-train ppo, {threads} threads, 128 envs {loop_rate:8.0} env steps/s  = {:.2} × bare one core; learner {:.0} % of wall time",
-        loop_rate / bare_env_steps,
-        100.0 * share
+        "  one environment, one thread, MLP {:?} {mlp_env:8.0} env steps/s  = {:.2} × bare ({mlp_resets} resets)",
+        MLP_HIDDEN,
+        mlp_env / bare_one
     );
+    for (name, rate, share, roll, upd) in [
+        ("LSTM-64, warm start     ", lstm_loop, lstm_share, lstm_roll, lstm_upd),
+        ("MLP + symmetry, fresh   ", mlp_loop, mlp_share, mlp_roll, mlp_upd),
+    ] {
+        println!(
+            "  g1-train ppo, {name} {rate:8.0} env steps/s  = {:.2} × the ceiling; rollout {roll:.2} s, update {upd:.2} s per iteration; learner {:.0} % of wall time",
+            rate / bare_all,
+            100.0 * share
+        );
+    }
     Ok(())
 }
+
+/// The MLP's hidden sizes (the spec's default recipe, docs/stair_policy.md).
+const MLP_HIDDEN: [usize; 3] = [256, 128, 128];

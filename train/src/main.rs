@@ -131,8 +131,8 @@ enum Cmd {
     ///
     /// Observations, action rules and the actor's executor are the firmware's own, built from
     /// --spec. Writes into --out: checkpoint.safetensors + state.json (re-running the same
-    /// command resumes), history.json and curves.png (learning curves), g1_stairs_lstm.safetensors
-    /// (the actor as g1fw loads it; `g1-train ppo-export` puts it beside the spec).
+    /// command resumes), history.json and curves.png (learning curves), the actor as g1fw loads it
+    /// under the spec's weights file name (`g1-train ppo-export` puts it beside the spec).
     Ppo {
         /// The deploy spec to train (its observation, gains, rates and network layout).
         #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml")]
@@ -163,11 +163,21 @@ enum Cmd {
         minibatches: usize,
         #[arg(long, default_value_t = 0)]
         seed: u64,
-        /// Warm start: an LSTM-64 actor in the peer walker's safetensors layout (its input is
-        /// widened with zero columns for the token), e.g.
-        /// ../shared/peer_policy/unitree_g1_lstm/policy.safetensors. Ignored when resuming.
+        /// Warm start: an actor with the tensor names of the spec's [policy.network] (its input is
+        /// widened with zero columns for the token), e.g. the peer walker
+        /// ../shared/peer_policy/unitree_g1_lstm/policy.safetensors for the LSTM spec. Ignored when
+        /// resuming.
         #[arg(long)]
         init_actor: Option<PathBuf>,
+        /// Hidden sizes of a fresh actor, one per linear/lstm layer of the spec's network but the
+        /// last, e.g. 256,128,128 for specs/stairs/g1_stairs_mlp.toml or 64,32 for the LSTM spec.
+        /// Needed without --init-actor on a new run; resuming and warm starts take the weights'.
+        #[arg(long, value_delimiter = ',')]
+        actor_hidden: Vec<usize>,
+        /// Also learn every transition mirrored left–right (the G1's symmetry: twice the data per
+        /// simulated step; feed-forward actors only).
+        #[arg(long)]
+        symmetry: bool,
         /// Initial action noise standard deviation (actions are in units of action_scale).
         #[arg(long, default_value_t = 0.3)]
         init_std: f64,
@@ -292,6 +302,8 @@ fn main() -> anyhow::Result<()> {
             minibatches,
             seed,
             init_actor,
+            actor_hidden,
+            symmetry,
             init_std,
             critic_warmup,
             lr,
@@ -314,6 +326,8 @@ fn main() -> anyhow::Result<()> {
                 iterations,
                 seed,
                 init_actor,
+                actor_hidden,
+                symmetry,
                 init_std,
                 critic_warmup,
                 episode_s,

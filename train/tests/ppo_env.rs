@@ -149,8 +149,7 @@ fn candle_actor_matches_the_firmware_executor() {
     let got = ac
         .actor_sequence(
             &Tensor::from_vec(obs, (t, 1, o), &dev).unwrap(),
-            &zeros,
-            &zeros,
+            Some((&zeros, &zeros)),
             &Tensor::from_vec(masks, (t, 1, 1), &dev).unwrap(),
         )
         .unwrap();
@@ -162,4 +161,78 @@ fn candle_actor_matches_the_firmware_executor() {
         .fold(0.0f32, f32::max);
     eprintln!("candle vs firmware executor over {t} steps: max |Δ| = {worst:.2e}");
     assert!(worst < 1e-4, "actor mismatch {worst}");
+}
+
+/// Limits, rates and the token scale reach the trainer only through the spec, as they reach the
+/// firmware: change them in the spec and both follow (issue 29: nothing hard-coded in `train/`).
+#[test]
+fn trainer_and_firmware_follow_the_spec_s_limits_rates_and_token_scale() {
+    use firmware::spec::{ObsKind, Scale};
+    use firmware::supervisor::{MotionLimits, Supervisor};
+    use train::ppo::env::FALL_CAUSES;
+    let Some(peer) = peer_weights() else { return };
+    let base = stair_spec();
+    let (_, w) = warm_start(&base, &peer);
+
+    // The defaults: each motor's own velocity limit, 50 Hz policy, 10 Hz token.
+    let e = env(base.clone(), &w, 3, Column::Up);
+    let lim = MotionLimits::from_spec(&base);
+    assert_eq!(*e.limits(), lim);
+    assert_eq!(lim.joint_speed_rad_s[3], 20.0, "left knee: its motor's 20 rad/s");
+    assert_eq!(lim.joint_speed_rad_s[0], 32.0, "left hip pitch: its motor's 32 rad/s");
+    assert_eq!((e.timing().decimation, e.timing().token_period), (4, 5));
+
+    // A stricter spec: both sides take it.
+    let mut strict = base.clone();
+    strict.safety.joint_speed_limit_rad_s = Some(0.05);
+    strict.safety.tilt_limit_rad = 0.6;
+    strict.rates.policy_hz = 25;
+    strict.rates.perception_hz = 5;
+    let term = strict
+        .observation
+        .terms
+        .iter_mut()
+        .find(|t| t.kind == ObsKind::TerrainToken)
+        .expect("the stair spec observes the token");
+    term.scale = Scale::PerElement(vec![2.0, 10.0, 5.0, 2.0]);
+    let mut e2 = env(strict.clone(), &w, 3, Column::Up);
+    let lim2 = MotionLimits::from_spec(&strict);
+    assert_eq!(*e2.limits(), lim2);
+    assert_eq!(*Supervisor::new(&strict, [true; hal::NUM_MOTORS]).limits(), lim2);
+    assert!(lim2.joint_speed_rad_s.iter().all(|&v| v == 0.05) && lim2.tilt_rad == 0.6);
+    assert_eq!((e2.timing().decimation, e2.timing().token_period), (8, 5));
+    assert!((e2.timing().policy_dt - 0.04).abs() < 1e-12);
+
+    // The critic's true token is scaled by the spec's term scale: twice the scale, twice the values
+    // (to 1e-3: the slower policy rate settles the start pose a little longer, so yaw may differ).
+    let n = train::ppo::env::CRITIC_EXTRA;
+    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+    e.critic_extra(&mut a);
+    e2.critic_extra(&mut b);
+    let token = 4..8; // after body velocity (3) and base height (1)
+    assert!(a[token.clone()].iter().any(|&v| v != 0.0), "no token to scale: {a:?}");
+    for i in token {
+        assert!(
+            (b[i] - 2.0 * a[i]).abs() < 1e-3,
+            "critic token value {i}: {} vs 2 × {}",
+            b[i],
+            a[i]
+        );
+    }
+
+    // The episode ends on the spec's joint-speed wall (0.05 rad/s: the first steps of walking).
+    let mut mean = vec![0.0; 12];
+    let mut ended = false;
+    for _ in 0..25 {
+        e2.observe_and_act(&mut mean).unwrap();
+        let out = e2.step(&mean.clone()).unwrap();
+        if out.terminated {
+            ended = true;
+            break;
+        }
+    }
+    assert!(ended, "a 0.05 rad/s joint-speed limit never ended the episode");
+    e2.reset().unwrap();
+    let end = e2.last_end.expect("an episode ended");
+    assert_eq!(FALL_CAUSES[end.cause], "joint_speed", "{end:?}");
 }

@@ -15,16 +15,21 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_smoke_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
+    // The MLP spec, fresh, with symmetry augmentation. Random actions this wide (2 × the action
+    // scale) drive joints past their motors' limits within a few steps: PPO must learn to keep
+    // them inside, which raises the reward per step at once.
     let mut cfg = RunConfig {
-        spec: root.join("specs/stairs/g1_stairs_lstm.toml"),
+        spec: root.join("specs/stairs/g1_stairs_mlp.toml"),
         model: g1_sim::ModelChoice::G1_12Dof,
         out: out.clone(),
         envs: 32,
         threads: 2,
-        iterations: 16,
+        iterations: 30,
         seed: 1,
         init_actor: None,
-        init_std: 1.0,
+        actor_hidden: vec![64, 64, 64],
+        symmetry: true,
+        init_std: 2.0,
         critic_warmup: 0,
         episode_s: 2.0,
         ppo: train::ppo::algo::PpoConfig {
@@ -48,16 +53,25 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
             .map(|l| (l.mean_reward_per_step * 1000.0).round() / 1000.0)
             .collect::<Vec<_>>()
     );
+    eprintln!(
+        "std {:?}\nkl {:?}\nlr {:?}\nfalls {:?}",
+        h.iter()
+            .map(|l| (l.update.mean_std * 100.0).round() / 100.0)
+            .collect::<Vec<_>>(),
+        h.iter().map(|l| l.update.kl).collect::<Vec<_>>(),
+        h.iter().map(|l| l.update.lr).collect::<Vec<_>>(),
+        h.iter().map(|l| l.fall_causes.clone()).collect::<Vec<_>>()
+    );
     assert!(last > first + 0.1, "PPO did not learn: {first:.4} -> {last:.4}");
-    for f in [CHECKPOINT, HISTORY, CURVES, "state.json", "g1_stairs_lstm.safetensors"] {
+    for f in [CHECKPOINT, HISTORY, CURVES, "state.json", "g1_stairs_mlp.safetensors"] {
         assert!(out.join(f).exists(), "{f} not written");
     }
     // Resume: two more iterations continue the count and the history.
-    cfg.iterations = 18;
+    cfg.iterations = 32;
     let h2 = train(&cfg).expect("resumes");
-    assert_eq!(h2.len(), 18);
-    assert_eq!(h2.last().unwrap().iteration, 18);
-    assert!(h2[17].env_steps > h[15].env_steps);
+    assert_eq!(h2.len(), 32);
+    assert_eq!(h2.last().unwrap().iteration, 32);
+    assert!(h2[31].env_steps > h[29].env_steps);
     // Each checkpoint's actor is kept, named by its env steps, and equals the export at that point.
     let mut actors: Vec<_> = std::fs::read_dir(out.join(ACTORS))
         .expect("actors/ written")
@@ -70,12 +84,12 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         "one actor per checkpoint (end of each run): {actors:?}"
     );
     assert!(
-        actors[1].ends_with(format!("actor_{:012}.safetensors", h2[17].env_steps)),
+        actors[1].ends_with(format!("actor_{:012}.safetensors", h2[31].env_steps)),
         "{actors:?}"
     );
     assert_eq!(
         std::fs::read(&actors[1]).unwrap(),
-        std::fs::read(out.join("g1_stairs_lstm.safetensors")).unwrap()
+        std::fs::read(out.join("g1_stairs_mlp.safetensors")).unwrap()
     );
     std::fs::remove_dir_all(&out).unwrap();
 }
@@ -106,6 +120,8 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         iterations: 4,
         seed: 7,
         init_actor: None,
+        actor_hidden: vec![64, 32],
+        symmetry: false,
         init_std: 0.5,
         critic_warmup: 1,
         episode_s: 1.0,

@@ -12,7 +12,7 @@ use mujoco_rs::prelude::*;
 
 /// Wrist roll, pitch, yaw of both arms (unitree_hg slots).
 const WRISTS: [usize; 6] = [19, 20, 21, 26, 27, 28];
-/// The firmware's joint-speed guard, rad/s.
+/// A chattering speed: no held wrist moves this fast on purpose, rad/s.
 const SPEED_GUARD: f64 = 10.0;
 
 /// The home pose with unitree_rl_lab's arm gains: kp 40, kd 10 on shoulders, elbows and wrists
@@ -146,7 +146,7 @@ fn hold_explicit(physics_dt: f64) -> (f64, usize) {
 /// a constant force, exactly what the explicit law wrote into `ctrl`). kd·dt / I ≈ 10 · 0.002 /
 /// 0.005 = 4 > 2 on the wrists: the damping overshoots every step and the wrists chatter
 /// bang-bang between their ±5 N·m limits (measured: 8.9 rad/s peak at dt 0.002, against < 0.01 with
-/// the implicit actuator); at the training's dt 0.005 they pass the firmware's 10 rad/s guard.
+/// the implicit actuator); at the training's dt 0.005 they pass 10 rad/s.
 #[test]
 fn the_old_explicit_law_chatters_on_the_same_setup() {
     require_deps();

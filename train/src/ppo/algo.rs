@@ -7,7 +7,8 @@ use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use g1_sim::rng::Rng;
 
-use super::policy::{ActorCritic, HIDDEN};
+use super::policy::ActorCritic;
+use super::symmetry::{Mirror, SignedPermutation};
 
 #[derive(Clone, Copy, Debug)]
 pub struct PpoConfig {
@@ -59,7 +60,7 @@ pub struct EnvRollout {
     pub final_critic_obs: Vec<f32>,
     /// Critic observation after the last step (bootstrap).
     pub next_critic_obs: Vec<f32>,
-    /// LSTM h then c before step 0.
+    /// The actor's recurrent state (LSTM h then c) before step 0; empty for an MLP.
     pub state0: Vec<f32>,
     // Filled by the learner.
     pub values: Vec<f32>,
@@ -68,7 +69,7 @@ pub struct EnvRollout {
 }
 
 impl EnvRollout {
-    pub fn new(steps: usize, obs: usize, critic: usize, act: usize) -> Self {
+    pub fn new(steps: usize, obs: usize, critic: usize, act: usize, state: usize) -> Self {
         Self {
             obs: vec![0.0; steps * obs],
             critic_obs: vec![0.0; steps * critic],
@@ -81,7 +82,7 @@ impl EnvRollout {
             masks: vec![1.0; steps],
             final_critic_obs: vec![0.0; steps * critic],
             next_critic_obs: vec![0.0; critic],
-            state0: vec![0.0; 2 * HIDDEN],
+            state0: vec![0.0; state],
             values: vec![0.0; steps],
             advantages: vec![0.0; steps],
             returns: vec![0.0; steps],
@@ -205,6 +206,8 @@ pub struct Learner {
     vars: Vec<Var>,
     pub lr: f64,
     rng: Rng,
+    /// Symmetry augmentation (MLP actors only: a mirrored LSTM state is not defined).
+    mirror: Option<Mirror>,
 }
 
 fn adam(vars: Vec<Var>, lr: f64) -> candle_core::Result<AdamW> {
@@ -219,7 +222,11 @@ fn adam(vars: Vec<Var>, lr: f64) -> candle_core::Result<AdamW> {
 }
 
 impl Learner {
-    pub fn new(ac: &ActorCritic, cfg: PpoConfig, seed: u64) -> candle_core::Result<Self> {
+    pub fn new(ac: &ActorCritic, cfg: PpoConfig, seed: u64, mirror: Option<Mirror>) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            mirror.is_none() || ac.arch.lstm_hidden() == 0,
+            "symmetry augmentation needs a feed-forward actor (a mirrored LSTM state is not defined)"
+        );
         Ok(Self {
             opt: adam(ac.all_vars(), cfg.lr)?,
             critic_opt: adam(ac.critic_vars(), 1e-3)?,
@@ -227,6 +234,7 @@ impl Learner {
             lr: cfg.lr,
             cfg,
             rng: Rng(seed ^ 0x11EA_12E2),
+            mirror,
         })
     }
 
@@ -254,40 +262,64 @@ impl Learner {
             }
             for chunk in order.chunks(mb) {
                 let b = chunk.len();
-                // Time-major [T, B, ·] tensors of this minibatch.
-                let gather = |f: &dyn Fn(&EnvRollout) -> &[f32], w: usize| -> Vec<f32> {
-                    let mut v = Vec::with_capacity(t * b * w);
+                // With symmetry, each time step's rows are followed by their mirror images (actor
+                // and critic inputs, actions mirrored; advantages, returns, old values and old
+                // log-probabilities repeated, as rsl_rl's augmentation does): [T, 2B, ·].
+                let aug = self.mirror.as_ref();
+                let b2 = if aug.is_some() { 2 * b } else { b };
+                let gather = |f: &dyn Fn(&EnvRollout) -> &[f32], w: usize, m: Option<&SignedPermutation>| -> Vec<f32> {
+                    let mut v = Vec::with_capacity(t * b2 * w);
                     for s in 0..t {
                         for &k in chunk {
                             v.extend_from_slice(&f(&rolls[k])[s * w..(s + 1) * w]);
                         }
+                        if aug.is_some() {
+                            for &k in chunk {
+                                let row = &f(&rolls[k])[s * w..(s + 1) * w];
+                                match m {
+                                    Some(p) => p.apply_rows(row, &mut v),
+                                    None => v.extend_from_slice(row),
+                                }
+                            }
+                        }
                     }
                     v
                 };
-                let obs = Tensor::from_vec(gather(&|r| &r.obs, o), (t, b, o), &dev)?;
-                let act = Tensor::from_vec(gather(&|r| &r.actions, a), (t, b, a), &dev)?;
-                let old_mean = gather(&|r| &r.means, a);
-                let masks = Tensor::from_vec(gather(&|r| &r.masks, 1), (t, b, 1), &dev)?;
-                let old_logp = Tensor::from_vec(gather(&|r| &r.logp, 1), (t, b), &dev)?;
-                let mut adv = gather(&|r| &r.advantages, 1);
+                let (m_obs, m_act, m_critic) = match aug {
+                    Some(m) => (Some(&m.obs), Some(&m.action), Some(&m.critic)),
+                    None => (None, None, None),
+                };
+                let obs = Tensor::from_vec(gather(&|r| &r.obs, o, m_obs), (t, b2, o), &dev)?;
+                let act = Tensor::from_vec(gather(&|r| &r.actions, a, m_act), (t, b2, a), &dev)?;
+                let old_mean = gather(&|r| &r.means, a, m_act);
+                let masks = Tensor::from_vec(gather(&|r| &r.masks, 1, None), (t, b2, 1), &dev)?;
+                let old_logp = Tensor::from_vec(gather(&|r| &r.logp, 1, None), (t, b2), &dev)?;
+                let mut adv = gather(&|r| &r.advantages, 1, None);
                 let mean_adv = adv.iter().map(|&x| x as f64).sum::<f64>() / adv.len() as f64;
                 let std_adv = (adv.iter().map(|&x| (x as f64 - mean_adv).powi(2)).sum::<f64>() / adv.len() as f64)
                     .sqrt()
                     .max(1e-8);
                 adv.iter_mut()
                     .for_each(|x| *x = ((*x as f64 - mean_adv) / std_adv) as f32);
-                let adv = Tensor::from_vec(adv, (t, b), &dev)?;
-                let ret = Tensor::from_vec(gather(&|r| &r.returns, 1), t * b, &dev)?;
-                let old_v = Tensor::from_vec(gather(&|r| &r.values, 1), t * b, &dev)?;
-                let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c)), (t * b, c), &dev)?;
-                let mut h0 = Vec::with_capacity(b * HIDDEN);
-                let mut c0 = Vec::with_capacity(b * HIDDEN);
-                for &k in chunk {
-                    h0.extend_from_slice(&rolls[k].state0[..HIDDEN]);
-                    c0.extend_from_slice(&rolls[k].state0[HIDDEN..]);
-                }
-                let h0 = Tensor::from_vec(h0, (b, HIDDEN), &dev)?;
-                let c0 = Tensor::from_vec(c0, (b, HIDDEN), &dev)?;
+                let adv = Tensor::from_vec(adv, (t, b2), &dev)?;
+                let ret = Tensor::from_vec(gather(&|r| &r.returns, 1, None), t * b2, &dev)?;
+                let old_v = Tensor::from_vec(gather(&|r| &r.values, 1, None), t * b2, &dev)?;
+                let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c, m_critic)), (t * b2, c), &dev)?;
+                let hidden = ac.arch.lstm_hidden();
+                let state0 = if hidden > 0 {
+                    let mut h0 = Vec::with_capacity(b * hidden);
+                    let mut c0 = Vec::with_capacity(b * hidden);
+                    for &k in chunk {
+                        h0.extend_from_slice(&rolls[k].state0[..hidden]);
+                        c0.extend_from_slice(&rolls[k].state0[hidden..]);
+                    }
+                    Some((
+                        Tensor::from_vec(h0, (b, hidden), &dev)?,
+                        Tensor::from_vec(c0, (b, hidden), &dev)?,
+                    ))
+                } else {
+                    None
+                };
 
                 // Value loss (clipped around the rollout's values).
                 let v = ac.value(&cobs)?;
@@ -301,14 +333,17 @@ impl Learner {
                     continue;
                 }
 
-                let mean = ac.actor_sequence(&obs, &h0, &c0, &masks)?;
+                let mean = ac.actor_sequence(&obs, state0.as_ref().map(|(h, c)| (h, c)), &masks)?;
                 let log_std = ac.log_std();
                 // KL(old || new) on this minibatch (before the step) drives the learning rate.
                 let new_mean: Vec<f32> = mean.flatten_all()?.to_vec1()?;
                 let ls: Vec<f32> = log_std.to_vec1()?;
                 let old_ls = &ls; // σ changes little within one update; rsl_rl uses the stored σ
                 let mut kl = 0.0f64;
-                for (row_new, row_old) in new_mean.chunks_exact(a).zip(old_mean.chunks_exact(a)) {
+                // On the rollout's own rows only (as rsl_rl): a policy not yet symmetric is far
+                // from its mirror image, and that gap is not a step size.
+                let rows = new_mean.chunks_exact(a).zip(old_mean.chunks_exact(a)).enumerate();
+                for (_, (row_new, row_old)) in rows.filter(|(r, _)| r % b2 < b) {
                     for j in 0..a {
                         let (sn, so) = ((ls[j] as f64).exp(), (old_ls[j] as f64).exp());
                         kl += (sn / so).ln() + (so * so + (row_old[j] - row_new[j]).powi(2) as f64) / (2.0 * sn * sn)

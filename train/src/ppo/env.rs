@@ -6,8 +6,10 @@
 //! with the operator command (`firmware::operator`-style heading hold) and the privileged terrain
 //! token (`World::truth`, paper stage 1, refreshed at the perception rate of 10 Hz with noise shaped
 //! like the CNN's errors) → actor → `PolicyIo::apply_action` (clip, scale, joint-range clamp) → PD
-//! targets with the spec's gains → 4 physics steps of 5 ms, the new command arriving after a random
-//! latency of 0–4 of them. Rewards are in [`super::reward`].
+//! targets with the spec's gains → physics steps of 5 ms up to the spec's policy period (4 at
+//! 50 Hz), the new command arriving after a random latency of 0–4 of them. Rewards are in
+//! [`super::reward`]; the episode ends on the same walls the firmware's supervisor trips on
+//! (`firmware::supervisor::MotionLimits`, from the spec's `[safety]`), or a base too low.
 //!
 //! Determinism: an environment draws everything from its own seeded generator, so a rollout is the
 //! same for the same seed whatever the thread count.
@@ -15,7 +17,8 @@ use std::sync::Arc;
 
 use firmware::nn::Network;
 use firmware::policy_io::PolicyIo;
-use firmware::spec::DeploySpec;
+use firmware::spec::{DeploySpec, ObsKind};
+use firmware::supervisor::MotionLimits;
 use g1_sim::rng::Rng;
 use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
 use g1_sim::{ModelChoice, SimConfig, Simulator};
@@ -24,11 +27,49 @@ use mujoco_rs::mujoco_c::_mjtObjBase;
 
 use super::reward::{self, Terms, WEIGHTS};
 
+/// Physics step of training (the field's 5 ms with implicit integration).
 pub const PHYSICS_DT: f64 = 0.005;
-pub const DECIMATION: usize = 4;
-pub const POLICY_DT: f64 = PHYSICS_DT * DECIMATION as f64;
-/// Policy steps between terrain-token refreshes (perception at 10 Hz).
-pub const TOKEN_PERIOD: u32 = 5;
+
+/// The rates of training, from the spec's `[rates]`: what g1fw runs is what was trained.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Timing {
+    /// Physics steps per policy step (4 at 50 Hz).
+    pub decimation: usize,
+    /// Policy period, s.
+    pub policy_dt: f64,
+    /// Policy steps between terrain-token refreshes (the perception rate; 5 at 10 Hz).
+    pub token_period: u32,
+}
+
+impl Timing {
+    pub fn from_spec(spec: &DeploySpec) -> anyhow::Result<Self> {
+        let r = &spec.rates;
+        let per_policy = 1.0 / (r.policy_hz as f64 * PHYSICS_DT);
+        let decimation = per_policy.round() as usize;
+        anyhow::ensure!(
+            decimation >= 1 && (per_policy - decimation as f64).abs() < 1e-9,
+            "rates.policy_hz = {} is not a whole number of {PHYSICS_DT} s physics steps; \
+             the trainer needs policy_hz to divide {}",
+            r.policy_hz,
+            (1.0 / PHYSICS_DT).round()
+        );
+        anyhow::ensure!(
+            r.perception_hz >= 1 && r.policy_hz.is_multiple_of(r.perception_hz),
+            "rates.perception_hz = {} must divide rates.policy_hz = {} for training",
+            r.perception_hz,
+            r.policy_hz
+        );
+        Ok(Self {
+            decimation,
+            policy_dt: decimation as f64 * PHYSICS_DT,
+            token_period: r.policy_hz / r.perception_hz,
+        })
+    }
+}
+
+/// Where the soft joint-speed penalty starts, as a share of each joint's limit (legged_gym's
+/// `soft_dof_vel_limit`).
+pub const SOFT_JOINT_SPEED: f32 = 0.9;
 /// Curriculum levels: step height `0.05 + 0.021·level` m, 0.05 … 0.26 m.
 pub const LEVELS: usize = 11;
 /// Privileged critic inputs beyond the actor's observation: body velocity (3), base height above
@@ -145,7 +186,7 @@ impl Randomization {
     pub const DEFAULT: Self = Self {
         obs_noise: [0.2, 0.01, 1.5],
         token_noise: [0.01, 0.02, 0.045, 0.3],
-        max_latency_steps: DECIMATION,
+        max_latency_steps: 4, // 20 ms: one policy period at 50 Hz
         push_mps: 0.5,
         dynamics: true,
     };
@@ -186,7 +227,7 @@ pub struct StepOut {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct EpisodeEnd {
     pub column: Option<Column>,
-    /// Why it fell: 0 tilt, 1 joint speed, 2 base height (meaningful when `fell`).
+    /// Why it fell: an index into [`FALL_CAUSES`] (meaningful when `fell`).
     pub cause: usize,
     pub level: usize,
     pub success: bool,
@@ -195,8 +236,15 @@ pub struct EpisodeEnd {
     pub steps: usize,
 }
 
+/// Why an episode ended early, in the order [`EpisodeEnd::cause`] indexes.
+pub const FALL_CAUSES: [&str; 4] = ["tilt", "joint_speed", "base_height", "base_angular_speed"];
+
 pub struct StairEnv {
     cfg: EnvConfig,
+    timing: Timing,
+    limits: MotionLimits,
+    /// The spec's scale of the terrain token term (class, h, d, yaw), for the critic's true token.
+    token_scale: [f32; 4],
     sim: Simulator,
     io: PolicyIo,
     pub net: Network,
@@ -247,6 +295,15 @@ impl StairEnv {
         let world = World::preset("flat").expect("preset");
         let sim = Self::load_sim(&cfg, seed)?;
         let spec = &cfg.spec;
+        let timing = Timing::from_spec(spec)?;
+        let limits = MotionLimits::from_spec(spec);
+        let token_scale = spec
+            .observation
+            .terms
+            .iter()
+            .find(|t| t.kind == ObsKind::TerrainToken)
+            .and_then(|t| t.scale.expand(4))
+            .map_or([1.0; 4], |v| [v[0], v[1], v[2], v[3]]);
         let io = PolicyIo::new(spec);
         let net = Network::from_safetensors_bytes(&spec.policy.network, weights)?;
         // Driven and held motors exactly as the firmware commands them; slots the model lacks off.
@@ -269,7 +326,10 @@ impl StairEnv {
         let n = spec.num_joints();
         let level = rng.int(0, cfg.max_init_level as u64) as usize;
         let mut env = Self {
-            max_steps: (cfg.episode_s / POLICY_DT).round() as usize,
+            max_steps: (cfg.episode_s / timing.policy_dt).round() as usize,
+            timing,
+            limits,
+            token_scale,
             io,
             net,
             world,
@@ -394,7 +454,7 @@ impl StairEnv {
         self.io.reset();
         self.net.reset();
         self.latency = self.rng.int(0, r.max_latency_steps as u64) as usize;
-        self.token_phase = self.rng.int(0, TOKEN_PERIOD as u64 - 1) as u32;
+        self.token_phase = self.rng.int(0, self.timing.token_period as u64 - 1) as u32;
         self.vx_cmd = if self.rng.chance(0.05) {
             0.0
         } else {
@@ -422,7 +482,7 @@ impl StairEnv {
         self.target_q = self.default_q;
         self.cmd_now = self.command(&self.target_q.clone());
         self.cmd_prev = self.cmd_now;
-        for _ in 0..10 * DECIMATION {
+        for _ in 0..10 * self.timing.decimation {
             self.sim.apply_command(&self.cmd_now)?;
             self.sim.step_control_tick();
         }
@@ -441,7 +501,7 @@ impl StairEnv {
     }
 
     fn push_interval(&mut self) -> usize {
-        (self.rng.range(4.0, 8.0) / POLICY_DT) as usize
+        (self.rng.range(4.0, 8.0) / self.timing.policy_dt) as usize
     }
 
     fn slot_qpos_adr(&self) -> Vec<(usize, usize)> {
@@ -498,7 +558,7 @@ impl StairEnv {
     }
 
     fn refresh_token(&mut self, force: bool) {
-        if !force && !(self.step as u32 + self.token_phase).is_multiple_of(TOKEN_PERIOD) {
+        if !force && !(self.step as u32 + self.token_phase).is_multiple_of(self.timing.token_period) {
             return;
         }
         let t = self.sim.truth();
@@ -579,6 +639,20 @@ impl StairEnv {
         Ok(())
     }
 
+    /// The mirror image (left ↔ right, y → −y; see [`super::symmetry`]) of [`StairEnv::critic_extra`]'s
+    /// layout: body velocity (vx, −vy, vz), base height, token (yaw negated), foot contacts
+    /// swapped, terrain heights along the heading (on the mirror line: unchanged), foot heights
+    /// swapped.
+    pub fn critic_extra_mirror() -> super::symmetry::SignedPermutation {
+        let mut source: Vec<usize> = (0..CRITIC_EXTRA).collect();
+        let mut factor = vec![1.0f32; CRITIC_EXTRA];
+        factor[1] = -1.0; // vy
+        factor[7] = -1.0; // token yaw
+        source.swap(8, 9); // foot contacts
+        source.swap(8 + 2 + HEIGHT_SAMPLES, 9 + 2 + HEIGHT_SAMPLES); // foot heights
+        super::symmetry::SignedPermutation { source, factor }
+    }
+
     /// Privileged critic inputs (appended after the actor's observation).
     pub fn critic_extra(&self, out: &mut [f32]) {
         let t = self.sim.truth();
@@ -594,10 +668,11 @@ impl StairEnv {
             put(2.0 * v);
         }
         put(t.base_pos[2] - ground - 0.75);
-        put(z.class.index() as f64);
-        put(5.0 * z.step_height_m as f64);
-        put(2.5 * z.step_depth_m as f64);
-        put(z.yaw_rad as f64);
+        let ts = self.token_scale.map(f64::from);
+        put(ts[0] * z.class.index() as f64);
+        put(ts[1] * z.step_height_m as f64);
+        put(ts[2] * z.step_depth_m as f64);
+        put(ts[3] * z.yaw_rad as f64);
         put(t.foot_contact[0] as u8 as f64);
         put(t.foot_contact[1] as u8 as f64);
         let (c, s) = (yaw.cos(), yaw.sin());
@@ -617,7 +692,7 @@ impl StairEnv {
         self.io.apply_action(action, &mut self.target_q);
         self.cmd_prev = self.cmd_now;
         self.cmd_now = self.command(&self.target_q.clone());
-        for k in 0..DECIMATION {
+        for k in 0..self.timing.decimation {
             let c = if k < self.latency { self.cmd_prev } else { self.cmd_now };
             self.sim.apply_command(&c)?;
             self.sim.step_control_tick();
@@ -633,9 +708,9 @@ impl StairEnv {
         let was_success = self.succeeded();
         let (mut terms, terminated) = self.rewards(action);
         if !was_success && self.succeeded() {
-            terms.success = 1.0 / POLICY_DT;
+            terms.success = 1.0 / self.timing.policy_dt;
         }
-        let reward = terms.total(&WEIGHTS, POLICY_DT);
+        let reward = terms.total(&WEIGHTS, self.timing.policy_dt);
         self.ret += reward;
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);
@@ -665,15 +740,17 @@ impl StairEnv {
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
             ..Terms::default()
         };
-        let mut max_speed: f64 = 0.0;
+        let policy_dt = self.timing.policy_dt;
+        let mut too_fast = false;
         for (i, &slot) in self.slots.iter().enumerate() {
             let m = &self.state.motors[slot];
             let dq = m.dq as f64;
-            max_speed = max_speed.max(dq.abs());
-            r.joint_speed += (dq.abs() - reward::JOINT_SPEED_SOFT).max(0.0).powi(2);
+            too_fast |= self.limits.joint_too_fast(slot, m.dq);
+            let soft = (SOFT_JOINT_SPEED * self.limits.joint_speed_rad_s[slot]) as f64;
+            r.joint_speed += (dq.abs() - soft).max(0.0).powi(2);
             r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
             r.torques += self.sim.applied_torque(slot).powi(2);
-            r.joint_acc += ((dq - self.prev_dq[i] as f64) / POLICY_DT).powi(2);
+            r.joint_acc += ((dq - self.prev_dq[i] as f64) / policy_dt).powi(2);
             self.prev_dq[i] = m.dq;
             let name = hal::G1_MOTOR_NAMES[slot];
             let dev = (m.q - self.default_q[slot]).abs() as f64;
@@ -693,18 +770,18 @@ impl StairEnv {
         let mut in_mode = [0.0; 2];
         for f in 0..2 {
             let vel = [
-                (feet[f][0] - self.prev_foot[f][0]) / POLICY_DT,
-                (feet[f][1] - self.prev_foot[f][1]) / POLICY_DT,
+                (feet[f][0] - self.prev_foot[f][0]) / policy_dt,
+                (feet[f][1] - self.prev_foot[f][1]) / policy_dt,
             ];
             let speed = vel[0].hypot(vel[1]);
             if t.foot_contact[f] {
                 r.feet_slide += speed;
-                self.contact_time[f] += POLICY_DT;
+                self.contact_time[f] += policy_dt;
                 self.air_time[f] = 0.0;
                 single += 1;
                 in_mode[f] = self.contact_time[f];
             } else {
-                self.air_time[f] += POLICY_DT;
+                self.air_time[f] += policy_dt;
                 self.contact_time[f] = 0.0;
                 in_mode[f] = self.air_time[f];
                 let (ux, uy) = if speed > 1e-3 {
@@ -751,14 +828,14 @@ impl StairEnv {
         }
         // Progress along the staircase, for success and the curriculum.
         self.progress = self.progress.max(self.axis_s(t.base_pos[0], t.base_pos[1]));
-        let tilt = (1.0 - 2.0 * (t.base_quat[1].powi(2) + t.base_quat[2].powi(2)))
-            .clamp(-1.0, 1.0)
-            .acos();
+        // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
+        // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
         let causes = [
-            tilt > reward::TILT_LIMIT_RAD,
-            max_speed > reward::JOINT_SPEED_LIMIT,
+            self.limits.tilted(-g[2]),
+            too_fast,
             height < reward::MIN_BASE_HEIGHT,
+            self.limits.base_spinning(w.map(|x| x as f32)),
         ];
         let terminated = causes.iter().any(|&c| c);
         if terminated {
@@ -775,6 +852,16 @@ impl StairEnv {
 
     pub fn world(&self) -> &World {
         &self.world
+    }
+
+    /// The rates this environment trains at (from the spec's `[rates]`).
+    pub fn timing(&self) -> Timing {
+        self.timing
+    }
+
+    /// The walls an episode ends on (from the spec's `[safety]`, as the supervisor's).
+    pub fn limits(&self) -> &MotionLimits {
+        &self.limits
     }
 
     /// The current (noise-free) LowState, for parity tests.

@@ -3,7 +3,9 @@
 //!
 //! - [`env`]: one environment (simulator, world, curriculum, randomisation, privileged token).
 //! - [`reward`]: every reward term and weight.
-//! - [`policy`]: the actor (LSTM, the peer walker's shape) and critic in candle; export.
+//! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
+//!   history) and critic in candle; export.
+//! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
 //! - [`runner`]: the loop, worker threads, checkpoints, curves.
 pub mod algo;
@@ -11,3 +13,4 @@ pub mod env;
 pub mod policy;
 pub mod reward;
 pub mod runner;
+pub mod symmetry;

@@ -1,42 +1,257 @@
 //! The stair policy's networks in candle, for the PPO update, and their export to what `g1fw` runs.
 //!
-//! - Actor: the peer walker's architecture (Unitree's unitree_rl_gym G1 policy): a one-layer LSTM
-//!   (`obs → 64`), then `Linear(64 → 32)`, ELU, `Linear(32 → 12)`, plus a learned log standard
-//!   deviation per action. The rollout runs the *exported* actor in the firmware's executor
-//!   (`firmware::nn::Network`); this module replays rollouts through the same maths with autograd.
+//! - Actor: whatever the deploy spec's `[policy.network]` lists, from the layers the trainer can
+//!   differentiate: an optional single-layer LSTM first, then `linear` and `elu` layers. Tensor
+//!   names come from the spec, so the export is read by the same layer list; sizes come from a
+//!   weights file or, for a fresh actor, from `--actor-hidden`. Two shapes are in use: the peer
+//!   walker's (Unitree's unitree_rl_gym G1 policy: LSTM `obs → 64`, `Linear(64 → 32)`, ELU,
+//!   `Linear(32 → 12)`), and the field's MLP over a short observation history (IsaacLab,
+//!   unitree_rl_lab, mjlab: `linear`/`elu` only). A learned log standard deviation per action.
+//!   The rollout runs the *exported* actor in the firmware's executor (`firmware::nn::Network`);
+//!   this module replays rollouts through the same maths with autograd.
 //! - Critic: an MLP `[critic_obs → 128 → 64 → 1]`, ELU, on the actor's observation plus privileged
 //!   inputs (asymmetric actor–critic; see `env::CRITIC_EXTRA`). It never leaves the trainer. It
 //!   is small because the update is compute-bound on a CPU: at [256, 128] the critic was ~60 % of
 //!   the learner's FLOPs and the learner ~75 % of wall time.
-//!
-//! Tensor names follow the peer's safetensors (`memory.weight_ih_l0`, `actor.0.weight`, …), so the
-//! export is read by the same `[policy.network]` layer list as the peer spec.
 use std::collections::HashMap;
 use std::path::Path;
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{Init, VarMap};
+use firmware::nn::{LayerDesc, NetworkDesc};
 
-pub const HIDDEN: usize = 64;
-pub const MLP_HIDDEN: usize = 32;
 pub const CRITIC_HIDDEN: [usize; 2] = [128, 64];
 
-/// Actor tensor names in export order, with their shapes for `obs` inputs and `act` outputs.
-pub fn actor_shapes(obs: usize, act: usize) -> Vec<(&'static str, Vec<usize>)> {
-    vec![
-        ("memory.weight_ih_l0", vec![4 * HIDDEN, obs]),
-        ("memory.weight_hh_l0", vec![4 * HIDDEN, HIDDEN]),
-        ("memory.bias_ih_l0", vec![4 * HIDDEN]),
-        ("memory.bias_hh_l0", vec![4 * HIDDEN]),
-        ("actor.0.weight", vec![MLP_HIDDEN, HIDDEN]),
-        ("actor.0.bias", vec![MLP_HIDDEN]),
-        ("actor.2.weight", vec![act, MLP_HIDDEN]),
-        ("actor.2.bias", vec![act]),
-    ]
+/// One actor layer, in the order of the spec's `[policy.network]`, with its sizes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ActorLayer {
+    /// Single-layer LSTM `input → hidden` (PyTorch gate order i, f, g, o; both biases).
+    Lstm {
+        weight_ih: String,
+        weight_hh: String,
+        bias_ih: String,
+        bias_hh: String,
+        input: usize,
+        hidden: usize,
+    },
+    Linear {
+        weight: String,
+        bias: String,
+        input: usize,
+        output: usize,
+    },
+    Elu {
+        alpha: f64,
+    },
+}
+
+/// The actor's layers (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ActorArch {
+    pub layers: Vec<ActorLayer>,
+}
+
+/// Where the sizes of a spec's layers come from.
+pub enum Sizes<'a> {
+    /// The shapes of the named tensors in a safetensors file.
+    Weights(&'a [u8]),
+    /// A fresh actor: the output width of every shaped layer but the last (which has one output
+    /// per action).
+    Hidden(&'a [usize]),
+}
+
+impl ActorArch {
+    /// The peer walker's layout: LSTM `obs → 64`, `Linear(64 → 32)`, ELU, `Linear(32 → act)`.
+    pub fn peer_lstm(obs: usize, act: usize) -> Self {
+        let s = |x: &str| x.to_string();
+        Self {
+            layers: vec![
+                ActorLayer::Lstm {
+                    weight_ih: s("memory.weight_ih_l0"),
+                    weight_hh: s("memory.weight_hh_l0"),
+                    bias_ih: s("memory.bias_ih_l0"),
+                    bias_hh: s("memory.bias_hh_l0"),
+                    input: obs,
+                    hidden: 64,
+                },
+                ActorLayer::Linear {
+                    weight: s("actor.0.weight"),
+                    bias: s("actor.0.bias"),
+                    input: 64,
+                    output: 32,
+                },
+                ActorLayer::Elu { alpha: 1.0 },
+                ActorLayer::Linear {
+                    weight: s("actor.2.weight"),
+                    bias: s("actor.2.bias"),
+                    input: 32,
+                    output: act,
+                },
+            ],
+        }
+    }
+
+    /// The layers `desc` lists, sized by `sizes`, ending in `act` outputs.
+    pub fn from_desc(desc: &NetworkDesc, act: usize, sizes: Sizes<'_>) -> anyhow::Result<Self> {
+        let file = match sizes {
+            Sizes::Weights(bytes) => Some(safetensors::SafeTensors::deserialize(bytes)?),
+            Sizes::Hidden(_) => None,
+        };
+        let shape = |name: &str| -> anyhow::Result<Vec<usize>> {
+            let f = file.as_ref().expect("weights given");
+            Ok(f.tensor(name)
+                .map_err(|_| anyhow::anyhow!("the weights have no tensor {name} (named in [policy.network])"))?
+                .shape()
+                .to_vec())
+        };
+        let n_shaped = desc
+            .layers
+            .iter()
+            .filter(|l| matches!(l, LayerDesc::Linear { .. } | LayerDesc::Lstm { .. }))
+            .count();
+        let mut next_hidden = {
+            let hidden: Vec<usize> = match &sizes {
+                Sizes::Hidden(h) => h.to_vec(),
+                Sizes::Weights(_) => Vec::new(),
+            };
+            if file.is_none() {
+                anyhow::ensure!(
+                    hidden.len() + 1 == n_shaped,
+                    "[policy.network] has {n_shaped} linear/lstm layers: give {} hidden sizes (--actor-hidden), got {}",
+                    n_shaped - 1,
+                    hidden.len()
+                );
+            }
+            hidden.into_iter()
+        };
+        let mut width = desc.input;
+        let mut shaped = 0;
+        let mut layers = Vec::new();
+        for (i, l) in desc.layers.iter().enumerate() {
+            match l {
+                LayerDesc::Lstm {
+                    weight_ih,
+                    weight_hh,
+                    bias_ih,
+                    bias_hh,
+                    ..
+                } => {
+                    anyhow::ensure!(i == 0, "the trainer supports an LSTM only as the first layer");
+                    shaped += 1;
+                    let hidden = match &file {
+                        Some(_) => shape(weight_hh)?[1],
+                        None => next_hidden.next().unwrap_or(act),
+                    };
+                    layers.push(ActorLayer::Lstm {
+                        weight_ih: weight_ih.clone(),
+                        weight_hh: weight_hh.clone(),
+                        bias_ih: bias_ih.clone(),
+                        bias_hh: bias_hh.clone(),
+                        input: width,
+                        hidden,
+                    });
+                    width = hidden;
+                }
+                LayerDesc::Linear { weight, bias } => {
+                    shaped += 1;
+                    let output = match &file {
+                        Some(_) => shape(weight)?[0],
+                        None if shaped == n_shaped => act,
+                        None => next_hidden.next().unwrap_or(act),
+                    };
+                    layers.push(ActorLayer::Linear {
+                        weight: weight.clone(),
+                        bias: bias.clone(),
+                        input: width,
+                        output,
+                    });
+                    width = output;
+                }
+                LayerDesc::Elu { alpha } => layers.push(ActorLayer::Elu { alpha: *alpha as f64 }),
+                other => anyhow::bail!(
+                    "[policy.network] layer {i} is {}: the PPO trainer differentiates lstm, linear and elu only",
+                    other.kind()
+                ),
+            }
+        }
+        anyhow::ensure!(
+            width == act,
+            "[policy.network] ends in {width} outputs, the spec drives {act} joints"
+        );
+        Ok(Self { layers })
+    }
+
+    /// LSTM hidden size (0 without an LSTM): the recurrent state is `h` then `c`, `2 × hidden`.
+    pub fn lstm_hidden(&self) -> usize {
+        match self.layers.first() {
+            Some(ActorLayer::Lstm { hidden, .. }) => *hidden,
+            _ => 0,
+        }
+    }
+
+    pub fn input(&self) -> usize {
+        match self.layers.first() {
+            Some(ActorLayer::Lstm { input, .. } | ActorLayer::Linear { input, .. }) => *input,
+            _ => 0,
+        }
+    }
+
+    /// Tensor names and shapes, in layer order.
+    pub fn shapes(&self) -> Vec<(String, Vec<usize>)> {
+        let mut v = Vec::new();
+        for l in &self.layers {
+            match l {
+                ActorLayer::Lstm {
+                    weight_ih,
+                    weight_hh,
+                    bias_ih,
+                    bias_hh,
+                    input,
+                    hidden,
+                } => {
+                    v.push((weight_ih.clone(), vec![4 * hidden, *input]));
+                    v.push((weight_hh.clone(), vec![4 * hidden, *hidden]));
+                    v.push((bias_ih.clone(), vec![4 * hidden]));
+                    v.push((bias_hh.clone(), vec![4 * hidden]));
+                }
+                ActorLayer::Linear {
+                    weight,
+                    bias,
+                    input,
+                    output,
+                } => {
+                    v.push((weight.clone(), vec![*output, *input]));
+                    v.push((bias.clone(), vec![*output]));
+                }
+                ActorLayer::Elu { .. } => {}
+            }
+        }
+        v
+    }
+
+    /// The fan-in of a linear layer's tensor (weight or bias); `None` for an LSTM's.
+    fn fan_in(&self, name: &str) -> Option<usize> {
+        self.layers.iter().find_map(|l| match l {
+            ActorLayer::Linear {
+                weight, bias, input, ..
+            } if weight == name || bias == name => Some(*input),
+            _ => None,
+        })
+    }
+
+    /// The name of the matrix that reads the observation (widened by a warm start).
+    fn input_matrix(&self) -> Option<&str> {
+        match self.layers.first() {
+            Some(ActorLayer::Lstm { weight_ih, .. }) => Some(weight_ih),
+            Some(ActorLayer::Linear { weight, .. }) => Some(weight),
+            _ => None,
+        }
+    }
 }
 
 pub struct ActorCritic {
     pub vars: VarMap,
+    pub arch: ActorArch,
     pub obs_dim: usize,
     pub critic_dim: usize,
     pub act_dim: usize,
@@ -46,15 +261,21 @@ fn get(vars: &VarMap, name: &str) -> Tensor {
     vars.data().lock().expect("var map lock")[name].as_tensor().clone()
 }
 
-fn elu(x: &Tensor) -> Result<Tensor> {
-    // elu(x) = relu(x) + (exp(min(x, 0)) - 1), alpha 1; built from ops candle differentiates.
+fn elu(x: &Tensor, alpha: f64) -> Result<Tensor> {
+    // elu(x) = relu(x) + alpha (exp(min(x, 0)) - 1); built from ops candle differentiates.
     let neg = x.neg()?.relu()?.neg()?;
-    x.relu()? + (neg.exp()? - 1.0)?
+    x.relu()? + ((neg.exp()? - 1.0)? * alpha)?
 }
 
 impl ActorCritic {
-    /// Fresh networks: actor and critic with PyTorch-like uniform init, log std = ln(`init_std`).
+    /// The peer walker's LSTM actor ([`ActorArch::peer_lstm`]) and a fresh critic.
     pub fn new(obs_dim: usize, critic_dim: usize, act_dim: usize, init_std: f64, seed: u64) -> Result<Self> {
+        Self::with_arch(ActorArch::peer_lstm(obs_dim, act_dim), critic_dim, init_std, seed)
+    }
+
+    /// Fresh networks: actor `arch` and the critic with PyTorch-like uniform init, log std =
+    /// ln(`init_std`).
+    pub fn with_arch(arch: ActorArch, critic_dim: usize, init_std: f64, seed: u64) -> Result<Self> {
         // candle's CPU device cannot be seeded: draw the initial weights from our own generator.
         let dev = Device::Cpu;
         let mut rng = g1_sim::rng::Rng(seed ^ 0x1417_AC70);
@@ -66,13 +287,14 @@ impl ActorCritic {
             vars.data().lock().expect("var map lock")[name].set(&Tensor::from_vec(v, shape, &dev)?)?;
             Ok(())
         };
-        for (name, shape) in actor_shapes(obs_dim, act_dim) {
-            let fan_in = if name.starts_with("memory") {
-                HIDDEN
-            } else {
-                *shape.last().unwrap()
+        // PyTorch's defaults: an LSTM's tensors ±1/√hidden, a linear layer's ±1/√fan_in.
+        let lstm_hidden = arch.lstm_hidden();
+        for (name, shape) in arch.shapes() {
+            let bound = match arch.fan_in(&name) {
+                Some(f) => 1.0 / (f as f64).sqrt(),
+                None => 1.0 / (lstm_hidden as f64).sqrt(),
             };
-            uniform(name, shape, 1.0 / (fan_in as f64).sqrt())?;
+            uniform(&name, shape, bound)?;
         }
         let mut fan_in = critic_dim;
         for (i, &w) in CRITIC_HIDDEN.iter().chain(&[1]).enumerate() {
@@ -84,31 +306,46 @@ impl ActorCritic {
             vars.get(w, &format!("critic.{i}.bias"), Init::Const(0.0), DType::F32, &dev)?;
             fan_in = w;
         }
+        let act_dim = match arch.layers.iter().rev().find_map(|l| match l {
+            ActorLayer::Linear { output, .. } => Some(*output),
+            ActorLayer::Lstm { hidden, .. } => Some(*hidden),
+            ActorLayer::Elu { .. } => None,
+        }) {
+            Some(a) => a,
+            None => return Err(candle_core::Error::Msg("the actor has no linear or lstm layer".into())),
+        };
         vars.get(act_dim, "log_std", Init::Const(init_std.ln()), DType::F32, &dev)?;
         Ok(Self {
             vars,
-            obs_dim,
+            obs_dim: arch.input(),
+            arch,
             critic_dim,
             act_dim,
         })
     }
 
-    /// Overwrites actor tensors from a safetensors file with the peer's names. A `weight_ih`
+    /// Length of the actor's recurrent state (`h` then `c`; 0 for an MLP).
+    pub fn state_len(&self) -> usize {
+        2 * self.arch.lstm_hidden()
+    }
+
+    /// Overwrites actor tensors from a safetensors file with the spec's names. An input matrix
     /// narrower than ours is widened with zero columns on the right (the warm start: the peer
     /// walker, its input widened by the terrain token at zero weight).
     pub fn load_actor_widened(&self, path: &Path) -> anyhow::Result<usize> {
         let src = candle_core::safetensors::load(path, &Device::Cpu)?;
         let mut loaded = 0;
-        for (name, shape) in actor_shapes(self.obs_dim, self.act_dim) {
-            let Some(t) = src.get(name) else {
+        let input = self.arch.input_matrix().map(str::to_string);
+        for (name, shape) in self.arch.shapes() {
+            let Some(t) = src.get(&name) else {
                 anyhow::bail!(
-                    "{}: no tensor {name}; is it an LSTM-64 actor like the peer's?",
+                    "{}: no tensor {name}; is it an actor of the spec's [policy.network] layout?",
                     path.display()
                 )
             };
             let t = t.to_dtype(DType::F32)?;
-            let t = if name == "memory.weight_ih_l0" && t.dim(1)? < self.obs_dim {
-                let pad = Tensor::zeros((4 * HIDDEN, self.obs_dim - t.dim(1)?), DType::F32, &Device::Cpu)?;
+            let t = if Some(&name) == input.as_ref() && t.dim(1)? < self.obs_dim {
+                let pad = Tensor::zeros((t.dim(0)?, self.obs_dim - t.dim(1)?), DType::F32, &Device::Cpu)?;
                 Tensor::cat(&[&t, &pad], 1)?
             } else {
                 t
@@ -116,7 +353,7 @@ impl ActorCritic {
             if t.dims() != shape.as_slice() {
                 anyhow::bail!("{}: {name} is {:?}, need {:?}", path.display(), t.dims(), shape);
             }
-            self.vars.data().lock().unwrap()[name].set(&t)?;
+            self.vars.data().lock().unwrap()[&name].set(&t)?;
             loaded += 1;
         }
         Ok(loaded)
@@ -126,45 +363,57 @@ impl ActorCritic {
         get(&self.vars, "log_std")
     }
 
-    /// Actor means over sequences. `obs` [T, B, obs], `h0`/`c0` [B, 64] (the state before step 0),
-    /// `masks` [T, B, 1]: 0 where an episode starts at that step (state reset to zero first).
-    pub fn actor_sequence(&self, obs: &Tensor, h0: &Tensor, c0: &Tensor, masks: &Tensor) -> Result<Tensor> {
+    /// Actor means over sequences. `obs` [T, B, obs]; for an LSTM actor `h0`/`c0` [B, hidden] (the
+    /// state before step 0) and `masks` [T, B, 1]: 0 where an episode starts at that step (state
+    /// reset to zero first); an MLP ignores them (pass `None`).
+    pub fn actor_sequence(&self, obs: &Tensor, state0: Option<(&Tensor, &Tensor)>, masks: &Tensor) -> Result<Tensor> {
         let (t, b, i) = obs.dims3()?;
-        let w_ih = get(&self.vars, "memory.weight_ih_l0");
-        let w_hh = get(&self.vars, "memory.weight_hh_l0");
-        let bias = (get(&self.vars, "memory.bias_ih_l0") + get(&self.vars, "memory.bias_hh_l0"))?;
-        let xproj = obs
-            .reshape((t * b, i))?
-            .matmul(&w_ih.t()?)?
-            .broadcast_add(&bias)?
-            .reshape((t, b, 4 * HIDDEN))?;
-        let w_hh_t = w_hh.t()?;
-        let (mut h, mut c) = (h0.clone(), c0.clone());
-        let mut outs = Vec::with_capacity(t);
-        for s in 0..t {
-            let m = masks.get(s)?;
-            h = h.broadcast_mul(&m)?;
-            c = c.broadcast_mul(&m)?;
-            let g = (xproj.get(s)? + h.matmul(&w_hh_t)?)?;
-            // One sigmoid over all four gate blocks (the g block's is unused): the update's cost
-            // is the number of ops per step, not their size.
-            let sg = candle_nn::ops::sigmoid(&g)?;
-            let gi = sg.narrow(1, 0, HIDDEN)?;
-            let gf = sg.narrow(1, HIDDEN, HIDDEN)?;
-            let gg = g.narrow(1, 2 * HIDDEN, HIDDEN)?.tanh()?;
-            let go = sg.narrow(1, 3 * HIDDEN, HIDDEN)?;
-            c = ((gf * &c)? + (gi * gg)?)?;
-            h = (go * c.tanh()?)?;
-            outs.push(h.clone());
+        let mut x = obs.reshape((t * b, i))?;
+        for l in &self.arch.layers {
+            x = match l {
+                ActorLayer::Lstm {
+                    weight_ih,
+                    weight_hh,
+                    bias_ih,
+                    bias_hh,
+                    hidden,
+                    ..
+                } => {
+                    let hd = *hidden;
+                    let (h0, c0) =
+                        state0.ok_or_else(|| candle_core::Error::Msg("an LSTM actor needs its state".into()))?;
+                    let w_ih = get(&self.vars, weight_ih);
+                    let w_hh = get(&self.vars, weight_hh);
+                    let bias = (get(&self.vars, bias_ih) + get(&self.vars, bias_hh))?;
+                    let xproj = x.matmul(&w_ih.t()?)?.broadcast_add(&bias)?.reshape((t, b, 4 * hd))?;
+                    let w_hh_t = w_hh.t()?;
+                    let (mut h, mut c) = (h0.clone(), c0.clone());
+                    let mut outs = Vec::with_capacity(t);
+                    for s in 0..t {
+                        let m = masks.get(s)?;
+                        h = h.broadcast_mul(&m)?;
+                        c = c.broadcast_mul(&m)?;
+                        let g = (xproj.get(s)? + h.matmul(&w_hh_t)?)?;
+                        // One sigmoid over all four gate blocks (the g block's is unused): the
+                        // update's cost is the number of ops per step, not their size.
+                        let sg = candle_nn::ops::sigmoid(&g)?;
+                        let gi = sg.narrow(1, 0, hd)?;
+                        let gf = sg.narrow(1, hd, hd)?;
+                        let gg = g.narrow(1, 2 * hd, hd)?.tanh()?;
+                        let go = sg.narrow(1, 3 * hd, hd)?;
+                        c = ((gf * &c)? + (gi * gg)?)?;
+                        h = (go * c.tanh()?)?;
+                        outs.push(h.clone());
+                    }
+                    Tensor::stack(&outs, 0)?.reshape((t * b, hd))?
+                }
+                ActorLayer::Linear { weight, bias, .. } => x
+                    .matmul(&get(&self.vars, weight).t()?)?
+                    .broadcast_add(&get(&self.vars, bias))?,
+                ActorLayer::Elu { alpha } => elu(&x, *alpha)?,
+            };
         }
-        let hs = Tensor::stack(&outs, 0)?.reshape((t * b, HIDDEN))?;
-        let y = elu(&hs
-            .matmul(&get(&self.vars, "actor.0.weight").t()?)?
-            .broadcast_add(&get(&self.vars, "actor.0.bias"))?)?;
-        let mean = y
-            .matmul(&get(&self.vars, "actor.2.weight").t()?)?
-            .broadcast_add(&get(&self.vars, "actor.2.bias"))?;
-        mean.reshape((t, b, self.act_dim))
+        x.reshape((t, b, self.act_dim))
     }
 
     /// Values of a batch of (normalised) critic observations [N, critic] → [N].
@@ -176,18 +425,19 @@ impl ActorCritic {
                 .matmul(&get(&self.vars, &format!("critic.{i}.weight")).t()?)?
                 .broadcast_add(&get(&self.vars, &format!("critic.{i}.bias")))?;
             if i < n {
-                h = elu(&h)?;
+                h = elu(&h, 1.0)?;
             }
         }
         h.squeeze(1)
     }
 
-    /// The actor as a safetensors file in the peer's layout (what the stair spec's
-    /// `[policy.network]` reads).
+    /// The actor as a safetensors file with the spec's tensor names (what its `[policy.network]`
+    /// reads).
     pub fn actor_safetensors(&self) -> anyhow::Result<Vec<u8>> {
         let mut map: HashMap<String, Tensor> = HashMap::new();
-        for (name, _) in actor_shapes(self.obs_dim, self.act_dim) {
-            map.insert(name.to_string(), get(&self.vars, name));
+        for (name, _) in self.arch.shapes() {
+            let t = get(&self.vars, &name);
+            map.insert(name, t);
         }
         let mut names: Vec<_> = map.keys().cloned().collect();
         names.sort();

@@ -18,12 +18,12 @@
 //! | `torques` | Σ τ² (legs) | −1.5e-7 |
 //! | `joint_acc` | Σ q̈² (finite difference over the policy step) | −1.25e-7 |
 //! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
-//! | `joint_speed` | Σ max(\|q̇\| − 7 rad/s, 0)²: a soft wall before g1fw's 10 rad/s guard trips | −1.0 |
+//! | `joint_speed` | Σ max(\|q̇\| − 0.9 × the joint's limit, 0)² (legged_gym's `soft_dof_vel_limit`; limits from the spec, as the supervisor's) | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under and 0.12 m ahead of the foot | −10 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain | −1.0 |
-//! | `termination` | 1 on a fall or safety trip (not on time-out or success) | −200 |
+//! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) (not on time-out or success) | −200 |
 //! | `success` | 1 / dt on the step the base reaches the end landing (a one-off +10) | +10 |
 //!
 //! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
@@ -35,8 +35,10 @@
 //! the riser and time out (run 5: success 0–25 % at 5 cm steps after 7 M steps, most stair episodes
 //! ending by time-out). The bonus pays for the attempt.
 //!
-//! Terminations mirror what stops the robot in `g1fw`: tilt past the supervisor's 1 rad, any leg
-//! joint faster than its 10 rad/s guard, or the base within 0.4 m of the ground under it (fallen).
+//! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
+//! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
+//! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
+//! under it (fallen).
 
 /// Term weights (see the module table): one [`Terms`] value per term.
 pub type Weights = Terms;
@@ -69,11 +71,9 @@ pub const AIR_TIME_THRESHOLD: f64 = 0.4;
 pub const CLEARANCE_TARGET: f64 = 0.10;
 /// How far ahead of the swing foot the terrain counts for clearance, m.
 pub const CLEARANCE_LOOKAHEAD: f64 = 0.12;
-/// Termination limits.
-pub const TILT_LIMIT_RAD: f64 = 1.0;
-pub const JOINT_SPEED_LIMIT: f64 = 10.0;
-/// Where the soft joint-speed penalty starts, rad/s.
-pub const JOINT_SPEED_SOFT: f64 = 7.0;
+/// Base height above the ground under it below which the episode ends, m. (Tilt, joint-speed and
+/// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
+/// `firmware::supervisor::MotionLimits`.)
 pub const MIN_BASE_HEIGHT: f64 = 0.4;
 
 /// Raw term values of one step (before weights and dt); `Terms::total` applies them.

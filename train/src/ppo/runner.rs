@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
 use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
-use super::policy::ActorCritic;
+use super::policy::{ActorArch, ActorCritic, Sizes};
 
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
 /// Folder of the actor at every checkpoint, named by env steps (`g1fw eval --weights`).
@@ -30,8 +30,13 @@ pub struct RunConfig {
     pub threads: usize,
     pub iterations: usize,
     pub seed: u64,
-    /// Warm start: an actor in the peer's layout (its input widened with zero columns).
+    /// Warm start: an actor in the spec's layout (its input widened with zero columns).
     pub init_actor: Option<PathBuf>,
+    /// Hidden sizes of a fresh actor (one per linear/lstm layer of the spec's network but the
+    /// last); unused when resuming or warm-starting, where the weights give them.
+    pub actor_hidden: Vec<usize>,
+    /// Learn every transition mirrored too (left–right symmetry; feed-forward actors only).
+    pub symmetry: bool,
     pub init_std: f64,
     pub critic_warmup: usize,
     pub episode_s: f64,
@@ -57,12 +62,19 @@ pub struct IterLog {
     pub mean_episode_return: Option<f64>,
     pub success_rate: Option<f64>,
     pub fall_rate: Option<f64>,
-    /// Falls by cause: tilt, joint speed guard, base height.
+    /// Falls by cause, in the order of `env::FALL_CAUSES` (tilt, joint speed, base height, base
+    /// angular speed; histories written before the last was added have three).
     #[serde(default)]
-    pub fall_causes: [usize; 3],
+    pub fall_causes: Vec<usize>,
     pub mean_level: f64,
     pub env_steps_per_s: f64,
     pub learner_share: f64,
+    /// Wall time of this iteration's rollouts (the slowest worker) and of the update, s. They
+    /// overlap: the iteration takes about the longer of the two.
+    #[serde(default)]
+    pub rollout_s: f64,
+    #[serde(default)]
+    pub update_s: f64,
     pub update: UpdateStats,
 }
 
@@ -142,11 +154,28 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let obs_dim = spec.observation_dim();
     let act_dim = spec.num_joints();
     let critic_dim = obs_dim + CRITIC_EXTRA;
-    let mut ac = ActorCritic::new(obs_dim, critic_dim, act_dim, cfg.init_std, cfg.seed)?;
     let ckpt = cfg.out.join(CHECKPOINT);
     let state_path = cfg.out.join(STATE);
+    let resuming = ckpt.exists() && state_path.exists();
+    // The actor's layers are the spec's; their sizes come from the weights it continues from.
+    let sized_by = if resuming {
+        Some(ckpt.clone())
+    } else {
+        cfg.init_actor.clone()
+    };
+    let bytes = match &sized_by {
+        Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
+        None => None,
+    };
+    let sizes = match &bytes {
+        Some(b) => Sizes::Weights(b),
+        None => Sizes::Hidden(&cfg.actor_hidden),
+    };
+    let arch = ActorArch::from_desc(&spec.policy.network, act_dim, sizes)
+        .with_context(|| format!("the actor of {}", cfg.spec.display()))?;
+    let mut ac = ActorCritic::with_arch(arch, critic_dim, cfg.init_std, cfg.seed)?;
     let mut history: Vec<IterLog> = Vec::new();
-    let mut state = if ckpt.exists() && state_path.exists() {
+    let mut state = if resuming {
         ac.load(&ckpt)?;
         let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
         if let Ok(h) = std::fs::read_to_string(cfg.out.join(HISTORY)) {
@@ -180,7 +209,21 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             started_from,
         }
     };
+    let mirror = if cfg.symmetry {
+        Some(super::symmetry::Mirror::from_spec(
+            &spec,
+            &StairEnv::critic_extra_mirror(),
+        )?)
+    } else {
+        None
+    };
     let weights = ac.actor_safetensors()?;
+    // The export beside the checkpoint carries the spec's weights file name.
+    let weights_name = spec
+        .policy
+        .weights
+        .file_name()
+        .map_or_else(|| "policy.safetensors".into(), |n| n.to_os_string());
     let env_cfg = EnvConfig {
         model: cfg.model.clone(),
         spec: Arc::new(spec),
@@ -203,14 +246,14 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         }
         slots.push(Slot {
             env,
-            roll: EnvRollout::new(cfg.ppo.steps, obs_dim, critic_dim, act_dim),
+            roll: EnvRollout::new(cfg.ppo.steps, obs_dim, critic_dim, act_dim, ac.state_len()),
             rng: Rng(seed ^ 0xAC7_10A5),
             ends: Vec::new(),
         });
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed ^ state.iteration as u64)?;
+    let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed ^ state.iteration as u64, mirror)?;
     learner.lr = state.lr;
 
     let start = Instant::now();
@@ -221,11 +264,12 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let threads = cfg.threads.max(1);
     // The environments form two halves that take turns: while one half rolls out on the worker
     // threads with the newest weights, the learner (this thread) updates on the other half's
-    // rollout, which is one update old (PPO's ratio and clip take the lag). Both cores stay busy:
-    // rollouts alone use ~1/3 of an iteration's wall time, the update the rest, on one core.
+    // rollout, which is one update old (PPO's ratio and clip take the lag). There is a worker per
+    // core, so a cheap update (an MLP) leaves every core to the simulation, and an expensive one
+    // (the LSTM's recurrent replay) still overlaps it.
     let half = slots.len() / 2;
     anyhow::ensure!(half > 0, "--envs must be at least 2 (two halves take turns)");
-    let workers = threads.saturating_sub(1).max(1);
+    let workers = threads;
     let mut have_data = [false; 2];
     let mut turn = state.iteration % 2;
     while state.iteration < cfg.iterations {
@@ -236,7 +280,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         let learn_idx = 1 - turn;
         let mut rolls: Vec<EnvRollout> = learning
             .iter_mut()
-            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0)))
+            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0, 0)))
             .collect();
         let per = rolling.len().div_ceil(workers);
         let critic_only = state.iteration < cfg.critic_warmup;
@@ -245,7 +289,11 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
                 .chunks_mut(per)
                 .map(|chunk| {
                     let ls = &log_std;
-                    s.spawn(move || rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim))
+                    s.spawn(move || {
+                        let t = Instant::now();
+                        let r = rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim);
+                        (r, t.elapsed().as_secs_f64())
+                    })
                 })
                 .collect();
             let learned = if have_data[learn_idx] {
@@ -261,14 +309,16 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             } else {
                 None
             };
-            let results: Vec<anyhow::Result<()>> = handles
+            let results: Vec<(anyhow::Result<()>, f64)> = handles
                 .into_iter()
                 .map(|h| h.join().expect("rollout worker panicked"))
                 .collect();
             (results, learned)
         });
-        for r in results {
+        let mut t_rollout = 0.0f64;
+        for (r, t) in results {
             r?;
+            t_rollout = t_rollout.max(t);
         }
         have_data[turn] = true;
         let t_iter = t0.elapsed().as_secs_f64();
@@ -316,10 +366,14 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             success_rate: (!stair_ends.is_empty())
                 .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
             fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
-            fall_causes: [0, 1, 2].map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count()),
+            fall_causes: (0..super::env::FALL_CAUSES.len())
+                .map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count())
+                .collect(),
             mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
             env_steps_per_s: steps as f64 / t_iter,
             learner_share: t_learn / t_iter,
+            rollout_s: t_rollout,
+            update_s: t_learn,
             update: stats,
         };
         bar.set_message(format!(
@@ -343,7 +397,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             || out_of_time
         {
             state.levels = slots.iter().map(|s| s.env.level).collect();
-            save(&ac, &state, &history, &cfg.out)?;
+            save(&ac, &state, &history, &cfg.out, &weights_name)?;
             last_ckpt = Instant::now();
         }
         if out_of_time {
@@ -355,7 +409,13 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     Ok(history)
 }
 
-fn save(ac: &ActorCritic, state: &RunState, history: &[IterLog], out: &Path) -> anyhow::Result<()> {
+fn save(
+    ac: &ActorCritic,
+    state: &RunState,
+    history: &[IterLog],
+    out: &Path,
+    weights_name: &std::ffi::OsStr,
+) -> anyhow::Result<()> {
     // Write then rename, so a run killed mid-write keeps the previous checkpoint.
     let tmp = out.join(format!("{CHECKPOINT}.tmp"));
     ac.save(&tmp)?;
@@ -363,7 +423,7 @@ fn save(ac: &ActorCritic, state: &RunState, history: &[IterLog], out: &Path) -> 
     std::fs::write(out.join(STATE), serde_json::to_string_pretty(state)?)?;
     std::fs::write(out.join(HISTORY), serde_json::to_string(history)?)?;
     let actor = ac.actor_safetensors()?;
-    std::fs::write(out.join("g1_stairs_lstm.safetensors"), &actor)?;
+    std::fs::write(out.join(weights_name), &actor)?;
     // Every checkpoint's actor is kept (130 KB each): training's own success rate does not rank
     // checkpoints as `g1fw eval` does (docs/stair_policy.md), so the choice is made afterwards.
     let actors = out.join(ACTORS);
@@ -380,7 +440,9 @@ fn save(ac: &ActorCritic, state: &RunState, history: &[IterLog], out: &Path) -> 
 pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
     let spec = DeploySpec::load(spec_path)?;
     let obs = spec.observation_dim();
-    let mut ac = ActorCritic::new(obs, obs + CRITIC_EXTRA, spec.num_joints(), 1.0, 0)?;
+    let bytes = std::fs::read(checkpoint).with_context(|| format!("reading {}", checkpoint.display()))?;
+    let arch = ActorArch::from_desc(&spec.policy.network, spec.num_joints(), Sizes::Weights(&bytes))?;
+    let mut ac = ActorCritic::with_arch(arch, obs + CRITIC_EXTRA, 1.0, 0)?;
     ac.load(checkpoint)?;
     let path = spec.weights_path();
     std::fs::write(&path, ac.actor_safetensors()?)?;
