@@ -57,6 +57,7 @@ fn whole_loop(
     init_actor: Option<std::path::PathBuf>,
     actor_hidden: Vec<usize>,
     symmetry: bool,
+    ppo: train::ppo::algo::PpoConfig,
     threads: usize,
     envs: usize,
 ) -> anyhow::Result<(f64, f64, f64, f64)> {
@@ -76,7 +77,7 @@ fn whole_loop(
         init_std: 0.3,
         critic_warmup: 0,
         episode_s: 12.0,
-        ppo: Default::default(),
+        ppo,
         random: Randomization::DEFAULT,
         max_init_level: 2,
         only: None,
@@ -147,11 +148,18 @@ fn main() -> anyhow::Result<()> {
     let mlp_ac = ActorCritic::with_arch(mlp_arch, mlp.observation_dim() + train::ppo::env::CRITIC_EXTRA, 0.3, 0)?;
     let (mlp_env, mlp_resets) = one_env(&mlp, &mlp_ac.actor_safetensors()?, 3000)?;
 
-    // 3. The whole loop.
-    let (lstm_loop, lstm_share, lstm_roll, lstm_upd) =
-        whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, threads, 128)?;
-    let (mlp_loop, mlp_share, mlp_roll, mlp_upd) =
-        whole_loop(&mlp_path, None, MLP_HIDDEN.to_vec(), true, threads, 128)?;
+    // 3. The whole loop: the LSTM warm start as run 5 trained it; the MLP with symmetry, with the
+    // field's update (5 epochs × 4 minibatches, [256, 128, 128]) and with the recipe this machine
+    // affords (2 × 2, [128, 64, 64]).
+    let field = train::ppo::algo::PpoConfig::default();
+    let lean = train::ppo::algo::PpoConfig {
+        epochs: 2,
+        minibatches: 2,
+        ..field
+    };
+    let lstm_loop = whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, field, threads, 128)?;
+    let big_loop = whole_loop(&mlp_path, None, vec![256, 128, 128], true, field, threads, 128)?;
+    let mlp_loop = whole_loop(&mlp_path, None, MLP_HIDDEN.to_vec(), true, lean, threads, 128)?;
 
     println!("PPO throughput (12-dof G1, physics dt {PHYSICS_DT} s, decimation {decimation}, {threads} threads)");
     println!("  bare mj_step (stairs world), one thread  {mj_us:8.1} µs/step  = {bare_one:8.0} env steps/s");
@@ -165,12 +173,13 @@ fn main() -> anyhow::Result<()> {
         MLP_HIDDEN,
         mlp_env / bare_one
     );
-    for (name, rate, share, roll, upd) in [
-        ("LSTM-64, warm start     ", lstm_loop, lstm_share, lstm_roll, lstm_upd),
-        ("MLP + symmetry, fresh   ", mlp_loop, mlp_share, mlp_roll, mlp_upd),
+    for (name, (rate, share, roll, upd)) in [
+        ("LSTM-64 warm start, 5 × 4 epochs × minibatches        ", lstm_loop),
+        ("MLP [256, 128, 128] + symmetry, 5 × 4                 ", big_loop),
+        ("MLP [128, 64, 64] + symmetry, 2 × 2 (the recipe)      ", mlp_loop),
     ] {
         println!(
-            "  g1-train ppo, {name} {rate:8.0} env steps/s  = {:.2} × the ceiling; rollout {roll:.2} s, update {upd:.2} s per iteration; learner {:.0} % of wall time",
+            "  g1-train ppo, {name} {rate:6.0} env steps/s = {:.2} × the ceiling; per iteration rollout {roll:.2} s, update {upd:.2} s; learner {:.0} % of wall time",
             rate / bare_all,
             100.0 * share
         );
@@ -178,5 +187,5 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The MLP's hidden sizes (the spec's default recipe, docs/stair_policy.md).
-const MLP_HIDDEN: [usize; 3] = [256, 128, 128];
+/// The MLP's hidden sizes in the recipe (docs/stair_policy.md).
+const MLP_HIDDEN: [usize; 3] = [128, 64, 64];

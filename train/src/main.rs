@@ -170,7 +170,7 @@ enum Cmd {
         #[arg(long)]
         init_actor: Option<PathBuf>,
         /// Hidden sizes of a fresh actor, one per linear/lstm layer of the spec's network but the
-        /// last, e.g. 256,128,128 for specs/stairs/g1_stairs_mlp.toml or 64,32 for the LSTM spec.
+        /// last, e.g. 128,64,64 for specs/stairs/g1_stairs_mlp.toml or 64,32 for the LSTM spec.
         /// Needed without --init-actor on a new run; resuming and warm starts take the weights'.
         #[arg(long, value_delimiter = ',')]
         actor_hidden: Vec<usize>,

@@ -158,7 +158,8 @@ pub fn values(ac: &ActorCritic, norm: &Normalizer, rows: &[f32]) -> candle_core:
 }
 
 /// Fills `values`, `advantages` and `returns` of every rollout (GAE; time-outs and successes
-/// bootstrap from the value of their final state).
+/// bootstrap from the value of their final state). One critic pass over every row of every
+/// rollout (a pass per rollout cost more in candle's per-call overhead than in arithmetic).
 pub fn compute_gae(
     ac: &ActorCritic,
     norm: &Normalizer,
@@ -166,10 +167,22 @@ pub fn compute_gae(
     cfg: &PpoConfig,
 ) -> candle_core::Result<()> {
     let t = cfg.steps;
-    for r in rolls.iter_mut() {
-        r.values = values(ac, norm, &r.critic_obs)?;
-        let next_v = values(ac, norm, &r.next_critic_obs)?[0];
-        let final_v = values(ac, norm, &r.final_critic_obs)?;
+    let c = ac.critic_dim;
+    // Rows per rollout: its `t` states, the state after the last step, and the `t` final states
+    // of truncated episodes (unused rows are zeros; their values are ignored).
+    let per = 2 * t + 1;
+    let mut rows = Vec::with_capacity(rolls.len() * per * c);
+    for r in rolls.iter() {
+        rows.extend_from_slice(&r.critic_obs);
+        rows.extend_from_slice(&r.next_critic_obs);
+        rows.extend_from_slice(&r.final_critic_obs);
+    }
+    let all = values(ac, norm, &rows)?;
+    for (k, r) in rolls.iter_mut().enumerate() {
+        let v = &all[k * per..(k + 1) * per];
+        r.values = v[..t].to_vec();
+        let next_v = v[t];
+        let final_v = &v[t + 1..];
         let mut gae = 0.0f64;
         for s in (0..t).rev() {
             let mut rew = r.rewards[s] as f64;
