@@ -84,6 +84,7 @@ fn whole_loop(
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
+        judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),
     };
     let history = train::ppo::runner::train(&run)?;
     let _ = std::fs::remove_dir_all(&out);

@@ -209,6 +209,11 @@ enum Cmd {
         /// Stop (after a checkpoint) once this run has spent this many seconds.
         #[arg(long, default_value_t = f64::INFINITY)]
         max_wall: f64,
+        /// Judge every Nth checkpoint through g1fw (up and down at 12, 16 and 20 cm, 2 episodes
+        /// each, and a flat run, with perception and the spec's terrain estimator; ~1 min):
+        /// judge.json, best.safetensors and the points in curves.png. 0: never.
+        #[arg(long, default_value_t = 5)]
+        judge_every: usize,
         #[arg(long)]
         quiet: bool,
     },
@@ -314,9 +319,11 @@ fn main() -> anyhow::Result<()> {
             only,
             checkpoint_every,
             max_wall,
+            judge_every,
             quiet,
         } => {
             tracing_subscriber::fmt().with_writer(std::io::stderr).init();
+            let judge_model = model.to_string();
             let cfg = train::ppo::runner::RunConfig {
                 spec,
                 model,
@@ -349,6 +356,7 @@ fn main() -> anyhow::Result<()> {
                 checkpoint_every_s: checkpoint_every,
                 quiet,
                 max_wall_s: max_wall,
+                judge: train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model),
             };
             let history = train::ppo::runner::train(&cfg)?;
             if let Some(l) = history.last() {

@@ -224,12 +224,109 @@ pub fn training_png(path: &Path, log: &[EpochLog]) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// PPO learning curves against env steps (millions): return, success, level, falls.
-pub fn ppo_curves_png(path: &Path, log: &[crate::ppo::runner::IterLog]) -> anyhow::Result<()> {
+/// Exponential moving average, for the smoothed line over a noisy per-iteration series.
+fn smooth(pts: &[(f64, f64)], alpha: f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(pts.len());
+    let mut m: Option<f64> = None;
+    for &(x, y) in pts {
+        let v = match m {
+            Some(prev) => prev + alpha * (y - prev),
+            None => y,
+        };
+        m = Some(v);
+        out.push((x, v));
+    }
+    out
+}
+
+/// One PPO panel: every series raw (faint) and smoothed (solid); x ticks read env steps and the
+/// wall time at that point (`wall` maps env steps (M) to hours).
+fn ppo_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    (x0, x1): (f64, f64),
+    series: &[Series],
+    wall: &dyn Fn(f64) -> f64,
+    points_only: bool,
+    y_range: Option<(f64, f64)>,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow::anyhow!("drawing {title}: {e:?}");
+    let (lo, hi) = y_range.unwrap_or_else(|| {
+        let (lo, hi) = series
+            .iter()
+            .flat_map(|s| s.2.iter().map(|p| p.1))
+            .filter(|v| v.is_finite())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        if lo.is_finite() {
+            let pad = 0.08 * (hi - lo).max(1e-6);
+            (lo - pad, hi + pad)
+        } else {
+            (0.0, 1.0)
+        }
+    });
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x0..x1, lo..hi)
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("env steps (M) / wall time (h)")
+        .x_label_formatter(&|x| format!("{x:.1}M / {:.1}h", wall(*x)))
+        .x_labels(6)
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(err)?;
+    for (name, color, pts) in series {
+        let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| p.1.is_finite()).collect();
+        let c = *color;
+        if points_only {
+            chart
+                .draw_series(pts.iter().map(|&p| Circle::new(p, 5, c.filled())))
+                .map_err(err)?
+                .label(*name)
+                .legend(move |(x, y)| Circle::new((x + 8, y), 5, c.filled()));
+            chart
+                .draw_series(LineSeries::new(pts.clone(), c.mix(0.4).stroke_width(1)))
+                .map_err(err)?;
+            continue;
+        }
+        chart
+            .draw_series(LineSeries::new(pts.clone(), c.mix(0.2).stroke_width(1)))
+            .map_err(err)?;
+        chart
+            .draw_series(LineSeries::new(smooth(&pts, 0.1), c.stroke_width(2)))
+            .map_err(err)?
+            .label(*name)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(err)?;
+    Ok(())
+}
+
+/// The PPO run at a glance (`curves.png`): reward, stair success and falls, curriculum level,
+/// episode return (raw faint, smoothed solid), and the checkpoints judged through `g1fw` (success
+/// per kind and step height, points on their own axis); x: env steps and wall time.
+pub fn ppo_curves_png(
+    path: &Path,
+    log: &[crate::ppo::runner::IterLog],
+    judged: &[crate::ppo::judge::Judgement],
+) -> anyhow::Result<()> {
     check_png(path)?;
-    let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
+    let root = BitMapBackend::new(path, (1500, 1300)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let areas = root.split_evenly((2, 2));
+    let areas = root.split_evenly((3, 2));
     let xmax = log.last().map_or(1.0, |l| l.env_steps as f64 / 1e6).max(1e-3);
     let x = (0.0, xmax);
     let series = |f: &dyn Fn(&crate::ppo::runner::IterLog) -> Option<f64>| -> Vec<(f64, f64)> {
@@ -237,45 +334,110 @@ pub fn ppo_curves_png(path: &Path, log: &[crate::ppo::runner::IterLog]) -> anyho
             .filter_map(|l| f(l).map(|v| (l.env_steps as f64 / 1e6, v)))
             .collect()
     };
-    let xl = "env steps (M)";
-    panel(
+    // Wall time at an env-step count, interpolated from the history.
+    let marks: Vec<(f64, f64)> = log
+        .iter()
+        .map(|l| (l.env_steps as f64 / 1e6, l.wall_s / 3600.0))
+        .collect();
+    let wall = move |m: f64| -> f64 {
+        match marks.iter().position(|p| p.0 >= m) {
+            Some(0) => marks[0].1 * m / marks[0].0.max(1e-9),
+            Some(i) => {
+                let (a, b) = (marks[i - 1], marks[i]);
+                a.1 + (b.1 - a.1) * (m - a.0) / (b.0 - a.0).max(1e-9)
+            }
+            None => marks.last().map_or(0.0, |p| p.1),
+        }
+    };
+    ppo_panel(
         &areas[0],
         "mean reward per policy step",
-        xl,
         x,
         &[("reward/step", CNN, series(&|l| Some(l.mean_reward_per_step)))],
-        None,
+        &wall,
         false,
+        None,
     )?;
-    panel(
+    ppo_panel(
         &areas[1],
-        "stair episodes: success / falls (%)",
-        xl,
+        "training: stair success / falls (%)",
         x,
         &[
             ("success", CNN, series(&|l| l.success_rate.map(|v| 100.0 * v))),
             ("falls (all)", BASE, series(&|l| l.fall_rate.map(|v| 100.0 * v))),
         ],
-        None,
+        &wall,
         false,
+        Some((-3.0, 103.0)),
     )?;
-    panel(
+    ppo_panel(
         &areas[2],
         "mean terrain level (0: 5 cm … 10: 26 cm)",
-        xl,
         x,
         &[("level", CNN, series(&|l| Some(l.mean_level)))],
-        None,
+        &wall,
         false,
+        None,
     )?;
-    panel(
+    ppo_panel(
         &areas[3],
         "episode return",
-        xl,
         x,
         &[("return", CNN, series(&|l| l.mean_episode_return))],
-        None,
+        &wall,
         false,
+        None,
+    )?;
+    // g1fw's verdict: one series per (kind, height) row of the judged set.
+    let mut keys: Vec<(String, u32)> = judged
+        .iter()
+        .flat_map(|j| j.rows.iter().map(|r| (r.0.clone(), r.1)))
+        .collect();
+    keys.sort();
+    keys.dedup();
+    let palette = [
+        CNN,
+        BASE,
+        RGBColor(44, 160, 44),
+        RGBColor(214, 39, 40),
+        RGBColor(148, 103, 189),
+        RGBColor(140, 86, 75),
+        LIMIT,
+    ];
+    let names: Vec<String> = keys
+        .iter()
+        .map(|(k, h)| {
+            if k == "flat" {
+                "flat".to_string()
+            } else {
+                format!("{k} {h} cm")
+            }
+        })
+        .collect();
+    let judged_series: Vec<Series> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, (k, h))| {
+            let pts = judged
+                .iter()
+                .filter_map(|j| {
+                    j.rows
+                        .iter()
+                        .find(|r| &r.0 == k && r.1 == *h)
+                        .map(|r| (j.env_steps as f64 / 1e6, 100.0 * r.2 as f64 / (r.3.max(1)) as f64))
+                })
+                .collect();
+            (names[i].as_str(), palette[i % palette.len()], pts)
+        })
+        .collect();
+    ppo_panel(
+        &areas[4],
+        "g1fw eval of checkpoints: success (%)",
+        x,
+        &judged_series,
+        &wall,
+        true,
+        Some((-5.0, 105.0)),
     )?;
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())

@@ -42,6 +42,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
+        judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),
     };
     let h = train(&cfg).expect("training runs");
     let mean =
@@ -132,6 +133,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
+        judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),
     };
     let h = train(&cfg).expect("training runs");
     let weights = std::fs::read(out.join("g1_stairs_lstm.safetensors")).expect("exported actor");

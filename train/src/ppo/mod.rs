@@ -8,8 +8,10 @@
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
 //! - [`runner`]: the loop, worker threads, checkpoints, curves.
+//! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
 pub mod algo;
 pub mod env;
+pub mod judge;
 pub mod policy;
 pub mod reward;
 pub mod runner;

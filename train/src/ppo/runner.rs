@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
 use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
+use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
 
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
@@ -20,6 +21,9 @@ pub const ACTORS: &str = "actors";
 pub const STATE: &str = "state.json";
 pub const HISTORY: &str = "history.json";
 pub const CURVES: &str = "curves.png";
+/// Checkpoints judged through `g1fw` ([`super::judge`]), and the best of them.
+pub const JUDGE: &str = "judge.json";
+pub const BEST: &str = "best.safetensors";
 
 #[derive(Clone, Debug)]
 pub struct RunConfig {
@@ -49,6 +53,8 @@ pub struct RunConfig {
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
     pub max_wall_s: f64,
+    /// Judge checkpoints through `g1fw` (`judge.json`, `best.safetensors`); `every` 0: never.
+    pub judge: super::judge::JudgeConfig,
 }
 
 /// One iteration's figures (history.json, curves.png).
@@ -259,6 +265,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let start = Instant::now();
     let wall0 = state.wall_s;
     let mut last_ckpt = Instant::now();
+    let mut checkpoints = 0usize;
     let bar = g1_sim::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
     let threads = cfg.threads.max(1);
@@ -397,7 +404,11 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             || out_of_time
         {
             state.levels = slots.iter().map(|s| s.env.level).collect();
-            save(&ac, &state, &history, &cfg.out, &weights_name)?;
+            let actor = save(&ac, &state, &history, &cfg.out, &weights_name)?;
+            checkpoints += 1;
+            if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
+                judge_checkpoint(cfg, &actor, &state)?;
+            }
             last_ckpt = Instant::now();
         }
         if out_of_time {
@@ -415,7 +426,7 @@ fn save(
     history: &[IterLog],
     out: &Path,
     weights_name: &std::ffi::OsStr,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<PathBuf> {
     // Write then rename, so a run killed mid-write keeps the previous checkpoint.
     let tmp = out.join(format!("{CHECKPOINT}.tmp"));
     ac.save(&tmp)?;
@@ -428,11 +439,45 @@ fn save(
     // checkpoints as `g1fw eval` does (docs/stair_policy.md), so the choice is made afterwards.
     let actors = out.join(ACTORS);
     std::fs::create_dir_all(&actors)?;
-    std::fs::write(
-        actors.join(format!("actor_{:012}.safetensors", state.env_steps)),
-        &actor,
-    )?;
-    crate::plot::ppo_curves_png(&out.join(CURVES), history)?;
+    let kept = actors.join(format!("actor_{:012}.safetensors", state.env_steps));
+    std::fs::write(&kept, &actor)?;
+    crate::plot::ppo_curves_png(&out.join(CURVES), history, &read_judgements(out))?;
+    Ok(kept)
+}
+
+/// The judged checkpoints of a run so far (`judge.json`; none if absent).
+pub fn read_judgements(out: &Path) -> Vec<Judgement> {
+    std::fs::read_to_string(out.join(JUDGE))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_default()
+}
+
+/// Runs the judged set on a checkpoint's actor, appends it to `judge.json`, keeps the best actor as
+/// `best.safetensors` (+ `best.json`), and redraws the curves with the point.
+fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState) -> anyhow::Result<()> {
+    let j = super::judge::judge(&cfg.judge, &cfg.spec, actor, state.env_steps, state.wall_s)?;
+    tracing::info!(
+        "g1fw judged {} env steps: stair success {:.0} %, flat {}, score {} ({:.0} s)",
+        j.env_steps,
+        100.0 * j.stair_success,
+        if j.flat_ok { "ok" } else { "failed" },
+        j.score,
+        j.eval_wall_s
+    );
+    let mut all = read_judgements(&cfg.out);
+    let best = all.iter().map(|b| b.score).fold(f64::NEG_INFINITY, f64::max);
+    if j.score > best {
+        std::fs::copy(actor, cfg.out.join(BEST))?;
+        std::fs::write(cfg.out.join("best.json"), serde_json::to_string_pretty(&j)?)?;
+    }
+    all.push(j);
+    std::fs::write(cfg.out.join(JUDGE), serde_json::to_string_pretty(&all)?)?;
+    let history: Vec<IterLog> = std::fs::read_to_string(cfg.out.join(HISTORY))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_default();
+    crate::plot::ppo_curves_png(&cfg.out.join(CURVES), &history, &all)?;
     Ok(())
 }
 
