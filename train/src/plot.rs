@@ -276,8 +276,15 @@ where
         .map_err(err)?;
     chart
         .configure_mesh()
-        .x_desc("env steps (M) / wall time (h)")
-        .x_label_formatter(&|x| format!("{x:.1}M / {:.1}h", wall(*x)))
+        .x_desc("env steps (M) / wall time")
+        .x_label_formatter(&|x| {
+            let h = wall(*x);
+            if wall(x1) < 2.0 {
+                format!("{x:.1}M / {:.0} min", 60.0 * h)
+            } else {
+                format!("{x:.1}M / {h:.1} h")
+            }
+        })
         .x_labels(6)
         .light_line_style(WHITE.mix(0.0))
         .draw()
@@ -305,13 +312,23 @@ where
             .label(*name)
             .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperLeft)
-        .draw()
-        .map_err(err)?;
+    if series.iter().any(|s| !s.2.is_empty()) {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()
+            .map_err(err)?;
+    } else {
+        chart
+            .draw_series(std::iter::once(Text::new(
+                "no checkpoint judged yet (g1-train ppo --judge-every)",
+                (x0 + 0.05 * (x1 - x0), lo + 0.5 * (hi - lo)),
+                ("sans-serif", 16),
+            )))
+            .map_err(err)?;
+    }
     Ok(())
 }
 
