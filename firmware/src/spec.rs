@@ -638,6 +638,14 @@ impl DeploySpec {
             ("safety.state_timeout_s", s.state_timeout_s),
         ];
         self.require_positive(&positive)?;
+        // The damping command is what goes out when something is already wrong: the same cap as
+        // every other kd.
+        if s.damping_kd > MAX_KD {
+            return Err(self.invalid(
+                "safety.damping_kd",
+                format!("{} is above the largest kd a spec may command ({MAX_KD})", s.damping_kd),
+            ));
+        }
         // Joint speed: a spec may tighten the motors' own limits, never loosen them.
         if let Some(v) = s.joint_speed_limit_rad_s {
             self.require_positive(&[("safety.joint_speed_limit_rad_s", v as f64)])?;
@@ -955,6 +963,7 @@ impl DeploySpec {
                 ("kp", &group.kp, 0.0, MAX_KP),
                 ("kd", &group.kd, 0.0, MAX_KD),
             ] {
+                // (`contains` is false for NaN, so a NaN is refused here too.)
                 let Some(v) = sc.expand(k) else {
                     return Err(self.invalid(
                         &format!("held[{g}].{f}"),
@@ -965,16 +974,50 @@ impl DeploySpec {
                     return Err(self.invalid(&format!("held[{g}].{f}[{j}]"), format!("{x} is outside {lo}..={hi}")));
                 }
             }
+            // A held target is a joint position like any other: inside the joint's range, less the
+            // margin the controller clamps policy targets to.
+            let q = group.q.expand(k).unwrap_or_default();
+            for (j, name) in group.joints.iter().enumerate() {
+                let Some(slot) = hal::g1_motor_slot(name) else { continue };
+                if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[slot] {
+                    let (lo, hi) = (lo + margin, hi - margin);
+                    if !(lo..=hi).contains(&q[j]) {
+                        return Err(self.invalid(
+                            &format!("held[{g}].q[{j}]"),
+                            format!(
+                                "{} rad is outside {name}'s range less safety.joint_range_margin_rad, [{lo}, {hi}] rad",
+                                q[j]
+                            ),
+                        ));
+                    }
+                }
+            }
         }
 
+        for (field, v) in [("commands.min", self.commands.min), ("commands.max", self.commands.max)] {
+            if let Some((i, x)) = v.and_then(|v| v.into_iter().enumerate().find(|(_, x)| !x.is_finite())) {
+                return Err(self.invalid(&format!("{field}[{i}]"), format!("{x}: must be a finite velocity")));
+            }
+        }
         if let (Some(lo), Some(hi)) = (self.commands.min, self.commands.max) {
             if (0..3).any(|i| lo[i] > hi[i]) {
                 return Err(self.invalid("commands", "min must be <= max for vx, vy, wz"));
             }
         }
         if let Some(ph) = &self.phase {
-            if ph.period_s.is_nan() || ph.period_s <= 0.0 {
-                return Err(self.invalid("phase.period_s", "must be > 0"));
+            if !(ph.period_s.is_finite() && ph.period_s > 0.0) {
+                return Err(self.invalid(
+                    "phase.period_s",
+                    format!("{}: must be a finite number > 0", ph.period_s),
+                ));
+            }
+            // The clock starts here and advances one policy period per step: any finite start
+            // within a period or so is meaningful; NaN or ±1e300 only poison the observation.
+            if !(ph.first_step_time_s.is_finite() && ph.first_step_time_s.abs() <= 1e3) {
+                return Err(self.invalid(
+                    "phase.first_step_time_s",
+                    format!("{}: must be a finite time within ±1000 s", ph.first_step_time_s),
+                ));
             }
         }
 

@@ -313,3 +313,40 @@ fn overflow_first_tensor(bytes: &[u8]) -> Vec<u8> {
     }
     out
 }
+
+/// Issue 30's reproductions: values that reached the motors or the policy unchecked are refused,
+/// naming the field.
+#[test]
+fn unsafe_damping_held_targets_commands_and_phase_are_refused() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/stairs/g1_stairs_lstm.toml");
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        DeploySpec::from_toml(&text, &path).is_ok(),
+        "the stair spec itself loads"
+    );
+    let refused = |from: &str, to: &str| -> String {
+        assert!(text.contains(from), "the stair spec has no '{from}'");
+        let t = text.replacen(from, to, 1);
+        DeploySpec::from_toml(&t, &path)
+            .map(|_| format!("accepted: {to}"))
+            .unwrap_or_else(|e| e.to_string())
+    };
+    let e = refused("damping_kd = 5.0", "damping_kd = 1e6");
+    assert!(e.contains("safety.damping_kd") && e.contains("100"), "{e}");
+    // The waist held at 1 rad: waist roll's range is ±0.52 rad.
+    let e = refused(
+        "joints = [\"waist_yaw\", \"waist_roll\", \"waist_pitch\"]\nq = 0.0",
+        "joints = [\"waist_yaw\", \"waist_roll\", \"waist_pitch\"]\nq = 1.0",
+    );
+    assert!(e.contains("held[0].q[1]") && e.contains("waist_roll"), "{e}");
+    let e = refused("min = [-0.8, -0.5, -1.57]", "min = [-0.8, nan, -1.57]");
+    assert!(e.contains("commands.min[1]"), "{e}");
+    let e = refused("max = [0.8, 0.5, 1.57]", "max = [inf, 0.5, 1.57]");
+    assert!(e.contains("commands.max[0]"), "{e}");
+    for bad in ["nan", "-1e300", "inf"] {
+        let e = refused("first_step_time_s = 0.02", &format!("first_step_time_s = {bad}"));
+        assert!(e.contains("phase.first_step_time_s"), "{bad}: {e}");
+    }
+    let e = refused("period_s = 0.8", "period_s = inf");
+    assert!(e.contains("phase.period_s"), "{e}");
+}
