@@ -768,10 +768,13 @@ impl DeploySpec {
         if let Err(e) = pc.self_filter() {
             return Err(self.invalid("perception.self_filter", e.to_string()));
         }
-        if pc.bev_memory_keyframes > 16 {
+        if pc.bev_memory_keyframes > sensor_io::bev_memory::MAX_KEYFRAMES {
             return Err(self.invalid(
                 "perception.bev_memory_keyframes",
-                "must be 0 to 16 (each keyframe holds 8192 points and is merged every frame)",
+                format!(
+                    "must be 0 to {} (each keyframe holds 8192 points and is merged every frame)",
+                    sensor_io::bev_memory::MAX_KEYFRAMES
+                ),
             ));
         }
         match (&pc.terrain_network, &pc.terrain_weights) {

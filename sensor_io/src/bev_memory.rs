@@ -78,6 +78,25 @@ impl MemoryConfig {
     }
 }
 
+/// Most keyframes a memory may keep: each holds up to 8192 points and is merged into every grid.
+/// The one bound of the firmware's `[perception] bev_memory_keyframes` and of every tool's
+/// `--memory-keyframes` (a huge count once tried to allocate 446 GB).
+pub const MAX_KEYFRAMES: usize = 16;
+
+/// Parses a `--memory-keyframes` value, refusing counts above [`MAX_KEYFRAMES`].
+pub fn parse_keyframes(s: &str) -> Result<usize, String> {
+    let n: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a whole number of keyframes"))?;
+    if n > MAX_KEYFRAMES {
+        return Err(format!(
+            "{n} keyframes: at most {MAX_KEYFRAMES} (0: single-frame grids)"
+        ));
+    }
+    Ok(n)
+}
+
 /// Keyframes of the grids the firmware's built-in terrain network was trained on: the default of
 /// `[perception] bev_memory_keyframes`, of `g1-dataset export` and of `g1-train eval-terrain`, so
 /// all three agree with the committed weights. 0: the committed weights are single-frame (trained on
@@ -279,6 +298,15 @@ impl BevMemory {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn memory_keyframes_are_bounded_before_anything_is_allocated() {
+        assert_eq!(super::parse_keyframes("4"), Ok(4));
+        assert_eq!(super::parse_keyframes("16"), Ok(16));
+        let e = super::parse_keyframes("4294967295").unwrap_err();
+        assert!(e.contains("at most 16"), "{e}");
+        assert!(super::parse_keyframes("-1").unwrap_err().contains("whole number"));
+    }
+
     use super::*;
     use crate::bev::{CH_DENSITY, CH_MAX};
 

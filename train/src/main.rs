@@ -105,7 +105,7 @@ enum Cmd {
         mode: g1_sim::dataset::ModeChoice,
         /// BEV memory keyframes of the grids (0: single-frame); must match what the weights were
         /// trained with. Default: that of the firmware's built-in network.
-        #[arg(long, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
+        #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
         memory_keyframes: usize,
         /// Scale of the memory keyframes' simulated odometry drift (1: the renderer's model; 0:
         /// perfect odometry, the upper bound of what the memory gives).

@@ -158,7 +158,11 @@ impl FaultSpec {
             "freeze-joint" => FaultKind::FreezeJoint { slot: slot()? },
             "motor-dead" => FaultKind::MotorDead { slot: slot()? },
             "overheat" => FaultKind::Overheat { slot: slot()? },
-            other => return Err(err(format!("unknown kind '{other}'; known: {KNOWN_KINDS}"))),
+            other => {
+                return Err(err(format!(
+                    "unknown kind '{other}'; known: {KNOWN_KINDS} (the form is KIND@START_S[+DURATION_S][:ARG], e.g. delay@1:5)"
+                )))
+            }
         };
         if kind == FaultKind::Disconnect && duration_s.is_some() {
             return Err(err(
@@ -429,7 +433,9 @@ mod tests {
     fn bad_specs_name_the_spec_and_the_problem() {
         assert_eq!(
             parse("foo@1").unwrap_err(),
-            format!("--fault 'foo@1': unknown kind 'foo'; known: {KNOWN_KINDS}")
+            format!(
+                "--fault 'foo@1': unknown kind 'foo'; known: {KNOWN_KINDS} (the form is KIND@START_S[+DURATION_S][:ARG], e.g. delay@1:5)"
+            )
         );
         for (spec, why) in [
             ("drop", "expected KIND@START_S"),

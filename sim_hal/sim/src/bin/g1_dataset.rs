@@ -97,7 +97,7 @@ struct Common {
     no_pose_noise: bool,
     /// BEV memory keyframes (the firmware's `[perception] bev_memory_keyframes`; 0: single-frame
     /// grids). Default: what the firmware's built-in network was trained with.
-    #[arg(long, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
+    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
     memory_keyframes: usize,
     /// Hide the progress bar.
     #[arg(long)]
