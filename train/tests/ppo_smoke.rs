@@ -70,6 +70,16 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     // Resume: two more iterations continue the count and the history.
     cfg.iterations = 32;
     let h2 = train(&cfg).expect("resumes");
+    // --max-wall: a run out of time checkpoints and stops after the iteration it is in.
+    let mut capped = cfg.clone();
+    capped.out = out.with_extension("capped");
+    capped.iterations = 1000;
+    capped.max_wall_s = 0.0;
+    let _ = std::fs::remove_dir_all(&capped.out);
+    let hc = train(&capped).expect("a capped run");
+    assert_eq!(hc.len(), 1, "--max-wall 0 stops after the first iteration");
+    assert!(capped.out.join(CHECKPOINT).exists());
+    std::fs::remove_dir_all(&capped.out).unwrap();
     assert_eq!(h2.len(), 32);
     assert_eq!(h2.last().unwrap().iteration, 32);
     assert!(h2[31].env_steps > h[29].env_steps);

@@ -397,7 +397,8 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             tracing::info!(?log, "iteration");
         }
         history.push(log);
-        let out_of_time = wall0 + start.elapsed().as_secs_f64() - state.wall_s > cfg.max_wall_s;
+        // This run's own time (`--max-wall`), not the total across resumed chunks.
+        let out_of_time = start.elapsed().as_secs_f64() > cfg.max_wall_s;
         state.wall_s = wall0 + start.elapsed().as_secs_f64();
         if last_ckpt.elapsed().as_secs_f64() > cfg.checkpoint_every_s
             || state.iteration == cfg.iterations
