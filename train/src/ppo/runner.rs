@@ -408,7 +408,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             let actor = save(&ac, &state, &history, &cfg.out, &weights_name)?;
             checkpoints += 1;
             if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
-                judge_checkpoint(cfg, &actor, &state)?;
+                judge_checkpoint(cfg, &actor, &state, &history)?;
             }
             last_ckpt = Instant::now();
         }
@@ -456,7 +456,7 @@ pub fn read_judgements(out: &Path) -> Vec<Judgement> {
 
 /// Runs the judged set on a checkpoint's actor, appends it to `judge.json`, keeps the best actor as
 /// `best.safetensors` (+ `best.json`), and redraws the curves with the point.
-fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState) -> anyhow::Result<()> {
+fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[IterLog]) -> anyhow::Result<()> {
     let j = super::judge::judge(&cfg.judge, &cfg.spec, actor, state.env_steps, state.wall_s)?;
     tracing::info!(
         "g1fw judged {} env steps: stair success {:.0} %, flat {}, score {} ({:.0} s)",
@@ -474,11 +474,7 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState) -> anyhow::
     }
     all.push(j);
     std::fs::write(cfg.out.join(JUDGE), serde_json::to_string_pretty(&all)?)?;
-    let history: Vec<IterLog> = std::fs::read_to_string(cfg.out.join(HISTORY))
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or_default();
-    crate::plot::ppo_curves_png(&cfg.out.join(CURVES), &history, &all)?;
+    crate::plot::ppo_curves_png(&cfg.out.join(CURVES), history, &all)?;
     Ok(())
 }
 
