@@ -4,6 +4,7 @@
 //! nothing. Time comes only from the tick index, so the same states give the same commands.
 use hal::{LowCommand, LowState, MotorCommand, TickTime, MOTOR_MODE_ENABLED, NUM_MOTORS};
 
+use crate::envelope::{CommandEnvelope, CommandSource, EnvelopeVerdict, Violation};
 use crate::nn::{Network, NnError};
 use crate::policy_io::PolicyIo;
 use crate::spec::DeploySpec;
@@ -39,6 +40,17 @@ pub enum Mode {
 pub use crate::supervisor::DampingReason;
 
 /// What happened in one tick (for logging and evaluation).
+/// What the command envelope ([`crate::envelope`]) found since start-up.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EnvelopeCounts {
+    /// Targets clamped into the joint range (not a fault).
+    pub range_clamps: u64,
+    /// Fields outside the envelope (each latched damping, or arrived while damping).
+    pub violations: u64,
+    /// The newest violation.
+    pub last: Option<Violation>,
+}
+
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TickInfo {
     /// The policy ran this tick.
@@ -73,6 +85,13 @@ pub struct Controller {
     start_q: [f32; NUM_MOTORS],
     /// Policy targets clamped into range, total.
     clamped_targets: u64,
+    /// The last check on every outgoing command, and what it found so far.
+    envelope: CommandEnvelope,
+    envelope_counts: EnvelopeCounts,
+    /// A violation that latched damping and that the runtime has not reported yet.
+    envelope_trip: Option<Violation>,
+    /// Slots the policy drives (the others, when enabled, are held).
+    policy_slot: [bool; NUM_MOTORS],
     /// Tick at which the current start-up began (0, or the tick of the last operator reset).
     start_tick: u64,
     ramp_ticks: u64,
@@ -139,6 +158,10 @@ impl Controller {
             target_q: default_q,
             start_q: default_q,
             clamped_targets: 0,
+            envelope: CommandEnvelope::from_spec(&spec),
+            envelope_counts: EnvelopeCounts::default(),
+            envelope_trip: None,
+            policy_slot: std::array::from_fn(|s| p.joint_ids_map.contains(&s)),
             start_tick: 0,
             ramp_ticks,
             engage_tick,
@@ -181,6 +204,14 @@ impl Controller {
     /// Policy targets clamped into the joint range so far.
     pub fn clamped_targets(&self) -> u64 {
         self.clamped_targets
+    }
+    /// What the command envelope found so far.
+    pub fn envelope_counts(&self) -> EnvelopeCounts {
+        self.envelope_counts
+    }
+    /// The violation that latched damping since the last call, if any (the runtime reports it).
+    pub fn take_envelope_trip(&mut self) -> Option<Violation> {
+        self.envelope_trip.take()
     }
     /// PD position targets of the newest command, per slot.
     pub fn target_q(&self) -> &[f32; NUM_MOTORS] {
@@ -310,8 +341,14 @@ impl Controller {
         })
     }
 
-    /// Writes the damping command (kp = 0, configured kd on every enabled motor) into `out`.
-    pub fn damping_command(&self, state: &LowState, out: &mut LowCommand) {
+    /// Writes the damping command (kp = 0, configured kd on every enabled motor) into `out`, held
+    /// to the command envelope like every other command.
+    pub fn damping_command(&self, state: &LowState, out: &mut LowCommand) -> EnvelopeVerdict {
+        self.raw_damping_command(state, out);
+        self.envelope.enforce(out, |_| CommandSource::Damping)
+    }
+
+    fn raw_damping_command(&self, state: &LowState, out: &mut LowCommand) {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
         for s in 0..NUM_MOTORS {
@@ -323,11 +360,36 @@ impl Controller {
         }
     }
 
-    /// Writes this tick's command: PD targets with the mode's gains, or damping.
-    pub fn write_command(&self, state: &LowState, out: &mut LowCommand) {
-        if matches!(self.mode, Mode::Damping(_)) {
-            return self.damping_command(state, out);
+    /// Writes this tick's command: PD targets with the mode's gains, or damping. Whatever it is, it
+    /// passes the command envelope last. A violation there latches damping at once, and this
+    /// tick's command is the damping command.
+    pub fn write_command(&mut self, state: &LowState, out: &mut LowCommand) {
+        let verdict = match self.mode {
+            Mode::Damping(_) => self.damping_command(state, out),
+            mode => {
+                self.raw_write_command(state, out);
+                let policy_slot = self.policy_slot;
+                self.envelope.enforce(out, |s| match mode {
+                    Mode::Startup => CommandSource::Startup,
+                    _ if policy_slot[s] => CommandSource::Policy,
+                    _ => CommandSource::Held,
+                })
+            }
+        };
+        self.envelope_counts.range_clamps += verdict.range_clamps as u64;
+        self.envelope_counts.violations += verdict.violations as u64;
+        if let Some(v) = verdict.first {
+            self.envelope_counts.last = Some(v);
+            if !matches!(self.mode, Mode::Damping(_)) {
+                self.enter_damping(DampingReason::CommandEnvelope { slot: v.slot });
+                self.envelope_trip = Some(v);
+                let damping = self.damping_command(state, out);
+                self.envelope_counts.violations += damping.violations as u64;
+            }
         }
+    }
+
+    fn raw_write_command(&self, state: &LowState, out: &mut LowCommand) {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
         let (kp, kd) = if self.mode == Mode::Startup {

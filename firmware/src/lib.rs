@@ -17,6 +17,7 @@
 pub mod alloc_probe;
 pub mod bev_render;
 pub mod controller;
+pub mod envelope;
 pub mod eval;
 pub mod lidar_source;
 pub mod log;

@@ -35,13 +35,7 @@ impl PolicyIo {
     pub fn new(spec: &DeploySpec) -> Self {
         let n = spec.num_joints();
         let p = &spec.policy;
-        let (mut q_min, mut q_max) = ([f32::NEG_INFINITY; NUM_MOTORS], [f32::INFINITY; NUM_MOTORS]);
-        let margin = spec.safety.joint_range_margin_rad;
-        for s in 0..NUM_MOTORS {
-            if let Some((lo, hi)) = crate::robot::G1_JOINT_RANGE[s] {
-                (q_min[s], q_max[s]) = (lo + margin, hi - margin);
-            }
-        }
+        let (q_min, q_max) = crate::envelope::target_limits(spec.safety.joint_range_margin_rad);
         Self {
             obs: ObservationBuilder::new(spec),
             obs_buf: vec![0.0; spec.observation_dim()],

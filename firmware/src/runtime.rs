@@ -66,6 +66,10 @@ pub struct TickSummary {
     pub reset: bool,
     pub counters: SafetyCounters,
     pub clamped_targets: u64,
+    /// What the command envelope found since start-up.
+    pub envelope: crate::controller::EnvelopeCounts,
+    /// Set on the tick a command broke the envelope and latched damping: what broke it.
+    pub envelope_violation: Option<crate::envelope::Violation>,
     pub estimate: Estimate,
     /// Set on perception steps.
     pub perception: Option<PerceptionSummary>,
@@ -89,6 +93,8 @@ impl TickSummary {
             reset: false,
             counters: SafetyCounters::default(),
             clamped_targets: 0,
+            envelope: Default::default(),
+            envelope_violation: None,
             estimate: Estimate::default(),
             perception: None,
             timing: TickTiming::default(),
@@ -444,6 +450,19 @@ impl Runtime {
         !was
     }
 
+    /// After `write_command`: a violation of the command envelope latched damping; record the trip.
+    fn note_envelope(&mut self, k: u64, summary: &mut TickSummary) {
+        if let Some(v) = self.controller.take_envelope_trip() {
+            let reason = DampingReason::CommandEnvelope { slot: v.slot };
+            summary.tripped = Some(reason);
+            summary.envelope_violation = Some(v);
+            if self.trip.is_none() {
+                self.trip = Some((k, reason));
+            }
+        }
+        summary.envelope = self.controller.envelope_counts();
+    }
+
     /// One control tick (steps 2–6 of the module doc; the caller did the read): the command is
     /// computed into `out` and handed to `send` before the perception group runs. When `send`
     /// fails, perception is skipped (the caller is about to fail safe) and its error returned.
@@ -470,6 +489,8 @@ impl Runtime {
             reset: false,
             counters: SafetyCounters::default(),
             clamped_targets: 0,
+            envelope: Default::default(),
+            envelope_violation: None,
             estimate: *self.estimator.estimate(),
             perception: None,
             timing: TickTiming::default(),
@@ -518,8 +539,9 @@ impl Runtime {
             t2 = Instant::now();
         }
 
-        // 5. command, out before perception
+        // 5. command, out before perception (through the command envelope, last)
         self.controller.write_command(state, out);
+        self.note_envelope(k, &mut s);
         let t3 = Instant::now();
         let sent = send(out);
         let t4 = Instant::now();
@@ -899,6 +921,7 @@ where
         frame: FrameStatus::Bad(kind),
         counters: rt.counters(),
         clamped_targets: rt.controller().clamped_targets(),
+        envelope: rt.controller().envelope_counts(),
         ..TickSummary::empty()
     });
     s.mode = rt.mode();

@@ -391,6 +391,12 @@ pub struct SafetyReport {
     pub stale_frames: u64,
     pub malformed_frames: u64,
     pub clamped_targets: u64,
+    /// Targets the command envelope clamped into the joint range (not a fault).
+    pub envelope_range_clamps: u64,
+    /// Command fields outside the envelope (each latches damping).
+    pub envelope_violations: u64,
+    /// The newest of them, in words.
+    pub envelope_last_violation: Option<String>,
     pub overruns: Overruns,
 }
 
@@ -403,6 +409,9 @@ impl SafetyReport {
             stale_frames: c.stale_frames,
             malformed_frames: c.malformed_frames,
             clamped_targets: runtime.controller().clamped_targets(),
+            envelope_range_clamps: runtime.controller().envelope_counts().range_clamps,
+            envelope_violations: runtime.controller().envelope_counts().violations,
+            envelope_last_violation: runtime.controller().envelope_counts().last.map(|v| v.to_string()),
             overruns: runtime.overruns(),
         }
     }

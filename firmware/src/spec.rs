@@ -740,7 +740,9 @@ impl DeploySpec {
             .try_fold(0usize, |sum, t| sum.checked_add(t.kind.dim(n).checked_mul(t.history)?))
     }
 
-    fn validate(&self) -> Result<(), SpecError> {
+    /// Checks every field (what `load` and `parse` do after reading): the spec may be changed in code
+    /// and checked again.
+    pub fn validate(&self) -> Result<(), SpecError> {
         self.validate_safety()?;
         let e = &self.estimator;
         let positive = [

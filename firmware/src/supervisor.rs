@@ -45,6 +45,10 @@ pub enum DampingReason {
     EStop,
     /// Requested by code (tests, shutdown).
     Requested,
+    /// An outgoing command broke the command envelope (`crate::envelope`) in this motor's slot.
+    CommandEnvelope {
+        slot: u8,
+    },
 }
 
 impl DampingReason {
@@ -66,6 +70,7 @@ impl DampingReason {
             DampingReason::MotorSilent { .. } => "motor_silent",
             DampingReason::EStop => "estop",
             DampingReason::Requested => "requested",
+            DampingReason::CommandEnvelope { .. } => "command_envelope",
         }
     }
 
@@ -75,7 +80,8 @@ impl DampingReason {
             DampingReason::JointSpeed { slot }
             | DampingReason::MotorTemperature { slot }
             | DampingReason::FrozenJoint { slot }
-            | DampingReason::MotorSilent { slot } => Some(slot),
+            | DampingReason::MotorSilent { slot }
+            | DampingReason::CommandEnvelope { slot } => Some(slot),
             _ => None,
         }
     }
@@ -98,6 +104,7 @@ impl DampingReason {
             DampingReason::EStop => 13,
             DampingReason::Requested => 14,
             DampingReason::MotorSilent { .. } => 15,
+            DampingReason::CommandEnvelope { .. } => 16,
         }
     }
 }

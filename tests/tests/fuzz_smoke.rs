@@ -170,6 +170,11 @@ fn deploy_spec() {
 }
 
 #[test]
+fn command_envelope() {
+    smoke("command_envelope", firmware::envelope::fuzz_command_envelope);
+}
+
+#[test]
 fn onnx_import() {
     smoke("onnx_import", policy_import::onnx::fuzz_onnx);
 }
@@ -379,6 +384,42 @@ mod gen {
     }
 
     /// A 12-joint spec small enough to carry its weights (after a NUL) in a few KB.
+    /// A margin byte and a LowCmd of 35 × (mode, q, dq, tau, kp, kd): a healthy policy command,
+    /// damping, and one with every kind of breach.
+    pub fn command_envelope() -> Vec<(&'static str, Vec<u8>)> {
+        let cmd = |m: &dyn Fn(usize) -> (u8, [f32; 5])| -> Vec<u8> {
+            let mut v = vec![20u8];
+            for s in 0..hal::NUM_MOTORS {
+                let (mode, f) = m(s);
+                v.push(mode);
+                f.iter().for_each(|x| v.extend_from_slice(&x.to_le_bytes()));
+            }
+            v
+        };
+        vec![
+            (
+                "policy",
+                cmd(&|s| (if s < 29 { 0 } else { 0x80 }, [0.1, 0.0, 0.0, 100.0, 2.0])),
+            ),
+            ("damping", cmd(&|_| (0, [0.0, 0.0, 0.0, 0.0, 8.0]))),
+            (
+                "breaches",
+                cmd(&|s| {
+                    (
+                        0,
+                        [
+                            [f32::NAN, 9.0, -9.0, 0.0, 1e6][s % 5],
+                            [0.0, 1e9, f32::INFINITY, 0.0, 0.0][s % 5],
+                            500.0,
+                            5000.0,
+                            -1.0,
+                        ],
+                    )
+                }),
+            ),
+        ]
+    }
+
     pub fn deploy_spec() -> Vec<(&'static str, Vec<u8>)> {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let spec = r#"[meta]
@@ -685,7 +726,7 @@ terms = [
 #[ignore]
 fn write_seed_corpus() {
     type Seeds = Vec<(&'static str, Vec<u8>)>;
-    let all: [(&str, Seeds); 8] = [
+    let all: [(&str, Seeds); 9] = [
         ("livox_packet", gen::livox()),
         ("unitree_hg_low_state", gen::low_state()),
         ("unitree_hg_low_cmd", gen::low_cmd()),
@@ -694,6 +735,7 @@ fn write_seed_corpus() {
         ("deploy_spec", gen::deploy_spec()),
         ("onnx_import", gen::onnx()),
         ("mcap_log", gen::mcap_log()),
+        ("command_envelope", gen::command_envelope()),
     ];
     for (target, seeds) in all {
         let dir = corpus_dir(target);

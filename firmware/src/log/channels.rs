@@ -133,12 +133,12 @@ pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
     (
         SAFETY_STATE,
         "g1fw.SafetyState",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"reason":{"type":"string"},"frame":{"type":"integer"},"crc_failures":{"type":"integer"},"crc_streak":{"type":"integer"},"missing_frames":{"type":"integer"},"stale_frames":{"type":"integer"},"state_age_ticks":{"type":"integer"},"clamped_targets":{"type":"integer"},"dropped_log_records":{"type":"integer"}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"mode":{"type":"string"},"reason":{"type":"string"},"frame":{"type":"integer"},"crc_failures":{"type":"integer"},"crc_streak":{"type":"integer"},"missing_frames":{"type":"integer"},"stale_frames":{"type":"integer"},"state_age_ticks":{"type":"integer"},"clamped_targets":{"type":"integer"},"envelope_range_clamps":{"type":"integer"},"envelope_violations":{"type":"integer"},"dropped_log_records":{"type":"integer"}}}"#,
     ),
     (
         SAFETY_EVENT,
         "g1fw.SafetyEvent",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"time_s":{"type":"number"},"event":{"type":"string"},"reason":{"type":"string"},"joint":{"type":"string"}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"time_s":{"type":"number"},"event":{"type":"string"},"reason":{"type":"string"},"joint":{"type":"string"},"detail":{"type":"string"}}}"#,
     ),
     (
         TIMING,

@@ -640,6 +640,8 @@ impl McapSink {
                     stale_frames: c.stale_frames,
                     state_age_ticks: c.state_age_ticks,
                     clamped_targets: s.clamped_targets,
+                    envelope_range_clamps: s.envelope.range_clamps,
+                    envelope_violations: s.envelope.violations,
                     dropped_log_records: r.dropped_before,
                 },
             )?;
@@ -655,6 +657,7 @@ impl McapSink {
                     event: "trip",
                     reason: reason.name(),
                     joint: reason.slot().map_or("", |s| hal::G1_MOTOR_NAMES[s as usize]),
+                    detail: s.envelope_violation.map(|v| v.to_string()).unwrap_or_default(),
                 },
             )?;
         }
@@ -668,6 +671,7 @@ impl McapSink {
                     event: "reset",
                     reason: "operator",
                     joint: "",
+                    detail: String::new(),
                 },
             )?;
         }
@@ -1121,6 +1125,8 @@ struct SafetyMsg {
     stale_frames: u64,
     state_age_ticks: u64,
     clamped_targets: u64,
+    envelope_range_clamps: u64,
+    envelope_violations: u64,
     dropped_log_records: u64,
 }
 
@@ -1131,6 +1137,8 @@ struct SafetyEventMsg {
     event: &'static str,
     reason: &'static str,
     joint: &'static str,
+    /// What broke the command envelope, for its trips.
+    detail: String,
 }
 
 #[derive(Serialize)]

@@ -267,6 +267,16 @@ impl Learner {
         let mb = e.div_ceil(cfg.minibatches).max(1);
         let mut stats = UpdateStats::default();
         let mut n = 0.0f64;
+        // The adaptive learning rate measures how far each step moves the policy. Its reference is
+        // the policy as this update starts, not the one that rolled out: half the environments'
+        // rollouts are one update old (the runner overlaps rollout and update), and measuring from
+        // there counted the previous update's step too, so the rate fell to its floor every other
+        // iteration (run 6: 1e-5 for most of 20 M steps).
+        let reference = if critic_only {
+            Vec::new()
+        } else {
+            self.reference_means(ac, rolls, mb)?
+        };
         for _ in 0..cfg.epochs {
             let mut order: Vec<usize> = (0..e).collect();
             for i in (1..e).rev() {
@@ -304,7 +314,17 @@ impl Learner {
                 };
                 let obs = Tensor::from_vec(gather(&|r| &r.obs, o, m_obs), (t, b2, o), &dev)?;
                 let act = Tensor::from_vec(gather(&|r| &r.actions, a, m_act), (t, b2, a), &dev)?;
-                let old_mean = gather(&|r| &r.means, a, m_act);
+                let old_mean: Vec<f32> = if critic_only {
+                    Vec::new()
+                } else {
+                    let mut v = Vec::with_capacity(t * b * a);
+                    for s in 0..t {
+                        for &k in chunk {
+                            v.extend_from_slice(&reference[k][s * a..(s + 1) * a]);
+                        }
+                    }
+                    v
+                };
                 let masks = Tensor::from_vec(gather(&|r| &r.masks, 1, None), (t, b2, 1), &dev)?;
                 let old_logp = Tensor::from_vec(gather(&|r| &r.logp, 1, None), (t, b2), &dev)?;
                 let mut adv = gather(&|r| &r.advantages, 1, None);
@@ -355,8 +375,8 @@ impl Learner {
                 let mut kl = 0.0f64;
                 // On the rollout's own rows only (as rsl_rl): a policy not yet symmetric is far
                 // from its mirror image, and that gap is not a step size.
-                let rows = new_mean.chunks_exact(a).zip(old_mean.chunks_exact(a)).enumerate();
-                for (_, (row_new, row_old)) in rows.filter(|(r, _)| r % b2 < b) {
+                let rows_new = new_mean.chunks_exact(a).enumerate().filter(|(r, _)| r % b2 < b);
+                for ((_, row_new), row_old) in rows_new.zip(old_mean.chunks_exact(a)) {
                     for j in 0..a {
                         let (sn, so) = ((ls[j] as f64).exp(), (old_ls[j] as f64).exp());
                         kl += (sn / so).ln() + (so * so + (row_old[j] - row_new[j]).powi(2) as f64) / (2.0 * sn * sn)
@@ -405,6 +425,59 @@ impl Learner {
         let ls: Vec<f32> = ac.log_std().to_vec1()?;
         stats.mean_std = ls.iter().map(|&x| (x as f64).exp()).sum::<f64>() / ls.len() as f64;
         Ok(stats)
+    }
+}
+
+impl Learner {
+    /// The actor's means on every rollout row (the rollout's own rows, not mirrored), per
+    /// environment, `[steps × act]`, before this update changes anything.
+    fn reference_means(&self, ac: &ActorCritic, rolls: &[EnvRollout], mb: usize) -> candle_core::Result<Vec<Vec<f32>>> {
+        let (t, o, a) = (self.cfg.steps, ac.obs_dim, ac.act_dim);
+        let dev = Device::Cpu;
+        let hidden = ac.arch.lstm_hidden();
+        let mut out = vec![Vec::new(); rolls.len()];
+        let idx: Vec<usize> = (0..rolls.len()).collect();
+        for chunk in idx.chunks(mb.max(1)) {
+            let b = chunk.len();
+            let mut obs = Vec::with_capacity(t * b * o);
+            let mut masks = Vec::with_capacity(t * b);
+            for s in 0..t {
+                for &k in chunk {
+                    obs.extend_from_slice(&rolls[k].obs[s * o..(s + 1) * o]);
+                    masks.push(rolls[k].masks[s]);
+                }
+            }
+            let obs = Tensor::from_vec(obs, (t, b, o), &dev)?;
+            let masks = Tensor::from_vec(masks, (t, b, 1), &dev)?;
+            let state0 = if hidden > 0 {
+                let mut h0 = Vec::with_capacity(b * hidden);
+                let mut c0 = Vec::with_capacity(b * hidden);
+                for &k in chunk {
+                    h0.extend_from_slice(&rolls[k].state0[..hidden]);
+                    c0.extend_from_slice(&rolls[k].state0[hidden..]);
+                }
+                Some((
+                    Tensor::from_vec(h0, (b, hidden), &dev)?,
+                    Tensor::from_vec(c0, (b, hidden), &dev)?,
+                ))
+            } else {
+                None
+            };
+            let mean: Vec<f32> = ac
+                .actor_sequence(&obs, state0.as_ref().map(|(h, c)| (h, c)), &masks)?
+                .detach()
+                .flatten_all()?
+                .to_vec1()?;
+            for (i, &k) in chunk.iter().enumerate() {
+                let v = &mut out[k];
+                v.reserve(t * a);
+                for s in 0..t {
+                    let row = (s * b + i) * a;
+                    v.extend_from_slice(&mean[row..row + a]);
+                }
+            }
+        }
+        Ok(out)
     }
 }
 
