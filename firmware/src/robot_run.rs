@@ -67,6 +67,9 @@ pub struct RunOptions {
     /// Tests only (no command-line flag sets it): panic inside the control loop on this tick, to
     /// show that the guard damps the motors and the log and report survive.
     pub inject_panic_at_tick: Option<u64>,
+    /// After the loop ends, for whatever reason (duration, signal, HAL failure, panic), the damping
+    /// command is sent every control period for this long before the program exits.
+    pub end_damping: Duration,
 }
 
 impl Default for RunOptions {
@@ -87,6 +90,7 @@ impl Default for RunOptions {
                 wait: false,
             },
             inject_panic_at_tick: None,
+            end_damping: Duration::from_secs(1),
         }
     }
 }
@@ -104,6 +108,8 @@ pub struct RunReport {
     pub end: String,
     /// The control loop panicked (a bug); the guard sent damping (see `end`).
     pub panicked: bool,
+    /// The damping command sent after the end, whatever ended the run.
+    pub end_damping: EndDamping,
     pub safety: SafetyReport,
     /// The CAN HAL's counters (CAN runs only).
     pub can: Option<CanCounters>,
@@ -180,6 +186,57 @@ pub fn run_on<B: CanBuses>(
     })?;
     report.can = Some(hal.counters());
     Ok(report)
+}
+
+/// What was sent after the loop ended.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct EndDamping {
+    /// Damping commands handed to the transport.
+    pub sent: u64,
+    /// Those the transport refused (a lost link).
+    pub failed: u64,
+    pub seconds: f64,
+}
+
+/// Sends the damping command (kp 0, the spec's damping kd, through the command envelope) every
+/// control period for `duration`, on a monotonic clock with absolute deadlines: the robot's state
+/// may have stopped (a lost link, a finished simulator), so nothing here waits for it.
+fn damp_after_end<H: LowLevel>(
+    hal: &mut H,
+    runtime: &Runtime,
+    mode_machine: u8,
+    period_ns: u64,
+    duration: Duration,
+) -> EndDamping {
+    let mut cmd = hal::LowCommand::default();
+    let state = hal::LowState {
+        mode_machine,
+        ..Default::default()
+    };
+    runtime.controller().damping_command(&state, &mut cmd);
+    let period = Duration::from_nanos(period_ns.max(1));
+    let n = (duration.as_nanos() / period.as_nanos()).max(1) as u64;
+    let start = Instant::now();
+    let mut out = EndDamping::default();
+    for i in 0..n {
+        if hal.write_command(&cmd).is_ok() {
+            out.sent += 1;
+        } else {
+            out.failed += 1;
+        }
+        let deadline = start + period * (i as u32 + 1);
+        if let Some(wait) = deadline.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+    }
+    out.seconds = start.elapsed().as_secs_f64();
+    tracing::info!(
+        sent = out.sent,
+        failed = out.failed,
+        "run ended: damping sent for {:.2} s",
+        out.seconds
+    );
+    out
 }
 
 /// Joins the DDS domain on `cfg`'s interface and runs, ticking on `rt/lowstate`.
@@ -259,29 +316,23 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut operator = opts.schedule.source(period_ns);
     let wall = Instant::now();
     let mut ticks = 0u64;
+    let mut mode_machine = 0u8;
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
         if let Some(l) = logger.as_mut() {
             l.push(v);
         }
         ticks = v.summary.tick.index;
+        mode_machine = v.state.mode_machine;
         if opts.inject_panic_at_tick == Some(ticks) {
             panic!("injected at tick {ticks} by RunOptions::inject_panic_at_tick");
         }
         !opts.stop.load(Ordering::Relaxed)
     });
+    // Every end leaves the robot damped, not holding the last targets with the policy's gains.
+    let end_damping = damp_after_end(&mut hal, &runtime, mode_machine, period_ns, opts.end_damping);
     let end_text = match &end {
         LoopEnd::Completed { .. } => "completed".to_string(),
-        LoopEnd::Stopped { .. } => {
-            // A signal: leave the robot damped, not holding its last targets.
-            let mut cmd = hal::LowCommand::default();
-            let state = hal::LowState::default();
-            runtime.fail_safe(ticks + 1, crate::supervisor::DampingReason::Requested, &state, &mut cmd);
-            let sent = hal::LowLevel::write_command(&mut hal, &cmd).is_ok();
-            format!(
-                "stopped by signal; damping {}",
-                if sent { "sent" } else { "could not be sent" }
-            )
-        }
+        LoopEnd::Stopped { .. } => "stopped by signal".to_string(),
         LoopEnd::HalError { tick, kind, message } => {
             format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
         }
@@ -325,6 +376,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
         panicked: matches!(end, LoopEnd::Panicked { .. }),
+        end_damping,
         safety: SafetyReport::of(&runtime),
         can: None,
         dds: None,

@@ -237,6 +237,27 @@ fn commands(r: &Run) -> Vec<(u64, usize, f32, f32)> {
         .collect()
 }
 
+/// The commands on the bus split before the trailing run of damping commands (kp 0 and the peer
+/// spec's damping kd, which travels as a 12-bit fixed-point value), checked to be whole rounds of
+/// one per motor.
+fn split_trailing_damping(r: &Run) -> (Vec<(u64, usize, f32, f32)>, Vec<(u64, usize, f32, f32)>) {
+    let kd = DeploySpec::load(&peer_spec_path()).unwrap().safety.damping_kd;
+    let mut cmds = commands(r);
+    let n = cmds
+        .iter()
+        .rev()
+        .take_while(|&&(_, _, kp, d)| kp == 0.0 && (d - kd).abs() < 0.01)
+        .count();
+    let damping = cmds.split_off(cmds.len() - n);
+    assert_eq!(damping.len() % 12, 0, "damping in whole rounds of the 12 motors");
+    for round in damping.chunks(12) {
+        let mut slots: Vec<usize> = round.iter().map(|c| c.1).collect();
+        slots.sort();
+        assert_eq!(slots, layout().motors.iter().map(|m| m.slot).collect::<Vec<_>>());
+    }
+    (cmds, damping)
+}
+
 /// Decoded firmware commands after IMU sample `from`: (slot, kp, kd).
 fn commands_after(r: &Run, from: u64) -> Vec<(usize, f32, f32)> {
     commands(r)
@@ -258,6 +279,17 @@ fn walks_ten_seconds_over_can() {
     assert_eq!(r.fw.final_mode, "Policy");
     assert!(r.fw.policy_steps >= 500, "{}", r.fw.policy_steps);
     assert!(r.emu.distance_x_m > 2.0, "walked {:.2} m", r.emu.distance_x_m);
+    // A normal end damps too: the damping command every period for 1 s (--end-damping's default).
+    let (walk, damping) = split_trailing_damping(&r);
+    let end = r.fw.end_damping;
+    assert_eq!((end.sent, end.failed), (500, 0), "{end:?}");
+    assert!(end.seconds >= 0.99, "{end:?}");
+    assert_eq!(
+        damping.len() as u64,
+        12 * end.sent,
+        "damping commands on the bus after the end"
+    );
+    assert!(walk.iter().all(|&(_, _, kp, _)| kp > 0.0), "no damping before the end");
     let c = r.fw.can.expect("CAN counters");
     assert_eq!(
         (c.malformed, c.foreign, c.missing_replies, c.imu_gaps),
@@ -459,15 +491,19 @@ fn an_imu_that_stops_ends_the_run_in_damping() {
     let trip = r.fw.trip.as_ref().expect("a trip");
     assert_eq!((trip.reason.as_str(), trip.tick), ("hal_fault", 701));
     assert!(r.fw.final_mode.starts_with("Damping"), "{}", r.fw.final_mode);
-    // On the bus: the walk's commands up to the last sample, then one damping command per motor.
-    let cmds = commands(&r);
-    let (walk, last) = cmds.split_at(cmds.len() - 12);
-    let mut slots: Vec<usize> = last.iter().map(|c| c.1).collect();
-    slots.sort();
-    assert_eq!(slots, layout().motors.iter().map(|m| m.slot).collect::<Vec<_>>());
-    assert!(last.iter().all(|&(_, _, kp, kd)| kp == 0.0 && kd > 0.0), "{last:?}");
+    // On the bus: the walk's commands up to the last sample, then one damping command per motor
+    // at once, and the end's damping for 1 s.
+    let (walk, damping) = split_trailing_damping(&r);
+    assert_eq!(
+        damping.len() as u64,
+        12 * (1 + r.fw.end_damping.sent),
+        "{:?}",
+        r.fw.end_damping
+    );
+    assert!(r.fw.end_damping.sent >= 500);
     assert!(walk.iter().filter(|c| c.0 > 600).all(|&(_, _, kp, _)| kp > 0.0));
-    assert!(r.emu.end.contains("went quiet"), "{}", r.emu.end);
+    // (The emulator, stepping on commands, serves the end's damping rounds too: it no longer goes
+    // quiet after the IMU's last sample.)
     // Nothing already logged is lost: the log closes and replays to its last tick.
     let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
@@ -498,17 +534,15 @@ fn a_panic_in_the_control_loop_damps_every_motor() {
         "{}",
         r.fw.end
     );
-    let cmds = commands(&r);
-    let (walk, last) = cmds.split_at(cmds.len() - 12);
-    let mut slots: Vec<usize> = last.iter().map(|c| c.1).collect();
-    slots.sort();
-    assert_eq!(slots, layout().motors.iter().map(|m| m.slot).collect::<Vec<_>>());
-    let kd = DeploySpec::load(&peer_spec_path()).unwrap().safety.damping_kd;
-    // kd travels as a 12-bit fixed-point value.
-    assert!(
-        last.iter().all(|&(_, _, p, d)| p == 0.0 && (d - kd).abs() < 0.01),
-        "{last:?}"
+    // The guard's damping command per motor, then the end's damping for 1 s.
+    let (walk, damping) = split_trailing_damping(&r);
+    assert_eq!(
+        damping.len() as u64,
+        12 * (1 + r.fw.end_damping.sent),
+        "{:?}",
+        r.fw.end_damping
     );
+    assert!(r.fw.end_damping.sent >= 500);
     assert!(walk.iter().filter(|c| c.0 > 500).all(|&(_, _, kp, _)| kp > 0.0));
     let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none() && rep.damaged.is_none(), "{rep:?}");

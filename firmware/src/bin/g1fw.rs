@@ -37,8 +37,12 @@ enum Cmd {
     /// Run the firmware on a robot: `--dds IFACE[,DOMAIN]` speaks the G1's own DDS topics
     /// (rt/lowstate, rt/lowcmd; the real robot on domain 0, unitree_mujoco or `g1-sim --dds` on
     /// `lo,1`); `--can-config` drives motors on CAN buses (docs/can.md; the vcan bench against
-    /// `g1-can-emu`). Runs until --duration or SIGINT/SIGTERM (which damp the motors). Prints a
-    /// JSON report; exit 0 when no safety trip latched, 3 when one did, 2 on errors.
+    /// `g1-can-emu`). Runs until --duration or SIGINT/SIGTERM. Every end damps: the duration ran out,
+    /// a signal, a safety trip (damping from that tick on), a lost link or a crash of the loop, the
+    /// damping command then goes out every control period for --end-damping seconds (default 1)
+    /// before the program exits (docs/robot.md, "How a run ends"). Hold the robot (gantry, or the
+    /// simulator's elastic band) until the start-up ramp has run. Prints a JSON report; exit 0 when
+    /// no safety trip latched, 3 when one did, 2 on errors.
     Run(Box<RunArgs>),
     /// Load and validate a deploy spec and its weights, print a summary, exit non-zero on any error.
     CheckSpec {
@@ -308,6 +312,11 @@ struct RunArgs {
     /// Seconds of control ticks to run (default: until SIGINT/SIGTERM).
     #[arg(long)]
     duration: Option<f64>,
+    /// After every end (the duration ran out, a signal, a safety trip, a lost link, a crash of the
+    /// loop): send the damping command (kp 0, the spec's damping kd) every control period for this
+    /// many seconds, then exit. At least one is sent.
+    #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
+    end_damping: f64,
     /// Velocity command vx,vy,wz (m/s, m/s, rad/s), held for the whole run.
     #[arg(long, default_value = "0,0,0", value_parser = parse_cmd, allow_hyphen_values = true, conflicts_with = "cmd_schedule")]
     cmd: [f32; 3],
@@ -784,6 +793,9 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
     if !(a.startup_timeout > 0.0 && a.startup_timeout.is_finite()) {
         bail!("--startup-timeout must be a positive number of seconds");
     }
+    if !(0.0..=60.0).contains(&a.end_damping) {
+        bail!("--end-damping must be 0 to 60 seconds (got {})", a.end_damping);
+    }
     if a.dds_tick_timeout_ms == Some(0) {
         bail!("--dds-tick-timeout-ms must be at least 1");
     }
@@ -832,6 +844,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         stop,
         perception: a.perception,
         inject_panic_at_tick: None,
+        end_damping: std::time::Duration::from_secs_f64(a.end_damping),
         lidar: match a.lidar_udp {
             None => None,
             Some(bind) => Some(robot_io::UdpLidarConfig {

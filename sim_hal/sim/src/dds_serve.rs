@@ -55,6 +55,9 @@ pub struct DdsSummary {
     pub base_travel_m: [f64; 2],
     pub base_z_min_m: f64,
     pub fell: bool,
+    /// Simulated time of the fall, s (a controller that damps at its end lets the robot sink
+    /// after its last policy command: this says whether the fall came before or after).
+    pub fell_at_s: Option<f64>,
 }
 
 /// Serves until idle, the time limit, or a DDS failure.
@@ -125,6 +128,9 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                 }
                 let z = sim.truth().base_pos[2];
                 summary.base_z_min_m = summary.base_z_min_m.min(z);
+                if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
+                    summary.fell_at_s = Some(sim.time());
+                }
                 publish(sim, &link)?;
             }
             None => {
