@@ -237,10 +237,13 @@ fn commands(r: &Run) -> Vec<(u64, usize, f32, f32)> {
         .collect()
 }
 
+/// A decoded firmware command on the bus: (IMU samples seen before it, slot, kp, kd).
+type BusCommand = (u64, usize, f32, f32);
+
 /// The commands on the bus split before the trailing run of damping commands (kp 0 and the peer
 /// spec's damping kd, which travels as a 12-bit fixed-point value), checked to be whole rounds of
 /// one per motor.
-fn split_trailing_damping(r: &Run) -> (Vec<(u64, usize, f32, f32)>, Vec<(u64, usize, f32, f32)>) {
+fn split_trailing_damping(r: &Run) -> (Vec<BusCommand>, Vec<BusCommand>) {
     let kd = DeploySpec::load(&peer_spec_path()).unwrap().safety.damping_kd;
     let mut cmds = commands(r);
     let n = cmds
