@@ -204,17 +204,8 @@ pub struct LegKinematics {
 impl LegKinematics {
     /// Reads an MJCF file (see [`LegKinematics::from_mjcf`]).
     pub fn from_mjcf_file(path: &std::path::Path) -> Result<Self, KinematicsError> {
-        use std::io::Read;
         let cannot = |e: &dyn std::fmt::Display| KinematicsError::Xml(format!("cannot read {}: {e}", path.display()));
-        let mut text = String::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(MAX_MJCF_BYTES + 1).read_to_string(&mut text))
-            .map_err(|e| cannot(&e))?;
-        if text.len() as u64 > MAX_MJCF_BYTES {
-            return Err(cannot(&format!(
-                "more than the {MAX_MJCF_BYTES}-byte limit for a model"
-            )));
-        }
+        let text = input_file::read_text_capped(path, MAX_MJCF_BYTES).map_err(|e| cannot(&e))?;
         Self::from_mjcf(&text)
     }
 

@@ -40,25 +40,6 @@ pub mod spec;
 pub mod supervisor;
 pub mod terrain_net;
 
-/// Reads a whole file of at most `max` bytes, refusing a larger one before allocating for it (also
-/// a pipe or device that never ends, which `metadata` cannot size): the error says how large.
-pub fn read_capped(path: &std::path::Path, max: u64) -> std::io::Result<Vec<u8>> {
-    use std::io::Read;
-    let too_large = |n: u64| {
-        std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{n} bytes or more is over the {max}-byte limit for this file"),
-        )
-    };
-    let file = std::fs::File::open(path)?;
-    let len = file.metadata()?.len();
-    if len > max {
-        return Err(too_large(len));
-    }
-    let mut bytes = Vec::with_capacity(len as usize);
-    file.take(max + 1).read_to_end(&mut bytes)?;
-    if bytes.len() as u64 > max {
-        return Err(too_large(bytes.len() as u64));
-    }
-    Ok(bytes)
-}
+/// Every input file is read through these: regular files only (a FIFO, device or directory is
+/// refused without blocking), size-capped before allocating (the `input_file` crate).
+pub use input_file::{read_capped, read_text_capped};

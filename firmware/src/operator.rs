@@ -15,6 +15,9 @@ use std::path::{Path, PathBuf};
 
 use hal::{LowState, TickTime};
 
+/// Largest command-schedule file read, bytes (a schedule is a few lines per command change).
+pub const MAX_SCHEDULE_BYTES: u64 = 1 << 20;
+
 /// Gain of the heading correction: yaw rate per radian of heading error (legged_gym's heading
 /// command uses 0.5 · wrap(target − yaw)).
 pub const HEADING_K: f32 = 0.5;
@@ -133,8 +136,9 @@ impl CommandSchedule {
         }
     }
 
+    /// Reads a schedule file (at most [`MAX_SCHEDULE_BYTES`]).
     pub fn load(path: &Path) -> Result<Self, ScheduleError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ScheduleError::Read {
+        let text = crate::read_text_capped(path, MAX_SCHEDULE_BYTES).map_err(|source| ScheduleError::Read {
             path: path.into(),
             source,
         })?;

@@ -573,7 +573,8 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
     let pinned_spec_sha = meta_get(&meta, key::SPEC_SHA256)?;
     let (spec_text, spec_path) = match &opts.spec {
         Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading spec {}", p.display()))?;
+            let text = crate::read_text_capped(p, crate::spec::MAX_SPEC_BYTES as u64)
+                .with_context(|| format!("reading spec {}", p.display()))?;
             (text, p.clone())
         }
         None => {

@@ -83,7 +83,8 @@ fn weight_files_over_the_limit_are_not_read() {
     std::fs::remove_dir_all(&dir).unwrap();
     if Path::new("/dev/zero").exists() {
         let e = firmware::read_capped(Path::new("/dev/zero"), 1 << 20).unwrap_err();
-        assert_eq!(e.kind(), std::io::ErrorKind::InvalidData, "{e}");
+        // A device is refused as such before a byte is read.
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput, "{e}");
     }
 }
 
@@ -128,4 +129,34 @@ fn activations_over_the_limit_are_refused_before_allocation() {
     };
     assert!(matches!(e, NnError::TooLarge { .. }), "{e:?}");
     assert!(e.to_string().contains(&MAX_ACTIVATION.to_string()), "{e}");
+}
+
+/// Issue 30: a FIFO named as an input blocked `open()` forever, and `/dev/zero` as a schedule was
+/// read until memory ran out. Every reader now refuses what is not a regular file, saying what it is.
+#[test]
+fn fifos_devices_and_directories_are_refused_as_inputs_without_blocking() {
+    let dir = scratch("fifo");
+    let fifo = dir.join("input.fifo");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path; mkfifo only creates a file system node.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let (tx, rx) = std::sync::mpsc::channel();
+    let f = fifo.clone();
+    std::thread::spawn(move || {
+        let spec = DeploySpec::load(&f).map(|_| ()).map_err(|e| format!("{e}: {:?}", std::error::Error::source(&e)));
+        let chain = |e: &dyn std::error::Error| format!("{e}: {}", e.source().map_or(String::new(), |s| s.to_string()));
+        let schedule = firmware::operator::CommandSchedule::load(&f).map(|_| ()).map_err(|e| chain(&e));
+        let zero = firmware::operator::CommandSchedule::load(Path::new("/dev/zero")).map(|_| ()).map_err(|e| chain(&e));
+        let weights = firmware::read_capped(&f, MAX_WEIGHTS_BYTES).map(|_| ()).map_err(|e| e.to_string());
+        tx.send((spec, schedule, zero, weights)).unwrap();
+    });
+    let (spec, schedule, zero, weights) = rx
+        .recv_timeout(std::time::Duration::from_secs(20))
+        .expect("a reader blocked on a FIFO");
+    for r in [&spec, &schedule, &weights] {
+        let e = r.as_ref().unwrap_err();
+        assert!(e.contains("a FIFO (named pipe), not a regular file"), "{e}");
+    }
+    assert!(zero.unwrap_err().contains("a character device"));
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -15,6 +15,9 @@ use serde_yaml_ng::Value;
 
 use crate::onnx::{import_file, ImportError, ImportedNetwork};
 
+/// Largest deploy.yaml read, bytes (rl_lab's are a few KB).
+pub const MAX_DEPLOY_YAML_BYTES: u64 = 1 << 20;
+
 /// The G1's SDK motor slots (29-dof).
 pub const G1_SLOTS: usize = 29;
 
@@ -165,12 +168,48 @@ fn fmt_list(v: &[f32]) -> String {
     format!("[{}]", items.join(", "))
 }
 
+/// Deepest nesting a deploy.yaml may have (rl_lab's nest 3 deep). The YAML parser is recursive and
+/// slow on deep input (100k levels took 45 s before it gave up), so depth is bounded first.
+pub const MAX_DEPLOY_YAML_DEPTH: usize = 64;
+
+/// Why `text` nests too deep for a deploy.yaml: flow brackets (`[`, `{`) or block indentation
+/// (leading spaces and `- ` markers, counted two columns per level).
+fn too_deep(text: &str) -> Option<String> {
+    let (mut depth, mut max_flow) = (0usize, 0usize);
+    for b in text.bytes() {
+        match b {
+            b'[' | b'{' => {
+                depth += 1;
+                max_flow = max_flow.max(depth);
+            }
+            b']' | b'}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    let max_indent = text
+        .lines()
+        .map(|l| l.len() - l.trim_start_matches([' ', '-', '\t']).len())
+        .max()
+        .unwrap_or(0);
+    let block = max_indent / 2;
+    let deepest = max_flow.max(block);
+    (deepest > MAX_DEPLOY_YAML_DEPTH).then(|| {
+        format!("nested {deepest} levels deep, more than the {MAX_DEPLOY_YAML_DEPTH} a deploy.yaml may have")
+    })
+}
+
 /// Reads `deploy` and `onnx` and builds the spec.
 pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<RlLabImport, DeployError> {
-    let text = std::fs::read_to_string(deploy).map_err(|e| DeployError::Io {
+    let text = firmware::read_text_capped(deploy, MAX_DEPLOY_YAML_BYTES).map_err(|e| DeployError::Io {
         path: deploy.display().to_string(),
         source: e,
     })?;
+    if let Some(why) = too_deep(&text) {
+        return Err(DeployError::Yaml {
+            path: deploy.display().to_string(),
+            why,
+        });
+    }
     let y: Value = serde_yaml_ng::from_str(&text).map_err(|e| DeployError::Yaml {
         path: deploy.display().to_string(),
         why: e.to_string(),
@@ -749,4 +788,17 @@ pub fn import_onnx_metadata(onnx: &Path, opts: &RlLabOptions) -> Result<RlLabImp
         .collect(),
     };
     finish(draft, network, opts)
+}
+
+#[cfg(test)]
+mod nesting {
+    #[test]
+    fn deep_yaml_is_refused_before_parsing() {
+        assert!(super::too_deep("a:\n  b: [1, 2, {c: 3}]\n  - x\n").is_none());
+        let flow = "[".repeat(100_000);
+        let why = super::too_deep(&flow).unwrap();
+        assert!(why.contains("nested 100000 levels deep"), "{why}");
+        let block: String = (0..200).map(|i| format!("{}k{i}:\n", " ".repeat(2 * i))).collect();
+        assert!(super::too_deep(&block).is_some());
+    }
 }

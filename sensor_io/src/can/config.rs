@@ -156,12 +156,8 @@ impl BusLayout {
     }
 
     pub fn load(path: &std::path::Path) -> Result<Self, ConfigError> {
-        use std::io::Read;
         let cannot = |e: &dyn std::fmt::Display| ConfigError::Invalid(format!("cannot read {}: {e}", path.display()));
-        let mut text = String::new();
-        std::fs::File::open(path)
-            .and_then(|f| f.take(MAX_LAYOUT_BYTES as u64 + 1).read_to_string(&mut text))
-            .map_err(|e| cannot(&e))?;
+        let text = input_file::read_text_capped(path, MAX_LAYOUT_BYTES as u64).map_err(|e| cannot(&e))?;
         Self::from_toml(&text)
     }
 

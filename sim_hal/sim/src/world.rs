@@ -24,6 +24,9 @@ use serde::{Deserialize, Serialize};
 use crate::quat_mul;
 use crate::rng::Rng;
 
+/// Largest scenario (world) file read, bytes.
+pub const MAX_WORLD_BYTES: u64 = 1 << 20;
+
 /// Look-ahead box for labels, robot frame: x range, half width (m).
 pub const LOOKAHEAD_X: (f64, f64) = (-0.5, 1.5);
 pub const LOOKAHEAD_HALF_Y: f64 = 0.75;
@@ -347,8 +350,9 @@ impl World {
         Some(World::build(name, spec).expect("presets are valid"))
     }
 
+    /// Reads a scenario file (at most [`MAX_WORLD_BYTES`]).
     pub fn from_file(path: &Path) -> Result<World, WorldError> {
-        let text = std::fs::read_to_string(path).map_err(|source| WorldError::Io {
+        let text = input_file::read_text_capped(path, MAX_WORLD_BYTES).map_err(|source| WorldError::Io {
             path: path.display().to_string(),
             source,
         })?;
