@@ -143,6 +143,11 @@ impl Drop for ScratchDir {
 }
 
 /// Runs the built `g1fw` with `args` from the repository root.
+/// A `g1fw sim` that ran to its end: exit 0, or 3 when a safety trip latched (the report names it).
+pub fn ran(out: &std::process::Output) -> bool {
+    matches!(out.status.code(), Some(0 | 3))
+}
+
 pub fn g1fw(args: &[&str]) -> std::process::Output {
     std::process::Command::new(built_bin("g1fw"))
         .args(args)

@@ -34,7 +34,7 @@ fn run(world: &str, log: Option<&std::path::Path>, report: &std::path::Path) -> 
     }
     let out = g1fw(&args);
     assert!(
-        out.status.success(),
+        ran(&out),
         "g1fw sim --world {world} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );

@@ -77,7 +77,7 @@ fn sim_with_world(spec: &Path, world: &str, log: &Path, extra: &[&str]) {
     args.extend(extra);
     let out = g1fw(&args);
     assert!(
-        out.status.success(),
+        ran(&out),
         "g1fw sim --world {world} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );

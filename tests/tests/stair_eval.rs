@@ -12,7 +12,7 @@ use integration_tests::*;
 
 fn ok(out: &std::process::Output, what: &str) {
     assert!(
-        out.status.success(),
+        ran(out),
         "{what} failed ({:?}): {}",
         out.status.code(),
         String::from_utf8_lossy(&out.stderr)

@@ -23,7 +23,9 @@ struct Cli {
 #[derive(Subcommand)]
 enum Cmd {
     /// Start the MuJoCo simulator (g1-sim) and run the firmware against it, lock-stepped over the
-    /// bridge, then print (and optionally write) a JSON report evaluated from ground truth.
+    /// bridge, then print (and optionally write) a JSON report evaluated from ground truth. Exit 0
+    /// when no safety trip latched, 3 when one did (the report names it), 2 on errors, 130 when
+    /// interrupted.
     Sim(Box<SimArgs>),
     /// Evaluate a (stair) policy through the real firmware loop: N episodes, each exactly a
     /// `g1fw sim` run (500 Hz, lock-stepped with its own g1-sim, perception on) walking forward at
@@ -674,9 +676,11 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         end = report.end,
         "run finished"
     );
-    // 128 + SIGINT, as shells report an interrupted command.
+    // 128 + SIGINT, as shells report an interrupted command; 3 for a latched trip, as `g1fw run`.
     Ok(if report.interrupted {
         ExitCode::from(130)
+    } else if report.trip.is_some() {
+        ExitCode::from(3)
     } else {
         ExitCode::SUCCESS
     })
