@@ -11,7 +11,7 @@ use crate::spec::DeploySpec;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ControllerError {
-    #[error("loading policy weights {path}")]
+    #[error("loading the policy's weights")]
     Weights {
         path: std::path::PathBuf,
         source: Box<NnError>,

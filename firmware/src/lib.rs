@@ -39,6 +39,7 @@ pub mod sim_run;
 pub mod spec;
 pub mod supervisor;
 pub mod terrain_net;
+pub mod text;
 
 /// Every input file is read through these: regular files only (a FIFO, device or directory is
 /// refused without blocking), size-capped before allocating (the `input_file` crate).

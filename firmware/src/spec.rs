@@ -621,7 +621,7 @@ impl DeploySpec {
         }
         let mut spec: DeploySpec = toml::from_str(text).map_err(|e| SpecError::Parse {
             path: path.into(),
-            message: e.to_string(),
+            message: crate::text::for_terminal(&e.to_string(), crate::text::MAX_QUOTED_LINE, true),
         })?;
         spec.path = path.to_path_buf();
         spec.source_text = text.to_string();

@@ -26,7 +26,7 @@ pub enum TerrainNetError {
     },
     #[error("terrain network description {origin}: {message}")]
     ParseDesc { origin: String, message: String },
-    #[error("terrain network: {0}")]
+    #[error("terrain network: {}", crate::nn::with_causes(.0))]
     Nn(NnError),
     #[error(
         "terrain network maps {input} inputs to {output} outputs; the firmware needs {} → {OUTPUTS} \

@@ -143,11 +143,19 @@ fn fifos_devices_and_directories_are_refused_as_inputs_without_blocking() {
     let (tx, rx) = std::sync::mpsc::channel();
     let f = fifo.clone();
     std::thread::spawn(move || {
-        let spec = DeploySpec::load(&f).map(|_| ()).map_err(|e| format!("{e}: {:?}", std::error::Error::source(&e)));
+        let spec = DeploySpec::load(&f)
+            .map(|_| ())
+            .map_err(|e| format!("{e}: {:?}", std::error::Error::source(&e)));
         let chain = |e: &dyn std::error::Error| format!("{e}: {}", e.source().map_or(String::new(), |s| s.to_string()));
-        let schedule = firmware::operator::CommandSchedule::load(&f).map(|_| ()).map_err(|e| chain(&e));
-        let zero = firmware::operator::CommandSchedule::load(Path::new("/dev/zero")).map(|_| ()).map_err(|e| chain(&e));
-        let weights = firmware::read_capped(&f, MAX_WEIGHTS_BYTES).map(|_| ()).map_err(|e| e.to_string());
+        let schedule = firmware::operator::CommandSchedule::load(&f)
+            .map(|_| ())
+            .map_err(|e| chain(&e));
+        let zero = firmware::operator::CommandSchedule::load(Path::new("/dev/zero"))
+            .map(|_| ())
+            .map_err(|e| chain(&e));
+        let weights = firmware::read_capped(&f, MAX_WEIGHTS_BYTES)
+            .map(|_| ())
+            .map_err(|e| e.to_string());
         tx.send((spec, schedule, zero, weights)).unwrap();
     });
     let (spec, schedule, zero, weights) = rx

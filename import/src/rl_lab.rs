@@ -193,9 +193,8 @@ fn too_deep(text: &str) -> Option<String> {
         .unwrap_or(0);
     let block = max_indent / 2;
     let deepest = max_flow.max(block);
-    (deepest > MAX_DEPLOY_YAML_DEPTH).then(|| {
-        format!("nested {deepest} levels deep, more than the {MAX_DEPLOY_YAML_DEPTH} a deploy.yaml may have")
-    })
+    (deepest > MAX_DEPLOY_YAML_DEPTH)
+        .then(|| format!("nested {deepest} levels deep, more than the {MAX_DEPLOY_YAML_DEPTH} a deploy.yaml may have"))
 }
 
 /// Reads `deploy` and `onnx` and builds the spec.

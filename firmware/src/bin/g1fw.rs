@@ -435,7 +435,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let s = c.spec();
             println!(
                 "ok: {} — {} joints, observation {} values, {} Hz control / {} Hz policy, weights sha256 {}",
-                s.meta.name,
+                firmware::text::for_terminal(&s.meta.name, firmware::text::MAX_QUOTED_LINE, false),
                 s.num_joints(),
                 s.observation_dim(),
                 s.rates.control_hz,

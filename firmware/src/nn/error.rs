@@ -7,7 +7,7 @@ use thiserror::Error;
 /// Everything that can go wrong loading or stepping a [`crate::nn::Network`].
 #[derive(Debug, Error)]
 pub enum NnError {
-    #[error("cannot read weight file {path}: {source}")]
+    #[error("cannot read weight file {path}")]
     Io {
         path: PathBuf,
         #[source]
@@ -79,4 +79,16 @@ pub enum NnError {
     InputLen { expected: usize, found: usize },
     #[error("step: output slice has length {found}, network output dimension is {expected}")]
     OutputLen { expected: usize, found: usize },
+}
+
+/// `e` and each of its causes, joined by ": " (the OS reason of an I/O error is a cause, said once).
+pub fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
 }

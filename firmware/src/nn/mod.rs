@@ -67,7 +67,7 @@ mod kernels;
 mod layers;
 
 pub use desc::{LayerDesc, NetworkDesc};
-pub use error::NnError;
+pub use error::{with_causes, NnError};
 
 use layers::{Layer, TensorSource};
 use safetensors::SafeTensors;
@@ -158,7 +158,7 @@ impl Network {
                 shape.clone()
             }
         };
-        let st = SafeTensors::deserialize(bytes).map_err(|e| NnError::Format(e.to_string()))?;
+        let st = SafeTensors::deserialize(bytes).map_err(|e| NnError::Format(safetensors_in_words(&e, bytes)))?;
         let mut layers = Vec::with_capacity(desc.layers.len());
         let mut dims = vec![desc.input];
         let mut shapes = vec![input_shape];
@@ -347,5 +347,66 @@ impl fmt::Debug for Network {
             .field("params", &self.params)
             .field("weights_sha256", &self.sha256)
             .finish_non_exhaustive()
+    }
+}
+
+/// A safetensors parse error in plain words, with the sizes that show it (the crate's own messages
+/// are enum names such as `HeaderTooLarge` or `InvalidOffset("actor.0.bias")`).
+pub fn safetensors_in_words(e: &safetensors::SafeTensorError, bytes: &[u8]) -> String {
+    use safetensors::SafeTensorError as E;
+    let header_len = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+    let size = format!("the file has {} bytes", bytes.len());
+    let not_st = "this is not a safetensors file, or it is damaged";
+    match e {
+        E::HeaderTooSmall => format!("{not_st}: {size}, fewer than the 8 of a safetensors length prefix"),
+        E::HeaderTooLarge | E::InvalidHeaderLength => match header_len {
+            Some(n) => format!("{not_st}: its first 8 bytes say the header is {n} bytes long, and {size}"),
+            None => format!("{not_st}: {size}"),
+        },
+        E::InvalidHeader => format!("{not_st}: the header is not UTF-8 text"),
+        E::InvalidHeaderStart => format!("{not_st}: the header does not start with '{{'"),
+        E::InvalidHeaderDeserialization | E::JsonError(_) => {
+            format!("{not_st}: the header is not the JSON table of tensors safetensors expects")
+        }
+        E::TensorNotFound(name) => format!("there is no tensor named {name:?} in the file"),
+        E::InvalidOffset(name) => format!(
+            "tensor {name:?}: its data offsets in the header point outside the data ({size}): the file is truncated or damaged"
+        ),
+        E::TensorInvalidInfo | E::InvalidTensorView(..) => {
+            "a tensor's shape and type do not match the size of its data: the file is damaged".into()
+        }
+        E::MetadataIncompleteBuffer => format!(
+            "the tensors' data does not fill the file exactly ({size}): it is truncated or has bytes appended"
+        ),
+        E::ValidationOverflow => "a tensor's shape is so large that its size overflows: the file is damaged".into(),
+        E::IoError(io) => io.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod safetensors_words {
+    #[test]
+    fn damaged_files_are_described_in_words() {
+        let say = |bytes: &[u8]| match safetensors::SafeTensors::deserialize(bytes) {
+            Err(e) => super::safetensors_in_words(&e, bytes),
+            Ok(_) => panic!("accepted"),
+        };
+        assert!(say(b"abc").contains("the file has 3 bytes, fewer than the 8"));
+        let mut huge = u64::MAX.to_le_bytes().to_vec();
+        huge.extend_from_slice(b"{}");
+        let s = say(&huge);
+        assert!(
+            s.contains("header is 18446744073709551615 bytes long, and the file has 10 bytes"),
+            "{s}"
+        );
+        let mut header = br#"{"w":{"dtype":"F32","shape":[4],"data_offsets":[0,16]}}"#.to_vec();
+        let mut file = (header.len() as u64).to_le_bytes().to_vec();
+        file.append(&mut header);
+        file.extend_from_slice(&[0u8; 8]); // half of the tensor's data
+        let s = say(&file);
+        assert!(!s.contains("InvalidOffset") && !s.contains("MetadataIncomplete"), "{s}");
+        assert!(s.contains("truncated"), "{s}");
     }
 }

@@ -149,10 +149,30 @@ impl SimProcess {
     /// `Err` with the exit status once the process has exited.
     pub fn alive(&mut self) -> Result<(), String> {
         match self.child.try_wait() {
-            Ok(Some(status)) => Err(format!("the simulator exited ({status}); see its message above")),
+            Ok(Some(status)) => Err(exit_in_words(status)),
             Ok(None) => Ok(()),
             Err(e) => Err(format!("cannot poll the simulator process: {e}")),
         }
+    }
+}
+
+/// Why the simulator is gone, without pointing at a message it may never have printed: a signal
+/// kills it silently, a failing g1-sim prints its own error on the shared stderr first.
+fn exit_in_words(status: std::process::ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (_, Some(sig)) => {
+            let name =
+                nix::sys::signal::Signal::try_from(sig).map_or_else(|_| format!("signal {sig}"), |s| s.to_string());
+            format!("the simulator (g1-sim) was killed by {name}: it printed nothing; was it stopped by hand, or out of memory?")
+        }
+        (Some(0), _) => {
+            "the simulator (g1-sim) exited early with status 0 (it does only when told to stop)".to_string()
+        }
+        (Some(code), _) => format!(
+            "the simulator (g1-sim) failed with exit code {code}: its error is the line printed before this one"
+        ),
+        (None, None) => format!("the simulator (g1-sim) ended ({status})"),
     }
 }
 
@@ -169,5 +189,21 @@ impl Drop for SimProcess {
             let _ = self.child.wait();
         }
         let _ = std::fs::remove_file(&self.socket);
+    }
+}
+
+#[cfg(test)]
+mod exit_words {
+    use std::os::unix::process::ExitStatusExt;
+
+    #[test]
+    fn a_killed_simulator_is_not_said_to_have_printed_anything() {
+        let killed = super::exit_in_words(std::process::ExitStatus::from_raw(9));
+        assert!(
+            killed.contains("killed by SIGKILL") && !killed.contains("above"),
+            "{killed}"
+        );
+        let failed = super::exit_in_words(std::process::ExitStatus::from_raw(2 << 8));
+        assert!(failed.contains("exit code 2"), "{failed}");
     }
 }
