@@ -13,9 +13,8 @@ pub fn for_terminal(s: &str, max_line: usize, multiline: bool) -> String {
         if i > 0 {
             out.push_str(if multiline { "\n" } else { "\\n" });
         }
-        let mut kept = 0usize;
         let total = line.chars().count();
-        for c in line.chars() {
+        for (kept, c) in line.chars().enumerate() {
             if kept == max_line {
                 out.push_str(&format!("… ({} more characters)", total - kept));
                 break;
@@ -25,7 +24,6 @@ pub fn for_terminal(s: &str, max_line: usize, multiline: bool) -> String {
             } else {
                 out.push(c);
             }
-            kept += 1;
         }
     }
     out
