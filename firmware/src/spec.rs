@@ -699,6 +699,22 @@ impl DeploySpec {
         self.base_dir.join(&self.policy.weights)
     }
 
+    /// Every file this spec makes a run read, each with the field naming it (outputs must never
+    /// be any of them).
+    pub fn files_read(&self) -> Vec<(&'static str, PathBuf)> {
+        let mut v = vec![("the spec's policy.weights", self.weights_path())];
+        if let Some(m) = &self.estimator.model {
+            v.push(("the spec's estimator.model", self.base_dir.join(m)));
+        }
+        if let Some(d) = &self.perception.terrain_network {
+            v.push(("the spec's perception.terrain_network", self.base_dir.join(d)));
+        }
+        if let Some(w) = &self.perception.terrain_weights {
+            v.push(("the spec's perception.terrain_weights", self.base_dir.join(w)));
+        }
+        v
+    }
+
     /// The same spec with another weights file (a training checkpoint's actor, say); the file is
     /// checked when the controller loads it, as the spec's own would be.
     pub fn with_weights(mut self, weights: &Path) -> Result<Self, SpecError> {

@@ -381,3 +381,21 @@ fn error_chains_say_the_reason_once() {
         assert!(err.contains("/nonexistent/"), "{args:?}: {err}");
     }
 }
+
+/// Issue 30: `--report` or `--log` onto a file the spec makes the run read (its weights here) was
+/// overwritten with JSON; now it is refused before the run, naming the spec's field.
+#[test]
+fn an_output_onto_a_file_the_spec_reads_is_refused() {
+    let Some(shared) = shared_dir() else {
+        return skip_or_fail("outputs vs the spec's files (the peer weights)");
+    };
+    let weights = shared.join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    let before = std::fs::metadata(&weights).unwrap().len();
+    for flag in ["--report", "--log"] {
+        let out = g1fw(&["sim", "--duration", "0.1", "--quiet", flag, weights.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag}: {err}");
+        assert!(err.contains("is also the spec's policy.weights"), "{flag}: {err}");
+    }
+    assert_eq!(std::fs::metadata(&weights).unwrap().len(), before);
+}

@@ -376,3 +376,54 @@ fn an_rl_lab_29dof_export_imports() {
     assert_eq!(spec.commands.max, Some([1.0, 0.3, 0.2]));
     firmware::controller::Controller::new(spec).expect("loads");
 }
+
+/// Issue 30: an import never overwrites its own input (`--force` or not), and an imported spec
+/// that does not load is an input error that leaves nothing in --out.
+#[test]
+fn an_import_never_overwrites_its_input_and_leaves_nothing_when_the_spec_does_not_load() {
+    if shared_dir().is_none() {
+        return skip_or_fail("import refusals (the peer walker as an rl_lab export)");
+    }
+    let dir = scratch_dir("onnx-refusals");
+    let Some(_) = models(&dir) else { return };
+    // The input is named like the output it would become.
+    let same = dir.join("same");
+    std::fs::create_dir_all(&same).unwrap();
+    let input = same.join("policy.safetensors");
+    std::fs::copy(dir.join("peer.onnx"), &input).unwrap();
+    let before = std::fs::read(&input).unwrap();
+    let o = g1_import(&[
+        "network".as_ref(),
+        input.as_os_str(),
+        "--out".as_ref(),
+        same.as_os_str(),
+        "--force".as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("never overwrites what it reads"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&input).unwrap(), before, "the input was changed");
+
+    let out = dir.join("bad-model");
+    let o = g1_import(&[
+        "rl-lab".as_ref(),
+        "--deploy".as_ref(),
+        dir.join("deploy.yaml").as_os_str(),
+        "--onnx".as_ref(),
+        dir.join("peer.onnx").as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--estimator-model".as_ref(),
+        "/nonexistent/g1.xml".as_ref(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("nothing was written") && !err.contains("please report"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(&out).unwrap().collect();
+    assert!(left.is_empty(), "left in --out: {left:?}");
+}

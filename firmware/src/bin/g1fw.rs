@@ -550,6 +550,15 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
     if let Some(w) = &a.weights {
         spec = spec.with_weights(w)?;
     }
+    spec_outputs_distinct(
+        &spec,
+        &[
+            ("--log", a.log.as_deref()),
+            ("--report", a.report.as_deref()),
+            ("--plot", a.plot.as_deref()),
+            ("--profile-plot", a.profile_plot.as_deref()),
+        ],
+    )?;
     let schedule = match &a.cmd_schedule {
         Some(p) => CommandSchedule::load(p)?,
         None => CommandSchedule::constant(a.cmd),
@@ -698,8 +707,17 @@ fn stop_on_signals() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
 
 /// Refuses a run whose outputs would overwrite one another or one of its inputs.
 fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
+    // Through symlinks: an existing file resolves whole; a new one through its directory.
     let abs = |p: &Path| {
         std::fs::canonicalize(p)
+            .or_else(|_| {
+                let dir = p
+                    .parent()
+                    .filter(|d| !d.as_os_str().is_empty())
+                    .unwrap_or(Path::new("."));
+                let name = p.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+                std::fs::canonicalize(dir).map(|d| d.join(name))
+            })
             .or_else(|_| std::path::absolute(p))
             .unwrap_or(p.into())
     };
@@ -718,6 +736,13 @@ fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static
         }
     }
     Ok(())
+}
+
+/// No output may be a file the spec makes the run read (weights, estimator model, terrain network).
+fn spec_outputs_distinct(spec: &DeploySpec, outputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
+    let read = spec.files_read();
+    let inputs: Vec<(&'static str, Option<&Path>)> = read.iter().map(|(f, p)| (*f, Some(p.as_path()))).collect();
+    distinct_files(outputs, &inputs)
 }
 
 fn eval(a: EvalArgs) -> Result<ExitCode> {
@@ -804,6 +829,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         bail!("--dds-tick-timeout-ms must be at least 1");
     }
     let spec = DeploySpec::load(&a.spec)?;
+    spec_outputs_distinct(&spec, &[("--log", a.log.as_deref()), ("--report", a.report.as_deref())])?;
     let layout = match &a.can_config {
         Some(path) => {
             let mut layout = sensor_io::can::BusLayout::load(path)?;

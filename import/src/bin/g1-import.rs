@@ -69,10 +69,20 @@ struct OutDir {
 
 impl OutDir {
     /// Creates the directory and, before anything is written, refuses to replace any of `names`
-    /// without --force. Returns their paths.
-    fn paths<const N: usize>(&self, names: [&str; N]) -> Result<[PathBuf; N]> {
+    /// without --force, and any of `inputs` (through symlinks) even with it. Returns their paths.
+    fn paths<const N: usize>(&self, names: [&str; N], inputs: &[&std::path::Path]) -> Result<[PathBuf; N]> {
         std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
         let paths = names.map(|n| self.out.join(n));
+        for p in &paths {
+            let Ok(out) = std::fs::canonicalize(p) else { continue };
+            if let Some(input) = inputs.iter().find(|i| std::fs::canonicalize(i).is_ok_and(|i| i == out)) {
+                anyhow::bail!(
+                    "{} is the input {}: an import never overwrites what it reads, --force or not; give another --out",
+                    p.display(),
+                    input.display()
+                );
+            }
+        }
         if let Some(p) = paths.iter().find(|p| p.exists() && !self.force) {
             anyhow::bail!("{} exists; give --force to replace it", p.display());
         }
@@ -100,19 +110,30 @@ impl SpecOut {
     }
 }
 
+/// Writes `data` to a temporary file beside `path`, then renames it into place: a full disk or an
+/// interrupted import leaves the old file or none, never a truncated one.
 fn write(path: &std::path::Path, data: &[u8]) -> Result<()> {
-    std::fs::write(path, data).with_context(|| format!("writing {}", path.display()))
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(format!(".partial-{}", std::process::id()));
+    let tmp = PathBuf::from(tmp);
+    let written = std::fs::write(&tmp, data).and_then(|()| std::fs::rename(&tmp, path));
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(anyhow::Error::new(e).context(format!("writing {} (nothing was left there)", path.display())));
+    }
+    Ok(())
 }
 
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::RlLab { deploy, onnx, spec } => {
             let imp = policy_import::import_rl_lab(&deploy, &onnx, &spec.options())?;
-            write_spec(&imp, &spec, &format!("{} + {}", deploy.display(), onnx.display()))
+            let what = format!("{} + {}", deploy.display(), onnx.display());
+            write_spec(&imp, &spec, &what, &[&deploy, &onnx])
         }
         Cmd::Mjlab { onnx, spec } => {
             let imp = policy_import::import_onnx_metadata(&onnx, &spec.options())?;
-            write_spec(&imp, &spec, &onnx.display().to_string())
+            write_spec(&imp, &spec, &onnx.display().to_string(), &[&onnx])
         }
         Cmd::Network { onnx, dir } => {
             let net = policy_import::import_file(&onnx)?;
@@ -120,7 +141,7 @@ fn run(cli: Cli) -> Result<()> {
             // The firmware's own loader checks every shape before anything is written.
             let check = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
                 .context("the converted network does not load in the firmware's executor")?;
-            let [toml_path, st_path] = dir.paths(["network.toml", "policy.safetensors"])?;
+            let [toml_path, st_path] = dir.paths(["network.toml", "policy.safetensors"], &[&onnx])?;
             let table = net.spec_table()?;
             let text = format!(
                 "# A deploy spec's network, imported from {} by g1-import; with [policy] weights = \"policy.safetensors\"\n{table}",
@@ -170,15 +191,20 @@ fn run(cli: Cli) -> Result<()> {
 
 /// Writes an import's spec and weights into `out`, loads them with the firmware's own validation,
 /// and prints the table.
-fn write_spec(imp: &policy_import::RlLabImport, out: &SpecOut, what: &str) -> Result<()> {
-    let [spec_path, weights_path] = out.dir.paths(["policy.toml", "policy.safetensors"])?;
+fn write_spec(imp: &policy_import::RlLabImport, out: &SpecOut, what: &str, inputs: &[&std::path::Path]) -> Result<()> {
+    let [spec_path, weights_path] = out.dir.paths(["policy.toml", "policy.safetensors"], inputs)?;
+    // The firmware's own loader and controller judge the result before anything is written (the
+    // spec as if it were in --out already, so its relative paths resolve as they will).
+    let spec = firmware::spec::DeploySpec::from_toml(&imp.spec_toml, &spec_path).context(
+        "the imported spec does not load in g1fw (check --estimator-model and the inputs); nothing was written",
+    )?;
+    let warnings = spec.explicit_pd_warnings();
+    let net = firmware::nn::Network::from_safetensors_bytes(&spec.policy.network, &imp.weights)
+        .context("the imported weights do not load in g1fw; nothing was written")?;
+    firmware::controller::Controller::with_network(spec, net)
+        .context("the imported policy does not load in g1fw; nothing was written")?;
     write(&weights_path, &imp.weights)?;
     write(&spec_path, imp.spec_toml.as_bytes())?;
-    // The firmware's own loader and controller judge the result.
-    let spec = firmware::spec::DeploySpec::load(&spec_path)
-        .context("the imported spec does not load in g1fw (please report this)")?;
-    let warnings = spec.explicit_pd_warnings();
-    firmware::controller::Controller::new(spec).context("the imported policy does not load in g1fw")?;
     println!("imported {what}");
     for line in &imp.network.trace {
         println!("  {line}");
