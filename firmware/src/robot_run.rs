@@ -106,6 +106,8 @@ pub struct RunReport {
     pub trip: Option<TripReport>,
     /// `completed`, `stopped` (signal) or the HAL failure.
     pub end: String,
+    /// Why the log could not be written (the run stopped and damped there), if it could not.
+    pub log_error: Option<String>,
     /// The control loop panicked (a bug); the guard sent damping (see `end`).
     pub panicked: bool,
     /// The damping command sent after the end, whatever ended the run.
@@ -317,9 +319,15 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let wall = Instant::now();
     let mut ticks = 0u64;
     let mut mode_machine = 0u8;
+    let mut log_failed = false;
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
         if let Some(l) = logger.as_mut() {
             l.push(v);
+            if l.writer_failed() {
+                // A write error ends the run as any fault does: damped, reported.
+                log_failed = true;
+                return false;
+            }
         }
         ticks = v.summary.tick.index;
         mode_machine = v.state.mode_machine;
@@ -330,8 +338,17 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     });
     // Every end leaves the robot damped, not holding the last targets with the policy's gains.
     let end_damping = damp_after_end(&mut hal, &runtime, mode_machine, period_ns, opts.end_damping);
+    let (log, log_error) = match logger.map(|l| l.finish()) {
+        Some(Ok(s)) => (Some(s), None),
+        Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
+        None => (None, None),
+    };
     let end_text = match &end {
         LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { ticks } if log_failed => format!(
+            "stopped at tick {ticks}: the log could not be written ({}); motors commanded to damping",
+            log_error.as_deref().unwrap_or("unknown error")
+        ),
         LoopEnd::Stopped { .. } => "stopped by signal".to_string(),
         LoopEnd::HalError { tick, kind, message } => {
             format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
@@ -345,10 +362,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             if *damping_sent { "sent" } else { "could not be sent" }
         ),
     };
-    let log = match logger {
-        Some(l) => Some(l.finish().context("closing the log")?),
-        None => None,
-    };
+
     let lidar = hal.lidar.as_ref().map(|l| {
         let (c, s) = (l.counters(), l.assembler_stats());
         LidarReport {
@@ -375,6 +389,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         final_mode: format!("{:?}", runtime.mode()),
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
+        log_error,
         panicked: matches!(end, LoopEnd::Panicked { .. }),
         end_damping,
         safety: SafetyReport::of(&runtime),

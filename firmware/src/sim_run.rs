@@ -204,6 +204,8 @@ pub struct Report {
     pub stairs: Option<StairsReport>,
     #[serde(flatten)]
     pub timing: Timing,
+    /// Why the log could not be written (the run stopped there), if it could not.
+    pub log_error: Option<String>,
 }
 
 /// Progress over a staircase, from the simulator's ground truth ([`StairProgress`]).
@@ -577,13 +579,18 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             target_yaw,
         }),
     };
-    let (mut landed, mut interrupted) = (false, false);
+    let (mut landed, mut interrupted, mut log_failed) = (false, false, false);
     let wall = Instant::now();
     let mut ticks = 0u64;
 
     let end = run_loop(&mut hal, &mut runtime, &mut operator, total_ticks, |v| {
         if let Some(l) = logger.as_mut() {
             l.push(v);
+            if l.writer_failed() {
+                // Stop as for any fault: the report still says what happened and why.
+                log_failed = true;
+                return false;
+            }
         }
         // Everything below is evaluation: it runs while the simulator steps.
         if let Some(raw) = v.raw_state {
@@ -633,11 +640,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let gone = simulator_gone(&mut child);
     drop(child);
     // The log is closed on every path, so a failed run keeps everything it recorded.
-    let log_stats = match logger {
-        Some(l) => Some(l.finish()?),
-        None => None,
+    let (log_stats, log_error) = match logger.map(|l| l.finish()) {
+        Some(Ok(s)) => (Some(s), None),
+        Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
+        None => (None, None),
     };
     let end_text = match &end {
+        LoopEnd::Stopped { ticks } if log_failed => format!(
+            "stopped at tick {ticks}: the log could not be written ({})",
+            log_error.as_deref().unwrap_or("unknown error")
+        ),
         LoopEnd::Completed { .. } => "completed".to_string(),
         LoopEnd::Stopped { ticks } if interrupted => {
             format!("interrupted by a signal at tick {ticks}; the log is closed and the simulator stopped")
@@ -676,6 +688,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let trip = TripReport::of(&runtime, control_dt);
     let clean = agg.fell_at.is_none() && trip.is_none() && !matches!(end, LoopEnd::HalError { .. });
     Ok(Report {
+        log_error,
         fell: agg.fell_at.is_some(),
         fell_at_s: agg.fell_at,
         time_s,

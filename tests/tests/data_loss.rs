@@ -260,3 +260,67 @@ fn an_interrupted_eval_reports_what_finished() {
         );
     }
 }
+
+/// Issue 30: a full disk. The log's first write error (ENOSPC) is named, the run stops there as for
+/// any fault, the report is still written (on another disk, and on stdout), and what reached the
+/// disk stays readable. A 1 MiB tmpfs fills up mid-run.
+#[test]
+fn a_full_disk_names_enospc_stops_the_run_and_keeps_the_report_and_the_log_so_far() {
+    let dir = scratch_dir("full_disk");
+    let small = dir.join("small");
+    std::fs::create_dir_all(&small).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=1m", "tmpfs"])
+        .arg(&small)
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        return skip_loudly_or_fail(
+            "SKIP: the full-disk test mounts a 1 MiB tmpfs (needs root, as the DDS tests' netns)",
+        );
+    }
+    struct Unmount(std::path::PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(&self.0).status();
+        }
+    }
+    let _unmount = Unmount(small.clone());
+    let log = small.join("run.mcap");
+    let report = dir.join("report.json");
+    let out = g1fw(&[
+        "sim",
+        "--duration",
+        "5",
+        "--quiet",
+        "--log",
+        log.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("No space left on device"), "{err}");
+    assert!(!err.contains("attempted another write"), "{err}");
+    let r = read_json(&report);
+    assert!(
+        r["log_error"].as_str().unwrap().contains("No space left on device"),
+        "{r}"
+    );
+    assert!(
+        r["end"].as_str().unwrap().contains("the log could not be written"),
+        "{}",
+        r["end"]
+    );
+    assert!(
+        r["ticks"].as_u64().unwrap() < 2500,
+        "the run stopped at the error: {}",
+        r["ticks"]
+    );
+    // The report is on stdout as well.
+    assert!(String::from_utf8_lossy(&out.stdout).contains("\"log_error\""));
+    let info = g1fw(&["log-info", log.to_str().unwrap()]);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("log-info prints JSON");
+    let messages = info["messages"].as_object().map_or(0, |m| m.len());
+    assert!(messages > 0, "nothing readable in the log: {info}");
+}

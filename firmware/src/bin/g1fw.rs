@@ -461,7 +461,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             )?;
             let json = serde_json::to_string_pretty(&report)?;
             if let Some(path) = &a.report {
-                std::fs::write(path, format!("{json}\n")).with_context(|| format!("writing {}", path.display()))?;
+                write_report(path, &json)?;
             }
             for n in &report.notes {
                 eprintln!("note: {n}");
@@ -637,7 +637,10 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
     if let Some(path) = a.report {
-        std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+        write_report(&path, &json)?;
+    }
+    if let Some(e) = &report.log_error {
+        bail!("the log could not be written ({e}); the run stopped there, and its report is above");
     }
     if let Some(png) = &a.plot {
         let Some(log) = &a.log else {
@@ -738,6 +741,23 @@ fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static
     Ok(())
 }
 
+/// Writes a report through a temporary file and a rename (a full disk leaves no empty or
+/// half-written report); the report is on stdout already, which the error says.
+fn write_report(path: &Path, json: &str) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(format!(".partial-{}", std::process::id()));
+    let tmp = PathBuf::from(tmp);
+    let written = std::fs::write(&tmp, format!("{json}\n")).and_then(|()| std::fs::rename(&tmp, path));
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(anyhow::Error::new(e).context(format!(
+            "writing the report {} (nothing was left there; the report is printed on stdout above)",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
 /// No output may be a file the spec makes the run read (weights, estimator model, terrain network).
 fn spec_outputs_distinct(spec: &DeploySpec, outputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
     let read = spec.files_read();
@@ -802,7 +822,7 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
     print!("{}", report.text());
     if let Some(path) = &a.report {
         let json = serde_json::to_string_pretty(&report)?;
-        std::fs::write(path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+        write_report(path, &json)?;
         eprintln!("wrote {}", path.display());
     }
     if report.interrupted {
@@ -912,7 +932,10 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
     if let Some(path) = a.report {
-        std::fs::write(&path, format!("{json}\n")).with_context(|| format!("writing report {}", path.display()))?;
+        write_report(&path, &json)?;
+    }
+    if let Some(e) = &report.log_error {
+        bail!("the log could not be written ({e}); the run stopped and damped there, and its report is above");
     }
     tracing::info!(
         ticks = report.ticks,

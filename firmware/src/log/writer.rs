@@ -344,6 +344,12 @@ impl Logger {
         self.thread.as_ref().is_none_or(|t| t.is_finished())
     }
 
+    /// The writer stopped before it was asked to: a write failed (a full disk, say). Nothing
+    /// more reaches the file; [`Logger::finish`] returns the error.
+    pub fn writer_failed(&self) -> bool {
+        !self.stop.load(Ordering::Acquire) && self.thread.as_ref().is_some_and(|t| t.is_finished())
+    }
+
     /// Drains the pool, writes the summary and closes the file.
     pub fn finish(mut self) -> Result<LogStats, LogError> {
         self.stop.store(true, Ordering::Release);
@@ -410,8 +416,13 @@ fn writer_loop(
             None => std::thread::sleep(Duration::from_micros(200)),
         }
     };
-    let stats = w.finish()?;
-    result.map(|_| stats)
+    // The first error is the one that says why (ENOSPC); finishing a writer that already failed
+    // only adds "attempted another write after a write method failed".
+    let finished = w.finish();
+    match result {
+        Err(e) => Err(e),
+        Ok(()) => finished,
+    }
 }
 
 /// The MCAP file with its channels.
