@@ -541,15 +541,29 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
                 if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {
                     return Err(bad(format!("direction '{d}': only forward LSTMs run step by step")));
                 }
-                if attr_i(node, "layout", 0) != 0 || attr_i(node, "input_forget", 0) != 0 {
-                    return Err(bad("layout = 1 or input_forget = 1 is not supported".into()));
+                if attr_i(node, "layout", 0) != 0 {
+                    return Err(bad("layout = 1 (batch-major) is not supported".into()));
                 }
-                if node
+                if attr_i(node, "input_forget", 0) != 0 {
+                    return Err(bad(
+                        "input_forget = 1 (coupled input and forget gates) is not supported: the firmware's LSTM has independent gates".into(),
+                    ));
+                }
+                if node.input.get(7).is_some_and(|s| !s.is_empty()) {
+                    return Err(bad(
+                        "peephole weights (input P) are not supported: the firmware's LSTM has no peepholes, and without them it would compute other outputs".into(),
+                    ));
+                }
+                let custom = ["clip", "activations", "activation_alpha", "activation_beta"];
+                if let Some(a) = node
                     .attribute
                     .iter()
-                    .any(|a| matches!(a.name.as_deref(), Some("clip") | Some("activations")))
+                    .filter_map(|a| a.name.as_deref())
+                    .find(|n| custom.contains(n))
                 {
-                    return Err(bad("custom activations or cell clipping are not supported".into()));
+                    return Err(bad(format!(
+                        "attribute '{a}' is not supported: the firmware's LSTM uses the default sigmoid and tanh, without cell clipping"
+                    )));
                 }
                 let (w, r) = (konst(1)?, konst(2)?);
                 if w.dims.len() != 3 || w.dims[0] != 1 || w.dims[1] != 4 * hidden {

@@ -309,6 +309,25 @@ def main():
     m.graph.node[6].op_type = "Softmax"
     m.graph.node[6].name = "actor.3.softmax"
     onnx.save(m, f"{d}/softmax.onnx")
+    # LSTM features the importer cannot represent, each refused by name (onnxruntime runs them, and
+    # importing them without would silently compute other outputs).
+    for variant in ["peephole", "clip", "activations", "input_forget", "reverse"]:
+        m = onnx.load(f"{d}/lstm.onnx")
+        node = next(n for n in m.graph.node if n.op_type == "LSTM")
+        if variant == "peephole":
+            m.graph.initializer.append(const("P", rng.normal(0, 0.3, (1, 3 * 6))))
+            while len(node.input) < 8:
+                node.input.append("")
+            node.input[7] = "P"
+        elif variant == "clip":
+            node.attribute.append(helper.make_attribute("clip", 3.0))
+        elif variant == "activations":
+            node.attribute.append(helper.make_attribute("activations", ["Sigmoid", "Tanh", "Relu"]))
+        elif variant == "input_forget":
+            node.attribute.append(helper.make_attribute("input_forget", 1))
+        else:
+            node.attribute.append(helper.make_attribute("direction", "reverse"))
+        onnx.save(m, f"{d}/lstm_{variant}.onnx")
     data = open(f"{d}/mlp.onnx", "rb").read()
     open(f"{d}/truncated.onnx", "wb").write(data[: len(data) // 2])
     print(json.dumps(res))

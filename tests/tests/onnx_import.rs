@@ -133,6 +133,20 @@ fn a_refused_op_and_a_truncated_file_say_what_is_wrong() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("missing.onnx"), "{e}");
+    // LSTM features the executor cannot represent: refused by name, never imported without them.
+    for (variant, says) in [
+        ("peephole", "peephole weights (input P)"),
+        ("clip", "attribute 'clip'"),
+        ("activations", "attribute 'activations'"),
+        ("input_forget", "input_forget = 1"),
+        ("reverse", "direction 'reverse'"),
+    ] {
+        let e = policy_import::import_file(&dir.join(format!("lstm_{variant}.onnx")))
+            .map(|_| ())
+            .unwrap_err();
+        let e = firmware::nn::with_causes(&e);
+        assert!(e.contains(says), "{variant}: {e}");
+    }
 }
 
 fn g1_import(args: &[&std::ffi::OsStr]) -> std::process::Output {
