@@ -45,6 +45,9 @@ pub enum DampingReason {
     EStop,
     /// Requested by code (tests, shutdown).
     Requested,
+    /// The IMU's quaternion is not a rotation (|q| far from 1; all zeros: the IMU has sent nothing
+    /// yet, as a simulator's first frame may), so the tilt cannot be judged.
+    InvalidImu,
     /// An outgoing command broke the command envelope (`crate::envelope`) in this motor's slot.
     CommandEnvelope {
         slot: u8,
@@ -71,6 +74,7 @@ impl DampingReason {
             DampingReason::EStop => "estop",
             DampingReason::Requested => "requested",
             DampingReason::CommandEnvelope { .. } => "command_envelope",
+            DampingReason::InvalidImu => "invalid_imu",
         }
     }
 
@@ -105,6 +109,7 @@ impl DampingReason {
             DampingReason::Requested => 14,
             DampingReason::MotorSilent { .. } => 15,
             DampingReason::CommandEnvelope { .. } => 16,
+            DampingReason::InvalidImu => 17,
         }
     }
 }
@@ -334,6 +339,10 @@ impl Supervisor {
         let imu = &st.imu;
         if imu.quaternion.iter().chain(&imu.gyroscope).any(|v| !v.is_finite()) {
             return Some(DampingReason::NonFiniteInput);
+        }
+        let norm2: f32 = imu.quaternion.iter().map(|q| q * q).sum();
+        if !(0.81..=1.21).contains(&norm2) {
+            return Some(DampingReason::InvalidImu);
         }
         let up = -estimator::projected_gravity(imu.quaternion)[2];
         if self.limits.tilted(up) {

@@ -240,6 +240,19 @@ fn non_finite_inputs_and_malformed_frames_trip_at_once() {
     assert_eq!(trip, Some((50, DampingReason::NonFiniteInput)));
 }
 
+/// Issue 31: an all-zero IMU frame (a simulator's first state before its IMU has data) is an
+/// invalid IMU reading, named as such, not a tilt.
+#[test]
+fn an_all_zero_imu_quaternion_is_an_invalid_imu_not_a_tilt() {
+    let (_, trip) = trip_after(runtime(), 50, 1, |k| {
+        let mut s = healthy(k);
+        s.imu.quaternion = [0.0; 4];
+        (FrameStatus::Fresh, s, OP)
+    });
+    assert_eq!(trip, Some((50, DampingReason::InvalidImu)));
+    assert_eq!(DampingReason::InvalidImu.to_string(), "invalid_imu");
+}
+
 #[test]
 fn nan_policy_output_trips_and_targets_are_clamped_to_joint_ranges() {
     // The loader refuses NaN weights, but finite ones can still overflow: a first layer of 3e38
