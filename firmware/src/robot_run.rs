@@ -262,7 +262,16 @@ pub fn run_dds(
         }
         Ok(DdsHal::open(cfg)?)
     })?;
-    report.dds = Some(hal.counters());
+    let counters = hal.counters();
+    if counters.tick_unchanged > 0 && report.trip.as_ref().is_some_and(|t| t.reason == "state_timeout") {
+        report.end = format!(
+            "{}; rt/lowstate kept arriving but its tick did not advance in {} of {} samples: unitree_mujoco's \
+             Python bridge leaves LowState.tick at 0, and g1fw judges freshness by it (the robot's tick advances \
+             every 2 ms; docs/robot.md, \"Run in Unitree's simulator\")",
+            report.end, counters.tick_unchanged, counters.link.samples_in
+        );
+    }
+    report.dds = Some(counters);
     Ok(report)
 }
 

@@ -49,6 +49,9 @@ pub struct DdsHalCounters {
     pub silent_ticks: u64,
     /// Samples rejected: wrong size or encoding, CRC, non-finite.
     pub rejected: u64,
+    /// Decoded samples whose `tick` equals the previous sample's (a frozen state, or a sender that
+    /// never fills it in, as unitree_mujoco's Python bridge).
+    pub tick_unchanged: u64,
 }
 
 pub struct DdsHal {
@@ -67,6 +70,7 @@ pub struct DdsHal {
     cmd_c: [u8; LOW_CMD_LEN],
     cmd_cdr: [u8; LOW_CMD_CDR_LEN],
     counters: DdsHalCounters,
+    decoded_any: bool,
 }
 
 impl DdsHal {
@@ -89,6 +93,7 @@ impl DdsHal {
             cmd_c: [0; LOW_CMD_LEN],
             cmd_cdr: [0; LOW_CMD_CDR_LEN],
             counters: DdsHalCounters::default(),
+            decoded_any: false,
         })
     }
 
@@ -120,6 +125,10 @@ impl DdsHal {
         low_state_from_cdr(&self.raw[..self.raw_len], &mut self.c_state)?;
         let mut s = LowState::default();
         decode_low_state(&self.c_state, &mut s)?;
+        if s.tick == self.state.tick && self.decoded_any {
+            self.counters.tick_unchanged += 1;
+        }
+        self.decoded_any = true;
         self.state = s;
         Ok(())
     }

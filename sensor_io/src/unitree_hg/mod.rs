@@ -25,7 +25,7 @@ pub enum DecodeError {
         expected: usize,
         got: usize,
     },
-    #[error("{message}: CRC mismatch (frame says {stored:#010x}, contents give {computed:#010x})")]
+    #[error("{message}: CRC mismatch (frame says {stored:#010x}, contents give {computed:#010x}){}", crc_hint(*stored))]
     Crc {
         message: &'static str,
         stored: u32,
@@ -37,6 +37,17 @@ pub enum DecodeError {
         field: &'static str,
         index: usize,
     },
+}
+
+/// A CRC of 0 was never computed: say who sends such frames.
+fn crc_hint(stored: u32) -> &'static str {
+    if stored == 0 {
+        "; a CRC of 0 is one never computed: Unitree's Python simulator (unitree_mujoco's \
+         simulate_python, through unitree_sdk2py) publishes LowState without one. The robot always \
+         sends it, and g1fw refuses such states (docs/robot.md, \"Run in Unitree's simulator\")"
+    } else {
+        ""
+    }
 }
 
 /// Every HAL that decodes unitree_hg frames (bridge, replay, DDS) classifies failures the same way,
@@ -391,3 +402,22 @@ fn check_low_cmd(buf: &[u8], r: Result<(), DecodeError>) {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod crc_zero {
+    #[test]
+    fn a_crc_of_zero_names_the_simulator_that_sends_it() {
+        let zero = super::DecodeError::Crc {
+            message: "LowState_",
+            stored: 0,
+            computed: 0x1234,
+        };
+        assert!(zero.to_string().contains("unitree_mujoco"), "{zero}");
+        let other = super::DecodeError::Crc {
+            message: "LowState_",
+            stored: 7,
+            computed: 0x1234,
+        };
+        assert!(!other.to_string().contains("unitree_mujoco"), "{other}");
+    }
+}
