@@ -399,3 +399,27 @@ fn an_output_onto_a_file_the_spec_reads_is_refused() {
     }
     assert_eq!(std::fs::metadata(&weights).unwrap().len(), before);
 }
+
+/// Issue 30: counts that size allocations or processes are bounded before anything starts.
+#[test]
+fn counts_are_bounded_before_anything_is_allocated() {
+    let out = g1fw(&["eval", "--jobs", "100000", "--worlds", "flat", "--quiet"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--jobs must be 1 to 64"), "{err}");
+    let dir = scratch_dir("bounded_counts");
+    for (flag, value, says) in [
+        ("--envs", "1000000", "--envs must be 2 to 4096"),
+        ("--steps", "0", "--steps must be 1 to 10000"),
+    ] {
+        let out = std::process::Command::new(built_bin("g1-train"))
+            .args(["ppo", "--out"])
+            .arg(dir.join("run"))
+            .args([flag, value, "--quiet"])
+            .current_dir(repo_root())
+            .output()
+            .expect("g1-train runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{flag}: {err}");
+    }
+}

@@ -323,6 +323,26 @@ fn main() -> anyhow::Result<()> {
             quiet,
         } => {
             tracing_subscriber::fmt().with_writer(std::io::stderr).init();
+            // Counts that size allocations are bounded before anything is built: each environment
+            // holds its own MuJoCo model (~80 MB), each rollout steps × envs rows.
+            let bounded = |flag: &str, v: usize, lo: usize, hi: usize| -> anyhow::Result<()> {
+                anyhow::ensure!((lo..=hi).contains(&v), "{flag} must be {lo} to {hi} (got {v})");
+                Ok(())
+            };
+            bounded("--envs", envs, 2, 4096)?;
+            bounded("--threads", threads, 1, 256)?;
+            bounded("--steps", steps, 1, 10_000)?;
+            bounded("--epochs", epochs, 1, 100)?;
+            bounded("--minibatches", minibatches, 1, envs)?;
+            anyhow::ensure!(
+                lr.is_finite()
+                    && lr > 0.0
+                    && init_std.is_finite()
+                    && init_std > 0.0
+                    && episode_s.is_finite()
+                    && episode_s > 0.0,
+                "--lr, --init-std and --episode-s must be positive numbers"
+            );
             let judge_model = model.to_string();
             let cfg = train::ppo::runner::RunConfig {
                 spec,

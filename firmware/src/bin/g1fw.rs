@@ -773,8 +773,11 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
     if !a.vx.is_finite() {
         bail!("--vx must be a finite number (m/s)");
     }
-    if a.jobs == 0 {
-        bail!("--jobs must be at least 1");
+    if a.jobs == 0 || a.jobs > 64 {
+        bail!(
+            "--jobs must be 1 to 64 (each job is its own g1-sim process; got {})",
+            a.jobs
+        );
     }
     let (episodes, _scratch) = if !a.heights.is_empty() {
         let mut kinds = Vec::new();
@@ -785,8 +788,11 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
                 _ => bail!("--kinds: '{k}' is neither up nor down"),
             });
         }
-        if a.episodes_per_height == 0 {
-            bail!("--episodes-per-height must be at least 1");
+        if a.episodes_per_height == 0 || a.episodes_per_height > 100_000 {
+            bail!(
+                "--episodes-per-height must be 1 to 100000 (got {})",
+                a.episodes_per_height
+            );
         }
         let (w, g) = random_sweep(&a.heights, &kinds, a.episodes_per_height, a.seed, &std::env::temp_dir())?;
         (w, Some(g))
