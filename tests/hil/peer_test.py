@@ -446,10 +446,15 @@ def fmt_frame(fr: Frame, lay: Layout) -> str:
     return f"{lay.interfaces[fr.bus]} {fr.id:03X}#{fr.data.hex().upper()} (frame {fr.n})"
 
 
-def check_layout(rec: Recording, lay: Layout, gains: Gains, ranges: dict, exclude_last: bool = True) -> list[Check]:
+def check_layout(rec: Recording, lay: Layout, gains: Gains, ranges: dict, exclude_last: bool = True,
+                 fw_ticks: int | None = None) -> list[Check]:
     out: list[Check] = []
     n_motors = len(lay.motors)
     full = rec.ticks[:-1] if exclude_last else rec.ticks  # the last sample may have no commands yet
+    if fw_ticks is not None:
+        # After its last tick the firmware damps on its own clock for --end-damping (docs/robot.md),
+        # not one round per IMU sample: the per-sample checks stop at its last tick.
+        full = [t for t in full if t.k < fw_ticks]
 
     # sniffer health
     drops = [n for n in rec.notes if "DROP" in n.upper()]
@@ -793,17 +798,22 @@ def run_walk(args, lay, gains, ranges, out) -> list[Check]:
         wall = time.monotonic() - t0
         emu = load_json(r.dir / "emu.json", "g1-can-emu")
         fw = load_json(r.dir / "fw.json", "g1fw")
-    checks = check_layout(rec, lay, gains, ranges)
+    checks = check_layout(rec, lay, gains, ranges, fw_ticks=int(fw.get("ticks", 0)))
     for c in checks:
         c.name = "walk/layout: " + c.name
     mode = str(fw.get("final_mode", ""))
     trip = fw.get("trip")
-    fell = emu.get("fell")
-    ok = fell is False and mode.lower().startswith("policy") and trip is None and rc == 0
+    # No fall while the policy ran; the end's damping lets the robot sink afterwards.
+    fell_at = emu.get("fell_at_s")
+    fell = fell_at is not None and fell_at < float(fw.get("time_s", 0.0))
+    end_damping = fw.get("end_damping") or {}
+    ok = (not fell and mode.lower().startswith("policy") and trip is None and rc == 0
+          and end_damping.get("sent", 0) >= 1 and end_damping.get("failed", 1) == 0)
     n = len(rec.ticks)
     checks.append(Check(
-        f"walk {args.walk_s:g} s at --cmd {args.walk_cmd}: emulator fell false, firmware policy, no trip", ok,
-        f"fell {fell}, base_z_min {emu.get('base_z_min')}, distance_x {emu.get('distance_x_m')}, "
+        f"walk {args.walk_s:g} s at --cmd {args.walk_cmd}: no fall under the policy, no trip, damping after the end", ok,
+        f"fell under the policy {fell} (emulator fell_at_s {fell_at}), end damping {end_damping}, "
+        f"base_z_min {emu.get('base_z_min')}, distance_x {emu.get('distance_x_m')}, "
         f"final_mode {mode!r}, trip {trip}, g1fw exit {rc}; {n} IMU samples, {n / wall:.0f} ticks/s wall",
         wall_s=wall, reason=(trip or {}).get("reason", "") if isinstance(trip, dict) else ""))
     return checks
@@ -975,16 +985,21 @@ def run_imu_off(args, lay, out) -> list[Check]:
         problems.append(f"report end {end!r} does not say the IMU stopped")
     if rc != 3:
         problems.append(f"g1fw exit {rc}, expected 3 (a trip)")
-    # On the wire: the last command of every motor is damping, and it follows the last IMU sample.
+    # On the wire, after the last IMU sample: that sample's tick, one damping command per motor at
+    # once, then the end's damping rounds (--end-damping, docs/robot.md), every one a damping command.
     cmds = motor_commands(rec.ticks[-1]) if rec.ticks else []
-    last = cmds[-len(lay.motors):]
-    slots = sorted(m.slot for _, m in last)
-    if len(cmds) != 2 * len(lay.motors):
-        problems.append(f"{len(cmds)} commands after the last IMU sample, expected {2 * len(lay.motors)} "
-                        "(that sample's tick, then one damping command per motor)")
+    n = len(lay.motors)
+    rounds = int((fw.get("end_damping") or {}).get("sent", 0))
+    last = cmds[n:]
+    slots = sorted(m.slot for _, m in last[:n])
+    if len(cmds) != (2 + rounds) * n:
+        problems.append(f"{len(cmds)} commands after the last IMU sample, expected {(2 + rounds) * n} "
+                        f"(that sample's tick, one damping command per motor, then {rounds} end-damping rounds)")
+    elif rounds < 1:
+        problems.append("no damping after the end (report end_damping.sent is 0)")
     elif slots != sorted(m.slot for m in lay.motors) or not all(damped(fr) for fr, _ in last):
-        problems.append(f"the last {len(last)} commands are not one damping command per motor: "
-                        f"{[(G1_SLOTS[m.slot], command_fields(fr.data)[2:4]) for fr, m in last]}")
+        problems.append(f"the commands after that tick are not all damping: "
+                        f"{[(G1_SLOTS[m.slot], command_fields(fr.data)[2:4]) for fr, m in last[:n]]}")
     detail = "; ".join(problems) if problems else (
         f"last IMU sample {last_sample}; trip {trip.get('reason')} at tick {trip.get('tick')}; then "
         f"{len(last)} damping commands (kp 0, kd > 0), one per motor; g1fw exit {rc}: {end}")
