@@ -132,6 +132,15 @@ fn main() -> anyhow::Result<()> {
             world,
             common,
         } => {
+            // Bounded before anything is allocated: a shard holds shard_size BEV grids (86 KB each).
+            let bounded = |flag: &str, v: usize, lo: usize, hi: usize| -> anyhow::Result<()> {
+                anyhow::ensure!((lo..=hi).contains(&v), "{flag} must be {lo} to {hi} (got {v})");
+                Ok(())
+            };
+            bounded("--worlds", worlds, 1, 10_000_000)?;
+            bounded("--poses-per-world", poses_per_world, 1, 1000)?;
+            bounded("--shard-size", shard_size, 1, 100_000)?;
+            bounded("--jobs", common.jobs, 1, 256)?;
             let set = if world.is_empty() {
                 WorldSet::Random {
                     first_seed: seed,
