@@ -426,6 +426,16 @@ pub const MAX_OBSERVATION_DIM: usize = 1 << 16;
 pub const MAX_STARTUP_S: f64 = 3600.0;
 /// Largest deploy spec file read (the ones here are a few KB).
 pub const MAX_SPEC_BYTES: usize = 1 << 20;
+/// Largest operator command a spec may allow, m/s or rad/s (a G1 walks below 2 m/s).
+pub const MAX_COMMAND: f32 = 10.0;
+/// Largest magnitude of an observation term's scale (IsaacLab's are 0.05–5).
+pub const MAX_OBS_SCALE: f32 = 1000.0;
+/// Largest observation or action clip (IsaacLab clips at 100).
+pub const MAX_CLIP: f32 = 10_000.0;
+/// Largest ELU alpha (exporters write 1.0).
+pub const MAX_ELU_ALPHA: f32 = 10.0;
+/// Longest gait period, s.
+pub const MAX_PHASE_PERIOD_S: f64 = 100.0;
 
 /// The signals an observation term can read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -638,6 +648,12 @@ impl DeploySpec {
             ("safety.state_timeout_s", s.state_timeout_s),
         ];
         self.require_positive(&positive)?;
+        if s.tilt_limit_rad > std::f32::consts::PI {
+            return Err(self.invalid(
+                "safety.tilt_limit_rad",
+                format!("{}: a tilt from upright is at most π rad", s.tilt_limit_rad),
+            ));
+        }
         // The damping command is what goes out when something is already wrong: the same cap as
         // every other kd.
         if s.damping_kd > MAX_KD {
@@ -943,8 +959,21 @@ impl DeploySpec {
             }
         }
         if let Some(c) = p.action_clip {
-            if !(c.is_finite() && c > 0.0) {
-                return Err(self.invalid("policy.action_clip", format!("{c}: must be a finite number > 0")));
+            if !(c > 0.0 && c <= MAX_CLIP) {
+                return Err(self.invalid(
+                    "policy.action_clip",
+                    format!("{c}: must be a number in (0, {MAX_CLIP}]"),
+                ));
+            }
+        }
+        for (i, l) in p.network.layers.iter().enumerate() {
+            if let crate::nn::LayerDesc::Elu { alpha } = l {
+                if !(0.0..=MAX_ELU_ALPHA).contains(alpha) {
+                    return Err(self.invalid(
+                        &format!("policy.network.layers[{i}].alpha"),
+                        format!("{alpha}: an ELU's alpha must be in 0..={MAX_ELU_ALPHA}"),
+                    ));
+                }
             }
         }
         let margin = self.safety.joint_range_margin_rad;
@@ -1016,8 +1045,12 @@ impl DeploySpec {
         }
 
         for (field, v) in [("commands.min", self.commands.min), ("commands.max", self.commands.max)] {
-            if let Some((i, x)) = v.and_then(|v| v.into_iter().enumerate().find(|(_, x)| !x.is_finite())) {
-                return Err(self.invalid(&format!("{field}[{i}]"), format!("{x}: must be a finite velocity")));
+            let bad = |x: &f32| !(-MAX_COMMAND..=MAX_COMMAND).contains(x);
+            if let Some((i, x)) = v.and_then(|v| v.into_iter().enumerate().find(|(_, x)| bad(x))) {
+                return Err(self.invalid(
+                    &format!("{field}[{i}]"),
+                    format!("{x}: must be a velocity within ±{MAX_COMMAND} (m/s, rad/s)"),
+                ));
             }
         }
         if let (Some(lo), Some(hi)) = (self.commands.min, self.commands.max) {
@@ -1026,10 +1059,10 @@ impl DeploySpec {
             }
         }
         if let Some(ph) = &self.phase {
-            if !(ph.period_s.is_finite() && ph.period_s > 0.0) {
+            if !(ph.period_s > 0.0 && ph.period_s <= MAX_PHASE_PERIOD_S) {
                 return Err(self.invalid(
                     "phase.period_s",
-                    format!("{}: must be a finite number > 0", ph.period_s),
+                    format!("{}: a gait period must be in (0, {MAX_PHASE_PERIOD_S}] s", ph.period_s),
                 ));
             }
             // The clock starts here and advances one policy period per step: any finite start
@@ -1057,8 +1090,11 @@ impl DeploySpec {
                         format!("per-element list must have {} entries for {:?}", t.kind.dim(n), t.kind),
                     ))
                 }
-                Some(v) if v.iter().any(|x| !x.is_finite()) => {
-                    return Err(self.invalid(&format!("{field}.scale"), "contains a non-finite value"))
+                Some(v) if v.iter().any(|x| !(-MAX_OBS_SCALE..=MAX_OBS_SCALE).contains(x)) => {
+                    return Err(self.invalid(
+                        &format!("{field}.scale"),
+                        format!("every scale must be a number within ±{MAX_OBS_SCALE}"),
+                    ))
                 }
                 Some(_) => {}
             }
@@ -1066,8 +1102,8 @@ impl DeploySpec {
                 return Err(self.invalid(&field, "gait_phase needs a [phase] section"));
             }
             if let Some(c) = t.clip {
-                if c.is_nan() || c <= 0.0 {
-                    return Err(self.invalid(&format!("{field}.clip"), "must be > 0"));
+                if !(c > 0.0 && c <= MAX_CLIP) {
+                    return Err(self.invalid(&format!("{field}.clip"), format!("{c}: must be in (0, {MAX_CLIP}]")));
                 }
             }
             if let Some([lo, hi]) = t.clip_before_scale {

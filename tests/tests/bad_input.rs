@@ -422,4 +422,16 @@ fn counts_are_bounded_before_anything_is_allocated() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(says), "{flag}: {err}");
     }
+    let out = std::process::Command::new(built_bin("g1-dataset"))
+        .args(["export", "--out"])
+        .arg(dir.join("data"))
+        .args(["--shard-size", "4294967295"])
+        .current_dir(repo_root())
+        .output()
+        .expect("g1-dataset runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("--shard-size must be 1 to 100000"),
+        "{err}"
+    );
 }
