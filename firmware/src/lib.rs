@@ -39,7 +39,8 @@ pub mod sim_run;
 pub mod spec;
 pub mod supervisor;
 pub mod terrain_net;
-pub mod text;
+/// Input text on its way to a terminal (escaped control characters, long lines cut).
+pub use input_file::text;
 
 /// Every input file is read through these: regular files only (a FIFO, device or directory is
 /// refused without blocking), size-capped before allocating (the `input_file` crate).

@@ -80,17 +80,16 @@ pub enum PlotError {
     NotPng { path: PathBuf },
     #[error("no usable font: {0}")]
     Font(String),
-    #[error("drawing the plot for {}: {source}", path.display())]
+    // The cause is in the message and not a `source` link, so `{:#}` chains print it once.
+    #[error("drawing the plot for {}: {cause}", path.display())]
     Draw {
         path: PathBuf,
-        #[source]
-        source: Box<dyn StdError + Send + Sync>,
+        cause: Box<dyn StdError + Send + Sync>,
     },
-    #[error("writing {}: {source}", path.display())]
+    #[error("writing {}: {cause}", path.display())]
     Write {
         path: PathBuf,
-        #[source]
-        source: Box<dyn StdError + Send + Sync>,
+        cause: Box<dyn StdError + Send + Sync>,
     },
 }
 
@@ -115,13 +114,13 @@ pub fn velocity_tracking_png(path: &Path, s: &VelocitySeries) -> Result<(), Plot
         let root = BitMapBackend::with_buffer(&mut rgb, (WIDTH, HEIGHT)).into_drawing_area();
         draw(&root, s, (t0, t1)).map_err(|e| PlotError::Draw {
             path: path.to_path_buf(),
-            source: e,
+            cause: e,
         })?;
     }
 
     let write_err = |e: DrawingAreaErrorKind<_>| PlotError::Write {
         path: path.to_path_buf(),
-        source: Box::new(e),
+        cause: Box::new(e),
     };
     let mut file = BitMapBackend::new(path, (WIDTH, HEIGHT));
     file.blit_bitmap((0, 0), (WIDTH, HEIGHT), &rgb)

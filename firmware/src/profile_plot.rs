@@ -66,7 +66,7 @@ pub fn profile_png(path: &Path, p: &Profile) -> Result<(), PlotError> {
     }
     let draw_err = |e: Box<dyn std::error::Error + Send + Sync>| PlotError::Draw {
         path: path.into(),
-        source: e,
+        cause: e,
     };
     let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
     let r: Result<(), Box<dyn std::error::Error + Send + Sync>> = (|| {

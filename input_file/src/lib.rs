@@ -7,6 +7,8 @@
 //!
 //! The error is an `std::io::Error` whose message is complete on its own (the OS reason appears
 //! once): callers add the path and what the file is for.
+pub mod text;
+
 use std::fs::OpenOptions;
 use std::io::{Error, ErrorKind, Read};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};

@@ -68,7 +68,7 @@ pub struct BusLayout {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("CAN bus layout: {0}")]
+    #[error("CAN bus layout: {}", input_file::text::for_terminal(&.0.to_string(), input_file::text::MAX_QUOTED_LINE, true))]
     Toml(toml::de::Error),
     #[error("CAN bus layout: {0}")]
     Invalid(String),

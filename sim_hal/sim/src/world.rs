@@ -362,7 +362,7 @@ impl World {
     pub fn from_toml(text: &str, origin: &str) -> Result<World, WorldError> {
         let sc: Scenario = toml::from_str(text).map_err(|e| WorldError::Parse {
             path: origin.to_string(),
-            message: e.to_string(),
+            message: input_file::text::for_terminal(&e.to_string(), input_file::text::MAX_QUOTED_LINE, true),
         })?;
         let name = if sc.name.is_empty() {
             origin.to_string()

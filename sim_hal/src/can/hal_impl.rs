@@ -39,12 +39,9 @@ pub enum CanError {
         waited_ms: u64,
         hint: &'static str,
     },
-    #[error("CAN: malformed frame on bus {bus}: {source}")]
-    Malformed {
-        bus: usize,
-        #[source]
-        source: CanDecodeError,
-    },
+    // The cause is in the message, not a `source` link: `{:#}` chains print it once.
+    #[error("CAN: malformed frame on bus {bus}: {cause}")]
+    Malformed { bus: usize, cause: CanDecodeError },
     #[error("CAN: unexpected frame id {id:#05x} (DLC {len}) on bus {bus}: no configured node sends it")]
     Foreign { bus: usize, id: u16, len: u8 },
 }
@@ -176,7 +173,7 @@ impl<B: CanBuses> CanHal<B> {
                 }
                 Ok(None) => false,
                 Err(source) => {
-                    self.note(CanError::Malformed { bus, source });
+                    self.note(CanError::Malformed { bus, cause: source });
                     false
                 }
             };
@@ -196,7 +193,7 @@ impl<B: CanBuses> CanHal<B> {
                         self.replied[slot] = true;
                         self.counters.replies += 1;
                     }
-                    Err(source) => self.note(CanError::Malformed { bus, source }),
+                    Err(source) => self.note(CanError::Malformed { bus, cause: source }),
                 }
                 return false;
             }

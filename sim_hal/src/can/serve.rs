@@ -58,8 +58,9 @@ pub enum ServeError {
     Bus(#[from] BusError),
     #[error(transparent)]
     Bridge(#[from] BridgeError),
-    #[error("lidar UDP socket towards {to}: {source}")]
-    LidarSocket { to: SocketAddr, source: std::io::Error },
+    // The cause is in the message, not a `source` link: `{:#}` chains print it once.
+    #[error("lidar UDP socket towards {to}: {cause}")]
+    LidarSocket { to: SocketAddr, cause: std::io::Error },
 }
 
 /// Serves the motors of `emu` on `buses` from the simulator behind `bridge` until the firmware goes
@@ -95,7 +96,7 @@ pub fn serve<B: CanBuses>(
     };
     let lidar = match opts.lidar_to {
         Some(to) => {
-            let err = |source| ServeError::LidarSocket { to, source };
+            let err = |cause| ServeError::LidarSocket { to, cause };
             let bind: SocketAddr = if to.is_ipv4() { "0.0.0.0:0" } else { "[::]:0" }
                 .parse()
                 .expect("literal");
