@@ -294,9 +294,10 @@ impl TerrainSpec {
 }
 
 impl World {
-    /// A preset, a scenario file (anything ending in `.toml`) or `random:SEED`.
+    /// A preset, a scenario file (anything ending in `.toml`, or any path that exists: a FIFO or
+    /// a directory is then refused as such) or `random:SEED`.
     pub fn resolve(arg: &str) -> Result<World, WorldError> {
-        if arg.ends_with(".toml") {
+        if arg.ends_with(".toml") || (!PRESETS.contains(&arg) && Path::new(arg).symlink_metadata().is_ok()) {
             return World::from_file(Path::new(arg));
         }
         if let Some(seed) = arg.strip_prefix("random:") {
