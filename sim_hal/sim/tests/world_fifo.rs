@@ -12,7 +12,9 @@ fn a_fifo_as_a_world_is_refused_as_a_fifo() {
         let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
         // SAFETY: a valid NUL-terminated path; mkfifo only creates a file system node.
         assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
-        let e = World::resolve(fifo.to_str().unwrap()).err().expect("refused");
+        let Err(e) = World::resolve(fifo.to_str().unwrap()) else {
+            panic!("{name}: accepted")
+        };
         let text = format!(
             "{e}: {}",
             std::error::Error::source(&e).map_or(String::new(), |s| s.to_string())
