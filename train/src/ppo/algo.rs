@@ -338,21 +338,7 @@ impl Learner {
                 let ret = Tensor::from_vec(gather(&|r| &r.returns, 1, None), t * b2, &dev)?;
                 let old_v = Tensor::from_vec(gather(&|r| &r.values, 1, None), t * b2, &dev)?;
                 let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c, m_critic)), (t * b2, c), &dev)?;
-                let hidden = ac.arch.lstm_hidden();
-                let state0 = if hidden > 0 {
-                    let mut h0 = Vec::with_capacity(b * hidden);
-                    let mut c0 = Vec::with_capacity(b * hidden);
-                    for &k in chunk {
-                        h0.extend_from_slice(&rolls[k].state0[..hidden]);
-                        c0.extend_from_slice(&rolls[k].state0[hidden..]);
-                    }
-                    Some((
-                        Tensor::from_vec(h0, (b, hidden), &dev)?,
-                        Tensor::from_vec(c0, (b, hidden), &dev)?,
-                    ))
-                } else {
-                    None
-                };
+                let state0 = lstm_state0(rolls, chunk, ac.arch.lstm_hidden())?;
 
                 // Value loss (clipped around the rollout's values).
                 let v = ac.value(&cobs)?;
@@ -449,20 +435,7 @@ impl Learner {
             }
             let obs = Tensor::from_vec(obs, (t, b, o), &dev)?;
             let masks = Tensor::from_vec(masks, (t, b, 1), &dev)?;
-            let state0 = if hidden > 0 {
-                let mut h0 = Vec::with_capacity(b * hidden);
-                let mut c0 = Vec::with_capacity(b * hidden);
-                for &k in chunk {
-                    h0.extend_from_slice(&rolls[k].state0[..hidden]);
-                    c0.extend_from_slice(&rolls[k].state0[hidden..]);
-                }
-                Some((
-                    Tensor::from_vec(h0, (b, hidden), &dev)?,
-                    Tensor::from_vec(c0, (b, hidden), &dev)?,
-                ))
-            } else {
-                None
-            };
+            let state0 = lstm_state0(rolls, chunk, hidden)?;
             let mean: Vec<f32> = ac
                 .actor_sequence(&obs, state0.as_ref().map(|(h, c)| (h, c)), &masks)?
                 .detach()
@@ -479,6 +452,25 @@ impl Learner {
         }
         Ok(out)
     }
+}
+
+/// The LSTM state each of `chunk`'s rollouts started from, as `(h0, c0)` of `[B, hidden]`; `None`
+/// for a feed-forward actor.
+fn lstm_state0(rolls: &[EnvRollout], chunk: &[usize], hidden: usize) -> candle_core::Result<Option<(Tensor, Tensor)>> {
+    if hidden == 0 {
+        return Ok(None);
+    }
+    let b = chunk.len();
+    let mut h0 = Vec::with_capacity(b * hidden);
+    let mut c0 = Vec::with_capacity(b * hidden);
+    for &k in chunk {
+        h0.extend_from_slice(&rolls[k].state0[..hidden]);
+        c0.extend_from_slice(&rolls[k].state0[hidden..]);
+    }
+    Ok(Some((
+        Tensor::from_vec(h0, (b, hidden), &Device::Cpu)?,
+        Tensor::from_vec(c0, (b, hidden), &Device::Cpu)?,
+    )))
 }
 
 fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[Var], max: f64) -> candle_core::Result<()> {
