@@ -234,6 +234,11 @@ pub struct EpisodeEnd {
     pub fell: bool,
     pub ret: f64,
     pub steps: usize,
+    /// Farthest the base got along the staircase axis, and where success starts, m.
+    pub progress_m: f64,
+    pub goal_m: f64,
+    /// Where the base started along the staircase axis, m.
+    pub start_m: f64,
 }
 
 /// Why an episode ended early, in the order [`EpisodeEnd::cause`] indexes.
@@ -280,6 +285,11 @@ pub struct StairEnv {
     fell: bool,
     cause: usize,
     ret: f64,
+    /// Keep this curriculum level on every reset (in-environment evaluation).
+    held_level: Option<usize>,
+    /// Command this forward speed in every episode (in-environment evaluation).
+    held_vx: Option<f32>,
+    start_s: f64,
     pub last_end: Option<EpisodeEnd>,
 }
 
@@ -362,6 +372,9 @@ impl StairEnv {
             fell: false,
             cause: 0,
             ret: 0.0,
+            held_level: None,
+            held_vx: None,
+            start_s: 0.0,
             last_end: None,
             rng,
             sim,
@@ -379,6 +392,17 @@ impl StairEnv {
             boxes,
             cylinders,
         )?)
+    }
+
+    /// Holds the curriculum at `level` and the forward command at `vx` from now on, and starts a
+    /// new episode there (in-environment evaluation).
+    pub fn hold(&mut self, level: usize, vx: f32) -> anyhow::Result<()> {
+        let level = level.min(LEVELS - 1);
+        self.held_level = Some(level);
+        self.held_vx = Some(vx);
+        self.level = level;
+        self.step = 0;
+        self.reset()
     }
 
     /// Draws the next world from the curriculum.
@@ -427,8 +451,13 @@ impl StairEnv {
                 cause: self.cause,
                 ret: self.ret,
                 steps: self.step,
+                progress_m: self.progress,
+                goal_m: self.last_riser_s() + LANDING_MARGIN,
+                start_m: self.start_s,
             });
-            if self.column != Column::Flat {
+            if let Some(l) = self.held_level {
+                self.level = l;
+            } else if self.column != Column::Flat {
                 let last = self.last_riser_s();
                 if success {
                     self.level += 1;
@@ -455,7 +484,9 @@ impl StairEnv {
         self.net.reset();
         self.latency = self.rng.int(0, r.max_latency_steps as u64) as usize;
         self.token_phase = self.rng.int(0, self.timing.token_period as u64 - 1) as u32;
-        self.vx_cmd = if self.rng.chance(0.05) {
+        self.vx_cmd = if let Some(vx) = self.held_vx {
+            vx
+        } else if self.rng.chance(0.05) {
             0.0
         } else {
             self.rng.range(self.cfg.vx.0, self.cfg.vx.1) as f32
@@ -497,6 +528,8 @@ impl StairEnv {
                 .map(|f| feet[f][2] - self.ground(feet[f][0], feet[f][1]))
                 .sum::<f64>();
         self.refresh_token(true);
+        let t = self.sim.truth();
+        self.start_s = self.axis_s(t.base_pos[0], t.base_pos[1]);
         Ok(())
     }
 
@@ -554,7 +587,7 @@ impl StairEnv {
     }
 
     fn succeeded(&self) -> bool {
-        self.world.stairs.is_some() && self.progress >= self.last_riser_s() + LANDING_MARGIN
+        self.world.stairs.is_some() && !self.fell && self.progress >= self.last_riser_s() + LANDING_MARGIN
     }
 
     fn refresh_token(&mut self, force: bool) {
@@ -707,7 +740,8 @@ impl StairEnv {
         self.sim.low_state(&mut self.state);
         let was_success = self.succeeded();
         let (mut terms, terminated) = self.rewards(action);
-        if !was_success && self.succeeded() {
+        // A fall that carries the base past the landing is no success (no bonus, no promotion).
+        if !was_success && !terminated && self.succeeded() {
             terms.success = 1.0 / self.timing.policy_dt;
         }
         let reward = terms.total(&WEIGHTS, self.timing.policy_dt);
@@ -738,6 +772,12 @@ impl StairEnv {
             track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / reward::TRACKING_STD.powi(2)).exp(),
             flat_orientation: (g[0] as f64).powi(2) + (g[1] as f64).powi(2),
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
+            // Speed along the target heading, up to the commanded speed: standing at a riser earns
+            // none of it, and going faster than asked earns nothing more.
+            progress: {
+                let (hc, hs) = (self.heading.cos(), self.heading.sin());
+                (hc * v[0] + hs * v[1]).clamp(0.0, (cmd[0]).max(0.0))
+            },
             ..Terms::default()
         };
         let policy_dt = self.timing.policy_dt;

@@ -8,9 +8,11 @@
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
 //! - [`runner`]: the loop, worker threads, checkpoints, curves.
+//! - [`in_env`]: an actor evaluated in the training environment itself, one level at a time.
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
 pub mod algo;
 pub mod env;
+pub mod in_env;
 pub mod judge;
 pub mod policy;
 pub mod reward;

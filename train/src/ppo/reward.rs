@@ -24,7 +24,8 @@
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) (not on time-out or success) | −200 |
-//! | `success` | 1 / dt on the step the base reaches the end landing (a one-off +10) | +10 |
+//! | `progress` | speed along the target heading, clamped to 0 … the commanded forward speed, m/s | +2.0 |
+//! | `success` | 1 / dt on the step the base reaches the end landing without falling (a one-off +3) | +3 |
 //!
 //! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
 //! a 6 cm deficit cost 0.0001 per step against ~0.06 for tracking, nothing the policy noticed, and
@@ -34,6 +35,13 @@
 //! walking's reward per step, while a fall costs 200 · dt = 4, so the policy learned to stop at
 //! the riser and time out (run 5: success 0–25 % at 5 cm steps after 7 M steps, most stair episodes
 //! ending by time-out). The bonus pays for the attempt.
+//!
+//! Why `progress`, and a bonus of 3, not 10: with γ = 0.99 at 50 Hz a one-off bonus is worth
+//! 10 · 0.99^(50 T) when T s away, so in the last 2–3 s before the landing hurrying gained more
+//! than tracking lost, and the run-8 policies climbed at 1.0–1.4 m/s when asked for 0.5
+//! (`g1-train ppo-eval`), falling on the risers. Speed along the heading, capped at the command,
+//! pays for the attempt at every step instead and never for going faster than asked. A fall that
+//! carries the base past the landing earned the bonus and a promotion before; now it earns neither.
 //!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
@@ -60,7 +68,8 @@ pub const WEIGHTS: Weights = Weights {
     stumble: -1.0,
     body_contact: -1.0,
     termination: -200.0,
-    success: 10.0,
+    progress: 2.0,
+    success: 3.0,
 };
 
 /// Tracking kernels' standard deviation (m/s, rad/s).
@@ -95,6 +104,7 @@ pub struct Terms {
     pub stumble: f64,
     pub body_contact: f64,
     pub termination: f64,
+    pub progress: f64,
     pub success: f64,
 }
 
@@ -116,6 +126,7 @@ impl Terms {
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
             + w.termination * self.termination
+            + w.progress * self.progress
             + w.success * self.success)
     }
 }
