@@ -236,3 +236,43 @@ fn trainer_and_firmware_follow_the_spec_s_limits_rates_and_token_scale() {
     let end = e2.last_end.expect("an episode ended");
     assert_eq!(FALL_CAUSES[end.cause], "joint_speed", "{end:?}");
 }
+
+/// `g1-train ppo-eval`'s evaluation: the committed stair policy, in its own training environment
+/// at a held level (7 cm steps down), with its mean action. It descended 8 of 8 there when measured
+/// (2026-11-26); each episode ends exactly once, as a success, a fall or a time-out.
+#[test]
+fn in_environment_evaluation_holds_the_level_and_counts_each_episode_once() {
+    if peer_weights().is_none() {
+        return; // the model's meshes come from ../shared too
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let opts = train::ppo::in_env::InEnvOptions {
+        model: g1_sim::ModelChoice::G1_12Dof,
+        spec: Arc::new(spec),
+        column: Column::Down,
+        level: 1,
+        vx: 0.5,
+        episodes: 4,
+        random: Randomization::NONE,
+        episode_s: 20.0,
+        seed: 0,
+        threads: 2,
+    };
+    let r = train::ppo::in_env::evaluate(&opts, &weights).unwrap();
+    assert_eq!(r.episodes, 4);
+    assert!((r.step_height_m - 0.071).abs() < 1e-9, "{r:?}");
+    // A fall is never a success (not even one that carries the base past the landing).
+    assert_eq!(r.successes + r.falls + r.timeouts, 4, "{r:?}");
+    assert!(
+        r.successes >= 2,
+        "the committed policy descends 7 cm steps in training: {r:?}"
+    );
+    // Same seed, other thread count: the same episodes.
+    let again =
+        train::ppo::in_env::evaluate(&train::ppo::in_env::InEnvOptions { threads: 1, ..opts }, &weights).unwrap();
+    assert_eq!(
+        (again.successes, again.falls, again.mean_steps),
+        (r.successes, r.falls, r.mean_steps)
+    );
+}
