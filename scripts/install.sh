@@ -98,6 +98,34 @@ if [ ! -f "$deps/g1_29dof/g1.xml" ]; then
   mv "$deps/tmp/mjlab/asset_zoo/robots/unitree_g1/xmls" "$deps/g1_29dof"
   rm -rf "$deps/tmp"
 fi
+# --- Unitree's simulator as a test peer (tests/tests/unitree_mujoco.rs) ---------------------------
+# unitree_mujoco's simulate_python and unitree_sdk2py (read in place from ../shared/peers) want the
+# Python cyclonedds 0.10.x: no wheel exists for this Python, so its sdist (sha256-pinned) is built
+# against Debian's cyclonedds-dev 0.10.2, through a prefix that lays Debian's files out as its build
+# looks for them. Its own venv: the test tools' venv holds cyclonedds 11 (the CDR codec's peer).
+uvenv="$root/.venv-unitree"
+upy="$uvenv/bin/python"
+if ! "$upy" -c 'import cyclonedds.domain, mujoco, pygame, numpy' 2>/dev/null; then
+  say "python: building .venv-unitree (CycloneDDS 0.10.2 for Python, MuJoCo 3.17.0, pygame) for Unitree's simulator"
+  [ -x "$upy" ] || /usr/bin/env python3 -m venv "$uvenv"
+  prefix="$deps/cyclonedds-prefix"
+  mkdir -p "$prefix"
+  ln -sfn /usr/include "$prefix/include"
+  ln -sfn /usr/bin "$prefix/bin"
+  ln -sfn "/usr/lib/$(gcc -print-multiarch)" "$prefix/lib"
+  sdist="$deps/wheels/cyclonedds-0.10.2.tar.gz"
+  if [ ! -f "$sdist" ]; then
+    CYCLONEDDS_HOME="$prefix" "$upy" -m pip download -q --disable-pip-version-check --no-deps --no-binary=:all: \
+      -d "$deps/wheels" cyclonedds==0.10.2
+  fi
+  got=$(sha256sum "$sdist" | cut -d' ' -f1)
+  if [ "$got" != f834962eabbdcdf4e9cd75cf87222f3c5ef22d9cb9e7ed651d9a8710fe984a30 ]; then
+    echo "error: $sdist has sha256 $got, not the pinned cyclonedds 0.10.2 sdist's; delete it and re-run." >&2
+    exit 1
+  fi
+  CYCLONEDDS_HOME="$prefix" "$upy" -m pip install -q --disable-pip-version-check "$sdist" numpy pygame "$mj_whl"
+fi
+
 # --- the CAN HIL's second VM: QEMU software emulation -------------------------------------------
 # User-Mode Linux does not boot on every CPU of our machines (on an AMX Xeon it dies at once with
 # "ptrace set fp regs failed"), so `cargo xtask hil` falls back to QEMU (ARCHITECTURE.md, "The HIL VM"): Debian's

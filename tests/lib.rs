@@ -2,6 +2,7 @@
 // Integration tests never run on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 
 /// Repository root.
 pub fn repo_root() -> PathBuf {
@@ -172,6 +173,79 @@ pub fn perturb_first_weight(bytes: &[u8]) -> Vec<u8> {
     let nv = if v == 0.0 { 1e-3 } else { v * 1.001 };
     out[at..at + 4].copy_from_slice(&nv.to_le_bytes());
     out
+}
+
+/// A network namespace with multicast on `lo`, deleted on drop.
+pub struct Netns(String);
+
+impl Netns {
+    /// `None` when it cannot be made (not root, no `ip`): the caller says so loudly.
+    pub fn new(tag: &str) -> Option<Netns> {
+        let name = format!("{tag}-{}", std::process::id());
+        let _ = Command::new("ip")
+            .args(["netns", "del", &name])
+            .stderr(Stdio::null())
+            .status();
+        let steps: [&[&str]; 4] = [
+            &["netns", "add", &name],
+            &["-n", &name, "link", "set", "lo", "up"],
+            &["-n", &name, "link", "set", "lo", "multicast", "on"],
+            &["-n", &name, "route", "add", "224.0.0.0/4", "dev", "lo"],
+        ];
+        for args in steps {
+            let ok = Command::new("ip")
+                .args(args)
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success());
+            if !ok {
+                let _ = Command::new("ip").args(["netns", "del", &name]).status();
+                return None;
+            }
+        }
+        Some(Netns(name))
+    }
+
+    /// `program` run inside the namespace.
+    pub fn command(&self, program: &Path) -> Command {
+        let mut c = Command::new("ip");
+        c.args(["netns", "exec", &self.0]).arg(program);
+        c
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
+    }
+}
+
+/// Kills a child left behind by a failing test.
+pub struct Reaped(pub Option<Child>);
+
+impl Reaped {
+    /// Waits for the child and parses the last line of its stdout that starts with `{`.
+    pub fn wait_json(mut self, what: &str) -> serde_json::Value {
+        let out = self.0.take().unwrap().wait_with_output().expect("wait");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let line = text.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| {
+            panic!(
+                "{what} printed no JSON (status {}): stdout {text} stderr {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr)
+            )
+        });
+        serde_json::from_str(line).unwrap_or_else(|e| panic!("{what}: {e}: {line}"))
+    }
+}
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        if let Some(c) = self.0.as_mut() {
+            let _ = c.kill();
+            let _ = c.wait();
+        }
+    }
 }
 
 #[cfg(test)]

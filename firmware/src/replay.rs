@@ -21,7 +21,7 @@ use anyhow::{bail, Context, Result};
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::cdr::{low_state_from_cdr, CdrError};
 use sensor_io::unitree_hg::{
-    decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN,
+    decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, UnsealedStamper, LOW_CMD_LEN, LOW_STATE_LEN,
 };
 
 use crate::controller::Controller;
@@ -51,6 +51,9 @@ pub mod key {
     /// `sensor_io::unitree_hg::cdr` before decoding.
     pub const FRAME_ENCODING: &str = "frame_encoding";
     pub const FRAME_ENCODING_CDR: &str = "cdr";
+    /// "true" when `g1fw run --unitree-mujoco` stamped states without a CRC or tick with their
+    /// arrival count; replay stamps the logged samples the same way.
+    pub const UNITREE_MUJOCO: &str = "unitree_mujoco";
     /// `inline` or `threaded:L` (the perception step on a worker thread, its result consumed L
     /// ticks after the frame); absent in older logs (inline).
     pub const PERCEPTION_EXEC: &str = "perception_exec";
@@ -429,6 +432,9 @@ struct ReplayHal<'a> {
     lidar_fed: u64,
     /// Frames are DDS samples (CDR), converted to the C layout before decoding.
     cdr_frames: bool,
+    /// Stamp unsealed states with their arrival count, as the run did (`--unitree-mujoco`).
+    stamp_unsealed: bool,
+    stamper: UnsealedStamper,
     c_frame: [u8; LOW_STATE_LEN],
 }
 
@@ -468,7 +474,12 @@ impl LowLevel for ReplayHal<'_> {
             let decoded = if self.cdr_frames {
                 low_state_from_cdr(frame, &mut self.c_frame)
                     .map_err(ReplayHalError::from)
-                    .and_then(|()| Ok(decode_low_state(&self.c_frame, &mut self.scratch)?))
+                    .and_then(|()| {
+                        if self.stamp_unsealed {
+                            self.stamper.stamp(&mut self.c_frame);
+                        }
+                        Ok(decode_low_state(&self.c_frame, &mut self.scratch)?)
+                    })
             } else {
                 decode_low_state(frame, &mut self.scratch).map_err(ReplayHalError::from)
             };
@@ -693,6 +704,8 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
         cdr_frames: meta
             .get(key::FRAME_ENCODING)
             .is_some_and(|v| v == key::FRAME_ENCODING_CDR),
+        stamp_unsealed: meta.get(key::UNITREE_MUJOCO).is_some_and(|v| v == "true"),
+        stamper: UnsealedStamper::default(),
         c_frame: [0; LOW_STATE_LEN],
     };
     let mut op = RecordedOperator { rec: &rec, i: 0 };

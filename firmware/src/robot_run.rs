@@ -117,6 +117,8 @@ pub struct RunReport {
     pub can: Option<CanCounters>,
     /// The DDS HAL's counters (DDS runs only).
     pub dds: Option<DdsHalCounters>,
+    /// `--unitree-mujoco` was on: states without a CRC or tick were accepted, stamped by arrival.
+    pub unitree_mujoco: bool,
     /// The UDP lidar's counters (absent without `--lidar-udp`).
     pub lidar: Option<LidarReport>,
     pub perception: PerceptionReport,
@@ -247,31 +249,52 @@ pub fn run_dds(
     endpoint: robot_io::dds::Endpoint,
     opts: &RunOptions,
     tick_timeout: Option<Duration>,
+    unitree_mujoco: bool,
 ) -> Result<RunReport> {
     let mut meta = RunMeta::default();
     meta.set("hal", "dds")
         .set(key::FRAME_ENCODING, key::FRAME_ENCODING_CDR)
         .set("dds_endpoint", &endpoint);
+    if unitree_mujoco {
+        meta.set(key::UNITREE_MUJOCO, "true").set(key::FROZEN_CHECK, false);
+    }
     let transport = format!("dds {endpoint}");
     let startup = opts.startup_timeout;
-    let (mut report, hal) = run_hal(spec, opts, meta, true, transport, |period_ns| {
+    // A robot at rest in a noise-free simulator repeats its f32 state exactly, which the frozen-joint
+    // check would take for a dead encoder: off for unitree_mujoco (the log says so; replay follows).
+    let frozen_check = !unitree_mujoco;
+    let (mut report, hal) = run_hal(spec, opts, meta, frozen_check, transport, |period_ns| {
         let mut cfg = DdsHalConfig::new(endpoint, period_ns);
         cfg.startup_timeout = startup;
         if let Some(t) = tick_timeout {
             cfg.tick_timeout = t;
         }
+        cfg.unitree_mujoco = unitree_mujoco;
         Ok(DdsHal::open(cfg)?)
     })?;
     let counters = hal.counters();
-    if counters.tick_unchanged > 0 && report.trip.as_ref().is_some_and(|t| t.reason == "state_timeout") {
+    if !unitree_mujoco
+        && counters.tick_unchanged > 0
+        && report.trip.as_ref().is_some_and(|t| t.reason == "state_timeout")
+    {
         report.end = format!(
             "{}; rt/lowstate kept arriving but its tick did not advance in {} of {} samples: unitree_mujoco's \
              Python bridge leaves LowState.tick at 0, and g1fw judges freshness by it (the robot's tick advances \
-             every 2 ms; docs/robot.md, \"Run in Unitree's simulator\")",
+             every 2 ms). For that simulator only, run with --unitree-mujoco (docs/robot.md, \"Run in Unitree's \
+             simulator\")",
             report.end, counters.tick_unchanged, counters.link.samples_in
         );
     }
+    if counters.crc_zero > 0 && report.trip.as_ref().is_some_and(|t| t.reason == "crc_streak") {
+        report.end = format!(
+            "{}; {} of {} rt/lowstate samples had a CRC of 0, one never computed: Unitree's Python simulator \
+             (unitree_mujoco's simulate_python) sends LowState without it. The robot always fills it in. For that \
+             simulator only, run with --unitree-mujoco (docs/robot.md, \"Run in Unitree's simulator\")",
+            report.end, counters.crc_zero, counters.link.samples_in
+        );
+    }
     report.dds = Some(counters);
+    report.unitree_mujoco = unitree_mujoco;
     Ok(report)
 }
 
@@ -404,6 +427,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         safety: SafetyReport::of(&runtime),
         can: None,
         dds: None,
+        unitree_mujoco: false,
         lidar,
         spec: spec_name,
         weights_sha256,

@@ -7,11 +7,12 @@
 //! tests do not hear each other.
 #![allow(clippy::disallowed_methods)]
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 
 use integration_tests::{
-    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail,
+    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns,
+    Reaped,
 };
 
 /// Loud skip outside CI, failure in CI (where install.sh put the tools and the tests run as root).
@@ -76,77 +77,6 @@ fn peer_binary() -> Option<&'static Path> {
     .as_deref()
 }
 
-/// A network namespace with multicast on `lo`, deleted on drop.
-struct Netns(String);
-
-impl Netns {
-    fn new(tag: &str) -> Option<Netns> {
-        let name = format!("g1dds-{tag}-{}", std::process::id());
-        let _ = Command::new("ip")
-            .args(["netns", "del", &name])
-            .stderr(Stdio::null())
-            .status();
-        let steps: [&[&str]; 4] = [
-            &["netns", "add", &name],
-            &["-n", &name, "link", "set", "lo", "up"],
-            &["-n", &name, "link", "set", "lo", "multicast", "on"],
-            &["-n", &name, "route", "add", "224.0.0.0/4", "dev", "lo"],
-        ];
-        for args in steps {
-            let ok = Command::new("ip")
-                .args(args)
-                .stderr(Stdio::null())
-                .status()
-                .is_ok_and(|s| s.success());
-            if !ok {
-                let _ = Command::new("ip").args(["netns", "del", &name]).status();
-                missing("a network namespace (`ip netns add`, as root) for a private multicast lo");
-                return None;
-            }
-        }
-        Some(Netns(name))
-    }
-
-    fn command(&self, program: &Path) -> Command {
-        let mut c = Command::new("ip");
-        c.args(["netns", "exec", &self.0]).arg(program);
-        c
-    }
-}
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        let _ = Command::new("ip").args(["netns", "del", &self.0]).status();
-    }
-}
-
-/// Kills a child left behind by a failing test.
-struct Reaped(Option<Child>);
-
-impl Reaped {
-    fn wait_json(mut self, what: &str) -> serde_json::Value {
-        let out = self.0.take().unwrap().wait_with_output().expect("wait");
-        let text = String::from_utf8_lossy(&out.stdout);
-        let line = text.lines().rev().find(|l| l.starts_with('{')).unwrap_or_else(|| {
-            panic!(
-                "{what} printed no JSON (status {}): stdout {text} stderr {}",
-                out.status,
-                String::from_utf8_lossy(&out.stderr)
-            )
-        });
-        serde_json::from_str(line).unwrap_or_else(|e| panic!("{what}: {e}: {line}"))
-    }
-}
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        if let Some(c) = self.0.as_mut() {
-            let _ = c.kill();
-            let _ = c.wait();
-        }
-    }
-}
-
 struct Outcome {
     fw: serde_json::Value,
     fw_status: std::process::ExitStatus,
@@ -182,7 +112,10 @@ fn scenario(tag: &str, faults: &[&str], duration: f64, expect_run: bool) -> Opti
         return None;
     }
     let peer = peer_binary()?;
-    let ns = Netns::new(tag)?;
+    let Some(ns) = Netns::new(&format!("g1dds-{tag}")) else {
+        missing("a network namespace (`ip netns add`, as root) for a private multicast lo");
+        return None;
+    };
     let dir = scratch_dir(&format!("dds-{tag}"));
     let gains = gains_file(&dir);
     let sim = Reaped(Some(
@@ -417,7 +350,9 @@ fn the_stair_policy_runs_over_dds_with_the_mid360_over_udp() {
     if shared_dir().is_none() {
         return skip_or_fail("the DDS stair run (the 12-dof model)");
     }
-    let Some(ns) = Netns::new("stairs") else { return };
+    let Some(ns) = Netns::new("g1dds-stairs") else {
+        return missing("a network namespace (`ip netns add`, as root) for a private multicast lo");
+    };
     let dir = scratch_dir("dds-stairs");
     let sim = Reaped(Some(
         ns.command(&built_bin("g1-sim"))

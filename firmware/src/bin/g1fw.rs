@@ -304,6 +304,12 @@ struct RunArgs {
     /// so the safety supervisor sees the silence and damping keeps going out.
     #[arg(long, value_name = "MS", requires = "dds")]
     dds_tick_timeout_ms: Option<u32>,
+    /// With --dds, for Unitree's Python simulator (unitree_mujoco's simulate_python) only: accept
+    /// rt/lowstate samples whose CRC and tick were never filled in (its bridge leaves both at 0),
+    /// judging freshness by arrival order instead. A CRC that is set but wrong is still refused.
+    /// The report and the log say it was on. Never use it on the robot, which fills in both.
+    #[arg(long, requires = "dds")]
+    unitree_mujoco: bool,
     /// Bus layout for motors on CAN (the vcan bench): motor slots, node ids and ranges, the IMU's
     /// bus, timeouts (specs/can/*.toml).
     #[arg(long, value_name = "FILE")]
@@ -929,7 +935,13 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
             let tick_timeout = a
                 .dds_tick_timeout_ms
                 .map(|ms| std::time::Duration::from_millis(ms as u64));
-            firmware::robot_run::run_dds(spec, endpoint, &opts, tick_timeout)?
+            if a.unitree_mujoco {
+                tracing::warn!(
+                    "--unitree-mujoco: states without a CRC or an advancing tick are accepted (Unitree's Python \
+                     simulator only; never on the robot)"
+                );
+            }
+            firmware::robot_run::run_dds(spec, endpoint, &opts, tick_timeout, a.unitree_mujoco)?
         }
         (None, None) => {
             bail!("name the robot's transport: --dds IFACE[,DOMAIN] (the G1) or --can-config FILE (a CAN bench)")

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::cdr::{low_cmd_to_cdr, low_state_from_cdr, CdrError, LOW_CMD_CDR_LEN, LOW_STATE_CDR_LEN};
-use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, LOW_CMD_LEN, LOW_STATE_LEN};
+use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, Stamp, UnsealedStamper, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::{DdsError, DdsLink, Endpoint, LinkCounters, CONTROLLER, LOW_STATE_TOPIC, SAMPLE_CAP};
 
@@ -22,6 +22,9 @@ pub struct DdsHalConfig {
     pub startup_timeout: Duration,
     /// A tick without a new sample runs after this long.
     pub tick_timeout: Duration,
+    /// unitree_mujoco's Python bridge only (`g1fw run --unitree-mujoco`): accept states whose CRC
+    /// and tick were never filled in, stamped by arrival (`sensor_io::unitree_hg::UnsealedStamper`).
+    pub unitree_mujoco: bool,
 }
 
 impl DdsHalConfig {
@@ -34,6 +37,7 @@ impl DdsHalConfig {
             // Ten periods: late enough that a loaded host's scheduling hiccup is not a missing
             // frame, early enough that damping follows a dead link within the state timeout.
             tick_timeout: Duration::from_nanos(period_ns * 10),
+            unitree_mujoco: false,
         }
     }
 }
@@ -52,6 +56,15 @@ pub struct DdsHalCounters {
     /// Decoded samples whose `tick` equals the previous sample's (a frozen state, or a sender that
     /// never fills it in, as unitree_mujoco's Python bridge).
     pub tick_unchanged: u64,
+    /// Samples stamped with the next tick (`--unitree-mujoco`), repeats included.
+    pub stamped: u64,
+    /// Of those, samples whose contents repeated the last one's (the simulator published before
+    /// its physics stepped, or a robot at rest in a noise-free simulator).
+    pub repeated: u64,
+    /// Longest run of such repeats in a row.
+    pub longest_repeat: u64,
+    /// Samples whose CRC field was 0 (never computed: unitree_mujoco's Python bridge), unstamped.
+    pub crc_zero: u64,
 }
 
 pub struct DdsHal {
@@ -71,6 +84,11 @@ pub struct DdsHal {
     cmd_cdr: [u8; LOW_CMD_CDR_LEN],
     counters: DdsHalCounters,
     decoded_any: bool,
+    /// `tick` of the last sample as sent (before any stamping).
+    sent_tick: u32,
+    /// `--unitree-mujoco`'s stamping.
+    stamper: UnsealedStamper,
+    repeat_run: u64,
 }
 
 impl DdsHal {
@@ -94,6 +112,9 @@ impl DdsHal {
             cmd_cdr: [0; LOW_CMD_CDR_LEN],
             counters: DdsHalCounters::default(),
             decoded_any: false,
+            sent_tick: 0,
+            stamper: UnsealedStamper::default(),
+            repeat_run: 0,
         })
     }
 
@@ -123,12 +144,32 @@ impl DdsHal {
             .into());
         }
         low_state_from_cdr(&self.raw[..self.raw_len], &mut self.c_state)?;
-        let mut s = LowState::default();
-        decode_low_state(&self.c_state, &mut s)?;
-        if s.tick == self.state.tick && self.decoded_any {
+        let sent_tick = u32::from_le_bytes([self.c_state[12], self.c_state[13], self.c_state[14], self.c_state[15]]);
+        if sent_tick == self.sent_tick && self.decoded_any {
             self.counters.tick_unchanged += 1;
         }
+        self.sent_tick = sent_tick;
         self.decoded_any = true;
+        if self.cfg.unitree_mujoco {
+            // Every sample judged goes through the stamper, as replay's logged samples do.
+            match self.stamper.stamp(&mut self.c_state) {
+                Stamp::Fresh => {
+                    self.counters.stamped += 1;
+                    self.repeat_run = 0;
+                }
+                Stamp::Repeat => {
+                    self.counters.stamped += 1;
+                    self.counters.repeated += 1;
+                    self.repeat_run += 1;
+                    self.counters.longest_repeat = self.counters.longest_repeat.max(self.repeat_run);
+                }
+                Stamp::Corrupt => {}
+            }
+        } else if self.c_state[LOW_STATE_LEN - 4..] == [0; 4] {
+            self.counters.crc_zero += 1;
+        }
+        let mut s = LowState::default();
+        decode_low_state(&self.c_state, &mut s)?;
         self.state = s;
         Ok(())
     }

@@ -44,7 +44,8 @@ fn crc_hint(stored: u32) -> &'static str {
     if stored == 0 {
         "; a CRC of 0 is one never computed: Unitree's Python simulator (unitree_mujoco's \
          simulate_python, through unitree_sdk2py) publishes LowState without one. The robot always \
-         sends it, and g1fw refuses such states (docs/robot.md, \"Run in Unitree's simulator\")"
+         sends it, and g1fw refuses such states unless run with --unitree-mujoco (docs/robot.md, \
+         \"Run in Unitree's simulator\")"
     } else {
         ""
     }
@@ -227,6 +228,58 @@ pub fn encode_low_state(state: &LowState, out: &mut [u8; LOW_STATE_LEN]) {
     seal(out);
 }
 
+/// unitree_mujoco's Python bridge (through unitree_sdk2py) leaves `crc` and `tick` of `LowState_` at
+/// 0. For that simulator only (`g1fw run --unitree-mujoco`), frames are stamped before decoding:
+/// each gets the next `tick` (freshness comes from arrival order) and is sealed with its CRC. A frame
+/// whose CRC is set but wrong is left alone, so corruption is still refused. Frames whose contents
+/// repeat the last one's are told apart (the bridge publishes on its own timer whether or not the
+/// physics stepped, and a robot at rest in a noise-free simulator repeats its f32 state exactly).
+/// Replay stamps the logged wire samples with a stamper of its own, the same way.
+#[derive(Clone)]
+pub struct UnsealedStamper {
+    tick: u32,
+    last: [u8; LOW_STATE_LEN],
+}
+
+/// What [`UnsealedStamper::stamp`] did to a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stamp {
+    /// New contents.
+    Fresh,
+    /// The same contents as the last frame (but for tick and CRC).
+    Repeat,
+    /// A CRC set but wrong: left as it came.
+    Corrupt,
+}
+
+impl Default for UnsealedStamper {
+    fn default() -> Self {
+        Self {
+            tick: 0,
+            last: [0; LOW_STATE_LEN],
+        }
+    }
+}
+
+impl UnsealedStamper {
+    pub fn stamp(&mut self, buf: &mut [u8; LOW_STATE_LEN]) -> Stamp {
+        let stored = rd_u32(buf, LOW_STATE_LEN - 4);
+        if stored != 0 && stored != crc32_words(&buf[..LOW_STATE_LEN - 4]) {
+            return Stamp::Corrupt;
+        }
+        // Compared without tick and CRC, which the sender may or may not fill in.
+        let same = self.tick > 0
+            && buf[..12] == self.last[..12]
+            && buf[16..LOW_STATE_LEN - 4] == self.last[16..LOW_STATE_LEN - 4];
+        let verdict = if same { Stamp::Repeat } else { Stamp::Fresh };
+        self.tick = self.tick.wrapping_add(1).max(1);
+        self.last.copy_from_slice(buf);
+        buf[12..16].copy_from_slice(&self.tick.to_le_bytes());
+        seal(buf);
+        verdict
+    }
+}
+
 /// Decodes and validates a `LowState_` frame (the firmware's side).
 pub fn decode_low_state(buf: &[u8], out: &mut LowState) -> Result<(), DecodeError> {
     const M: &str = "LowState_";
@@ -405,6 +458,51 @@ mod tests;
 
 #[cfg(test)]
 mod crc_zero {
+    use super::*;
+
+    /// As unitree_mujoco's Python bridge sends it: tick and CRC left at 0.
+    fn unsealed(q0: f32) -> [u8; LOW_STATE_LEN] {
+        let mut st = LowState::default();
+        st.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
+        st.motors[0].q = q0;
+        let mut buf = [0u8; LOW_STATE_LEN];
+        encode_low_state(&st, &mut buf);
+        buf[LOW_STATE_LEN - 4..].fill(0);
+        buf
+    }
+
+    #[test]
+    fn unsealed_states_are_stamped_by_arrival_repeats_keep_their_tick_and_corrupt_ones_stay_corrupt() {
+        let mut stamper = UnsealedStamper::default();
+        let mut out = LowState::default();
+        let mut buf = unsealed(0.1);
+        assert!(decode_low_state(&buf, &mut out).is_err());
+        assert_eq!(stamper.stamp(&mut buf), Stamp::Fresh);
+        decode_low_state(&buf, &mut out).unwrap();
+        assert_eq!(out.tick, 1);
+        // The same contents again (published before the physics stepped): told apart, still the
+        // next tick (freshness is arrival order).
+        let mut again = unsealed(0.1);
+        assert_eq!(stamper.stamp(&mut again), Stamp::Repeat);
+        decode_low_state(&again, &mut out).unwrap();
+        assert_eq!(out.tick, 2);
+        // New contents: the next tick; a sealed frame (a frozen tick, valid CRC) is stamped too.
+        let mut st = LowState::default();
+        st.motors[0].q = 0.2;
+        let mut sealed = [0u8; LOW_STATE_LEN];
+        encode_low_state(&st, &mut sealed);
+        assert_eq!(stamper.stamp(&mut sealed), Stamp::Fresh);
+        decode_low_state(&sealed, &mut out).unwrap();
+        assert_eq!(out.tick, 3);
+        // A CRC that is set and wrong stays wrong.
+        sealed[100] ^= 1;
+        assert_eq!(stamper.stamp(&mut sealed), Stamp::Corrupt);
+        assert!(matches!(
+            decode_low_state(&sealed, &mut out),
+            Err(DecodeError::Crc { .. })
+        ));
+    }
+
     #[test]
     fn a_crc_of_zero_names_the_simulator_that_sends_it() {
         let zero = super::DecodeError::Crc {

@@ -1,0 +1,123 @@
+"""Unitree's own simulator, headless: unitree_mujoco's simulate_python with its bridge unmodified.
+
+What this replaces of `unitree_mujoco.py`: only the viewer (there is no display here) and the
+keyboard that works the elastic band. Everything that talks to the controller is Unitree's
+`UnitreeSdk2Bridge` from ../shared/peers/unitree_mujoco/simulate_python, over unitree_sdk2py from
+../shared/peers/unitree_sdk2_python, both read in place.
+
+`config.py` is set as a user sets it for the G1 (scene, domain, interface, no gamepad, the band on),
+with a 2 ms step. The loop is Unitree's SimulationThread: a real-time `mj_step` loop that applies
+the band. The band holds the robot up (as a user hangs it in the viewer) until the controller has
+commanded for `--release-after` seconds (its start-up ramp), then lets go, as pressing 9 does.
+
+Prints one JSON line at the end: the pelvis trajectory (t, x, y, z at 10 Hz, t from the release),
+when the first command came, how many physics steps ran and the real-time factor.
+"""
+
+import argparse
+import json
+import os
+import sys
+import threading
+import time
+
+here = os.path.dirname(os.path.abspath(__file__))
+shared = os.environ.get("G1_SHARED") or os.path.join(here, "..", "..", "..", "shared")
+sim_dir = os.path.join(shared, "peers", "unitree_mujoco", "simulate_python")
+sys.path.insert(0, os.path.join(shared, "peers", "unitree_sdk2_python"))
+sys.path.insert(0, sim_dir)
+
+ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+ap.add_argument("--domain", type=int, default=1)
+ap.add_argument("--interface", default="lo")
+ap.add_argument("--dt", type=float, default=0.002, help="config.SIMULATE_DT (Unitree's default is 0.005)")
+ap.add_argument("--duration", type=float, default=30.0, help="wall seconds to run in all")
+ap.add_argument("--release-after", type=float, default=0.8,
+                help="seconds after the first command before the band lets go")
+ap.add_argument("--idle-exit", type=float, default=1.5,
+                help="exit this long after commands stop (once some came)")
+args = ap.parse_args()
+
+import config  # noqa: E402  Unitree's config module, set as a user edits config.py
+
+config.ROBOT = "g1"
+config.ROBOT_SCENE = os.path.join(shared, "peers", "unitree_mujoco", "unitree_robots", "g1", "scene_29dof.xml")
+config.DOMAIN_ID = args.domain
+config.INTERFACE = args.interface
+config.USE_JOYSTICK = 0
+config.PRINT_SCENE_INFORMATION = False
+config.ENABLE_ELASTIC_BAND = True
+config.SIMULATE_DT = args.dt
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from unitree_sdk2py.core.channel import ChannelFactoryInitialize  # noqa: E402
+from unitree_sdk2py_bridge import ElasticBand, UnitreeSdk2Bridge  # noqa: E402
+
+mj_model = mujoco.MjModel.from_xml_path(config.ROBOT_SCENE)
+mj_data = mujoco.MjData(mj_model)
+mj_model.opt.timestep = config.SIMULATE_DT
+
+band = ElasticBand()
+band_link = mj_model.body("torso_link").id
+# Hang the robot with its feet on the floor: the band's rest length so that it would carry the
+# robot's whole weight with the pelvis (the band measures the pelvis, the free joint's position)
+# just below its standing height of ~0.79 m.
+mass = float(np.sum(mj_model.body_mass))
+pelvis_z = 0.77
+band.length = (band.point[2] - pelvis_z) - mass * 9.81 / band.stiffness
+
+# The bridge publishes from the moment it is made; before any physics step its IMU quaternion is
+# all zeros, which g1fw rightly refuses (invalid_imu). The viewer's launch computes the model once;
+# without a viewer, do the same here.
+mujoco.mj_forward(mj_model, mj_data)
+
+locker = threading.Lock()
+ChannelFactoryInitialize(config.DOMAIN_ID, config.INTERFACE)
+bridge = UnitreeSdk2Bridge(mj_model, mj_data)
+
+t_start = time.perf_counter()
+first_cmd = None
+last_active = None
+released_at = None
+traj = []
+steps = 0
+next_sample = 0.0
+prev_ctrl = np.zeros(mj_model.nu)
+while time.perf_counter() - t_start < args.duration:
+    step_start = time.perf_counter()
+    with locker:
+        now = step_start - t_start
+        ctrl = np.array(mj_data.ctrl)
+        if np.any(ctrl != prev_ctrl):
+            last_active = now
+            if first_cmd is None:
+                first_cmd = now
+        prev_ctrl = ctrl
+        if band.enable and first_cmd is not None and now - first_cmd >= args.release_after:
+            band.enable = False
+            released_at = now
+        if band.enable:
+            mj_data.xfrc_applied[band_link, :3] = band.Advance(mj_data.qpos[:3], mj_data.qvel[:3])
+        else:
+            mj_data.xfrc_applied[band_link, :3] = 0.0
+        mujoco.mj_step(mj_model, mj_data)
+        steps += 1
+        if released_at is not None and now - released_at >= next_sample:
+            traj.append([round(now - released_at, 3)] + [round(float(v), 4) for v in mj_data.qpos[:3]])
+            next_sample += 0.1
+    if last_active is not None and time.perf_counter() - t_start - last_active > args.idle_exit:
+        break
+    wait = mj_model.opt.timestep - (time.perf_counter() - step_start)
+    if wait > 0:
+        time.sleep(wait)
+
+wall = time.perf_counter() - t_start
+print(json.dumps({
+    "first_command_s": first_cmd,
+    "released_s": released_at,
+    "physics_steps": steps,
+    "real_time_factor": steps * mj_model.opt.timestep / wall,
+    "trajectory": traj,
+}), flush=True)
+os._exit(0)  # the bridge's recurrent threads never stop on their own
