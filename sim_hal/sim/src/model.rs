@@ -12,8 +12,9 @@
 //!   to the actuator (one clamp, which MuJoCo's implicit derivative knows about);
 //! - integrator `implicitfast`, so the PD's damping is integrated implicitly;
 //! - site `imu_in_pelvis` on the pelvis and gyro / accelerometer sensors on it;
-//! - [`PhysicsProfile::Training`] only: solver 10 / 20 iterations, no joint friction loss, shin
-//!   capsules where the model has none, and collisions between feet / shins and the world only.
+//! - [`PhysicsProfile::Training`] only: solver 10 / 20 iterations, no joint friction loss, shin and
+//!   thigh capsules where the model has none and a foot capsule, collisions between feet / shins and
+//!   the world, and between the left leg and the right leg (thighs, shins, feet).
 //! - a terrain pool (mocap bodies with one box or cylinder each) when asked for one.
 use crate::quat_mul;
 use crate::world::{Primitive, World};
@@ -188,10 +189,16 @@ pub struct PoolGeom {
 /// Where unused pool geoms wait: far below the floor, out of every contact and ray.
 pub const POOL_PARK_Z: f64 = -100.0;
 
-/// Collision bits of the training profile: robot colliders have `contype` ROBOT and
-/// `conaffinity` 0, world geoms add ROBOT to their `conaffinity`, so a robot geom only ever meets
-/// the world (MuJoCo pairs `a`, `b` when `contype_a & conaffinity_b` or the reverse is set).
+/// Collision bits of the training profile (MuJoCo pairs `a`, `b` when `contype_a & conaffinity_b`
+/// or the reverse is set): feet and shins have ROBOT in `contype`, world geoms add ROBOT to their
+/// `conaffinity`, so those meet the world. Leg geoms of one side carry their side's bit in `contype`
+/// and the other side's in `conaffinity`, so the legs meet each other and nothing else of the robot.
 const TRAINING_ROBOT_BIT: i32 = 2;
+const TRAINING_LEFT_LEG_BIT: i32 = 4;
+const TRAINING_RIGHT_LEG_BIT: i32 = 8;
+/// Name suffix of the foot capsule added for leg-against-leg contacts only (the soles' own
+/// colliders stay what touches the ground).
+const FOOT_SELF_SUFFIX: &str = "_foot_self_collision";
 
 fn edit_err(what: &str, e: impl std::fmt::Display) -> SimError {
     SimError::Model(format!("{what}: {e}"))
@@ -250,7 +257,7 @@ pub fn load(
         for j in spec.joint_iter_mut() {
             j.set_frictionloss(0.0);
         }
-        add_shin_capsules_if_missing(&mut spec)?;
+        add_leg_capsules(&mut spec)?;
     }
 
     add_floor_if_missing(&mut spec)?;
@@ -442,41 +449,81 @@ fn make_pd_actuator<C>(a: &mut mujoco_rs::wrappers::mj_editing::MjsActuator<C>, 
 
 /// Training profile: a shin capsule on each knee link that has no primitive collider (the 12-dof
 /// model's shins are meshes only), sized like the 29-dof model's shin + linkage capsules.
-fn add_shin_capsules_if_missing(spec: &mut MjSpec) -> Result<(), SimError> {
+fn add_leg_capsules(spec: &mut MjSpec) -> Result<(), SimError> {
+    // (body, name, fromto, radius, only if the body has no capsule): the 29-dof MJCF ships thigh and
+    // shin capsules (mjlab's sizes, used here for the 12-dof model too); the foot capsule is ours.
+    type Capsule = (&'static str, &'static str, [f64; 6], f64, bool);
+    const CAPSULES: [Capsule; 3] = [
+        (
+            "hip_yaw_link",
+            "_thigh_collision",
+            [0.0, 0.0, -0.03, -0.06, 0.0, -0.17],
+            0.055,
+            true,
+        ),
+        (
+            "knee_link",
+            "_shin_collision",
+            [0.01, 0.0, -0.02, 0.01, 0.0, -0.22],
+            0.045,
+            true,
+        ),
+        (
+            "ankle_roll_link",
+            FOOT_SELF_SUFFIX,
+            [-0.05, 0.0, -0.025, 0.12, 0.0, -0.025],
+            0.025,
+            false,
+        ),
+    ];
     for side in ["left", "right"] {
-        let name = format!("{side}_knee_link");
-        let Some(b) = spec.body_mut(&name) else {
-            continue;
-        };
-        let has_capsule = b.geom_iter(false).any(|g| g.type_() == _mjtGeomBase::mjGEOM_CAPSULE);
-        if has_capsule {
-            continue;
+        for (link, suffix, fromto, radius, if_missing) in CAPSULES {
+            let Some(b) = spec.body_mut(&format!("{side}_{link}")) else {
+                continue;
+            };
+            if if_missing && b.geom_iter(false).any(|g| g.type_() == _mjtGeomBase::mjGEOM_CAPSULE) {
+                continue;
+            }
+            let g = b.add_geom();
+            g.set_type(_mjtGeomBase::mjGEOM_CAPSULE);
+            *g.fromto_mut() = fromto;
+            *g.size_mut() = [radius, 0.0, 0.0];
+            g.set_density(0.0);
+            g.set_group(3);
+            g.set_name(&format!("g1sim_{side}{suffix}"))
+                .map_err(|e| edit_err("naming a leg capsule", e))?;
         }
-        let g = b.add_geom();
-        g.set_type(_mjtGeomBase::mjGEOM_CAPSULE);
-        *g.fromto_mut() = [0.01, 0.0, -0.02, 0.01, 0.0, -0.22];
-        *g.size_mut() = [0.045, 0.0, 0.0];
-        g.set_density(0.0);
-        g.set_group(3);
-        g.set_name(&format!("g1sim_{side}_shin_collision"))
-            .map_err(|e| edit_err("naming a shin capsule", e))?;
     }
     Ok(())
 }
 
-/// Training profile: only primitive geoms of the feet and of the knee links (shins) collide, and
-/// only with the world. Everything else (meshes, arms, pelvis, thighs) keeps its visuals only.
+/// Training profile: only primitive geoms of the feet and of the knee links (shins) collide with
+/// the world; primitive geoms of the thighs, shins and feet of one leg collide with the other leg's
+/// (a policy trained without it learns a gait whose legs touch, which the deployed model, like the
+/// robot, does not let pass). Everything else (meshes, arms, pelvis) keeps its visuals only.
 fn lean_collisions(model: &mut MjModel) {
-    let knee_bodies: Vec<i32> = ["left_knee_joint", "right_knee_joint"]
-        .iter()
-        .filter_map(|j| model.name_to_id(_mjtObjBase::mjOBJ_JOINT, j))
-        .map(|j| model.jnt_bodyid()[j])
-        .collect();
-    let foot_bodies: Vec<i32> = ["left_ankle_roll_joint", "right_ankle_roll_joint"]
-        .iter()
-        .filter_map(|j| model.name_to_id(_mjtObjBase::mjOBJ_JOINT, j))
-        .map(|j| model.jnt_bodyid()[j])
-        .collect();
+    let bodies = |model: &MjModel, joint: &str| -> Vec<(i32, i32)> {
+        [("left", TRAINING_LEFT_LEG_BIT), ("right", TRAINING_RIGHT_LEG_BIT)]
+            .iter()
+            .filter_map(|&(side, bit)| {
+                model
+                    .name_to_id(_mjtObjBase::mjOBJ_JOINT, &format!("{side}_{joint}"))
+                    .map(|j| (model.jnt_bodyid()[j], bit))
+            })
+            .collect()
+    };
+    let thighs = bodies(model, "hip_yaw_joint");
+    let shins = bodies(model, "knee_joint");
+    let feet = bodies(model, "ankle_roll_joint");
+    let side_of = |b: i32| {
+        thighs
+            .iter()
+            .chain(&shins)
+            .chain(&feet)
+            .find(|&&(body, _)| body == b)
+            .map(|&(_, bit)| bit)
+    };
+    let other = |bit: i32| TRAINING_LEFT_LEG_BIT + TRAINING_RIGHT_LEG_BIT - bit;
     let ngeom = model.ngeom() as usize;
     for g in 0..ngeom {
         let body = model.geom_bodyid()[g];
@@ -489,16 +536,20 @@ fn lean_collisions(model: &mut MjModel) {
         // body is its own weld root, so the weld test alone would disable the pool's collisions).
         let world = model.body_weldid()[body as usize] == 0 || model.body_mocapid()[body as usize] >= 0;
         let was_colliding = model.geom_contype()[g] != 0 || model.geom_conaffinity()[g] != 0;
+        let self_only = model
+            .id_to_name(_mjtObjBase::mjOBJ_GEOM, g)
+            .is_some_and(|n| n.ends_with(FOOT_SELF_SUFFIX));
+        let foot_or_shin = feet.iter().chain(&shins).any(|&(b, _)| b == body);
         let (ct, ca) = if world {
             (
                 model.geom_contype()[g],
                 model.geom_conaffinity()[g] | TRAINING_ROBOT_BIT,
             )
-        } else if primitive
-            && (foot_bodies.contains(&body) || knee_bodies.contains(&body))
-            && (was_colliding || ty == _mjtGeomBase::mjGEOM_CAPSULE)
+        } else if let Some(bit) =
+            side_of(body).filter(|_| primitive && (was_colliding || ty == _mjtGeomBase::mjGEOM_CAPSULE))
         {
-            (TRAINING_ROBOT_BIT, 0)
+            let ground = foot_or_shin && !self_only;
+            (bit | if ground { TRAINING_ROBOT_BIT } else { 0 }, other(bit))
         } else {
             (0, 0)
         };

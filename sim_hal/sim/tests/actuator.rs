@@ -236,7 +236,7 @@ fn training() -> SimConfig {
 }
 
 #[test]
-fn training_profile_collides_feet_and_shins_only_and_stands() {
+fn training_profile_collides_feet_and_shins_with_the_world_and_the_legs_with_each_other_and_stands() {
     require_deps();
     assert_eq!("training".parse::<PhysicsProfile>(), Ok(PhysicsProfile::Training));
     assert_eq!("deploy".parse::<PhysicsProfile>(), Ok(PhysicsProfile::Deploy));
@@ -247,7 +247,7 @@ fn training_profile_collides_feet_and_shins_only_and_stands() {
     assert_eq!("euler".parse::<g1_sim::Integrator>(), Ok(g1_sim::Integrator::Euler));
     assert!("rk4".parse::<g1_sim::Integrator>().is_err());
     let mut models = vec![ModelChoice::G1_29Dof];
-    if have_12dof("training_profile_collides_feet_and_shins_only_and_stands") {
+    if have_12dof("training_profile_collides_feet_and_shins_with_the_world_and_the_legs_with_each_other_and_stands") {
         models.push(ModelChoice::G1_12Dof);
     }
     for choice in models {
@@ -259,8 +259,10 @@ fn training_profile_collides_feet_and_shins_only_and_stands() {
         assert_eq!(
             bodies,
             [
+                "left_hip_yaw_link",
                 "left_knee_link",
                 "left_ankle_roll_link",
+                "right_hip_yaw_link",
                 "right_knee_link",
                 "right_ankle_roll_link"
             ],
@@ -289,11 +291,44 @@ fn training_profile_collides_feet_and_shins_only_and_stands() {
         );
         assert!(t.base_pos[2] > 0.6, "{choice}: {t:?}");
         assert_eq!(t.foot_contact, [true, true], "{choice}");
-        // No contact that is not robot-vs-world.
+        // Standing apart, no contact that is not robot-vs-world.
         let m = sim.data().model();
         for c in sim.data().contact() {
             let w = |g: i32| m.body_weldid()[m.geom_bodyid()[g as usize] as usize] == 0;
             assert!(w(c.geom[0]) != w(c.geom[1]), "{choice}: contact {:?}", c.geom);
+        }
+        // The legs meet each other (a policy trained without it learns a gait whose legs touch,
+        // which the deployed model does not let pass), and nothing else of the robot does.
+        let names = |g: usize| {
+            let b = m.geom_bodyid()[g] as usize;
+            m.id_to_name(MjtObjBase::mjOBJ_BODY, b).unwrap_or_default().to_string()
+        };
+        let pairs = |a: &str, b: &str| {
+            let (ga, gb): (Vec<usize>, Vec<usize>) = (
+                (0..m.ngeom() as usize).filter(|&g| names(g) == a).collect(),
+                (0..m.ngeom() as usize).filter(|&g| names(g) == b).collect(),
+            );
+            ga.iter().any(|&x| {
+                gb.iter().any(|&y| {
+                    m.geom_contype()[x] & m.geom_conaffinity()[y] != 0
+                        || m.geom_contype()[y] & m.geom_conaffinity()[x] != 0
+                })
+            })
+        };
+        for (a, b) in [
+            ("left_hip_yaw_link", "right_hip_yaw_link"),
+            ("left_knee_link", "right_ankle_roll_link"),
+            ("left_hip_yaw_link", "right_knee_link"),
+            ("left_ankle_roll_link", "right_ankle_roll_link"),
+        ] {
+            assert!(pairs(a, b), "{choice}: {a} and {b} must collide");
+        }
+        for (a, b) in [
+            ("left_knee_link", "left_ankle_roll_link"),
+            ("left_hip_yaw_link", "left_knee_link"),
+            ("right_knee_link", "right_ankle_roll_link"),
+        ] {
+            assert!(!pairs(a, b), "{choice}: {a} and {b} (one leg) must not collide");
         }
     }
 }

@@ -855,7 +855,12 @@ impl StairEnv {
             let robot_root = root[self.foot_body[0]];
             let (b1, b2) = (gb[g1 as usize] as usize, gb[g2 as usize] as usize);
             let (robot, other) = if root[b1] == robot_root { (b1, b2) } else { (b2, b1) };
-            if root[robot] != robot_root || root[other] == robot_root {
+            if root[robot] != robot_root {
+                continue;
+            }
+            if root[other] == robot_root {
+                // Leg against leg (the training profile lets only the legs meet each other).
+                r.body_contact += 1.0;
                 continue;
             }
             if self.foot_body.contains(&robot) {

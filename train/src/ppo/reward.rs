@@ -22,7 +22,7 @@
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under and 0.12 m ahead of the foot | −10 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
-//! | `body_contact` | any robot geom other than a foot touching the terrain | −1.0 |
+//! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) (not on time-out or success) | −200 |
 //! | `progress` | speed along the target heading, clamped to 0 … the commanded forward speed, m/s | +2.0 |
 //! | `success` | 1 / dt on the step the base reaches the end landing without falling (a one-off +3) | +3 |
