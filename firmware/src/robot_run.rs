@@ -298,6 +298,28 @@ pub fn run_dds(
     Ok(report)
 }
 
+/// Why a spec cannot run on the G1 variant `mode_machine` names: its policy drives a motor that
+/// variant does not have. `None` when it can, or when the value is not one we know.
+pub fn variant_mismatch(mode_machine: u8, driven: &[bool; hal::NUM_MOTORS]) -> Option<String> {
+    let variant = hal::g1_variant(mode_machine)?;
+    let lacking: Vec<&str> = variant
+        .missing
+        .iter()
+        .filter(|&&slot| driven[slot])
+        .map(|&slot| hal::G1_MOTOR_NAMES[slot])
+        .collect();
+    (!lacking.is_empty()).then(|| {
+        format!(
+            "the robot reports mode_machine {mode_machine} ({}), which has no {} motor{}, but the spec's \
+             policy drives {}; use a spec for this variant",
+            variant.name,
+            lacking.join(", "),
+            if lacking.len() == 1 { "" } else { "s" },
+            if lacking.len() == 1 { "it" } else { "them" }
+        )
+    })
+}
+
 /// The loop shared by every robot transport: log, lidar, real-time set-up, the HAL (opened last,
 /// right before the first tick), signals, the report.
 fn run_hal<H: TimeBase + LowLevel + FrameSource>(
@@ -317,6 +339,12 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
     meta.extend(hal_meta);
     meta.set(key::PERCEPTION_EXEC, opts.perception.label());
+    // The policy's joints: a held joint the variant lacks is only a slot nobody reads (a portable
+    // spec holds waist and arms that a 23-dof G1 does not have).
+    let mut driven = [false; hal::NUM_MOTORS];
+    for &slot in &spec.policy.joint_ids_map {
+        driven[slot] = true;
+    }
     let controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
@@ -352,6 +380,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut ticks = 0u64;
     let mut mode_machine = 0u8;
     let mut log_failed = false;
+    let mut variant_refusal: Option<String> = None;
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
         if let Some(l) = logger.as_mut() {
             l.push(v);
@@ -362,6 +391,14 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             }
         }
         ticks = v.summary.tick.index;
+        // The robot names its variant in every state (0: not set, as simulators send): a spec that
+        // drives a motor this variant lacks stops at its first state, before the ramp moves anything.
+        if v.state.mode_machine != mode_machine && v.state.mode_machine != 0 {
+            if let Some(refusal) = variant_mismatch(v.state.mode_machine, &driven) {
+                variant_refusal = Some(refusal);
+                return false;
+            }
+        }
         mode_machine = v.state.mode_machine;
         if opts.inject_panic_at_tick == Some(ticks) {
             panic!("injected at tick {ticks} by RunOptions::inject_panic_at_tick");
@@ -380,6 +417,10 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         LoopEnd::Stopped { ticks } if log_failed => format!(
             "stopped at tick {ticks}: the log could not be written ({}); motors commanded to damping",
             log_error.as_deref().unwrap_or("unknown error")
+        ),
+        LoopEnd::Stopped { ticks } if variant_refusal.is_some() => format!(
+            "stopped at tick {ticks}: {}; motors commanded to damping",
+            variant_refusal.as_deref().unwrap_or_default()
         ),
         LoopEnd::Stopped { .. } => "stopped by signal".to_string(),
         LoopEnd::HalError { tick, kind, message } => {
@@ -435,4 +476,28 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         wall_s: wall.elapsed().as_secs_f64(),
     };
     Ok((report, hal.hal))
+}
+
+#[cfg(test)]
+mod variant_tests {
+    use super::variant_mismatch;
+
+    #[test]
+    fn a_spec_that_drives_a_motor_the_variant_lacks_is_refused_by_name() {
+        let mut driven = [false; hal::NUM_MOTORS];
+        driven[..12].fill(true); // legs
+        for mm in [0, 1, 2, 3, 4, 5, 6, 77] {
+            assert_eq!(variant_mismatch(mm, &driven), None, "legs run on variant {mm}");
+        }
+        let m = variant_mismatch(9, &driven).expect("the dual-arm G1 has no legs");
+        assert!(
+            m.contains("g1_dual_arm") && m.contains("left_hip_pitch") && m.contains("motors"),
+            "{m}"
+        );
+        driven[13] = true; // waist roll
+        assert_eq!(variant_mismatch(2, &driven), None);
+        let m = variant_mismatch(3, &driven).expect("the locked waist has no roll motor");
+        assert!(m.contains("g1_lock_waist") && m.contains("no waist_roll motor,"), "{m}");
+        assert!(variant_mismatch(4, &driven).is_some());
+    }
 }

@@ -205,6 +205,65 @@ pub fn g1_motor_velocity_limit(slot_name: &str) -> Option<f32> {
     })
 }
 
+/// A G1 variant as LowState's `mode_machine` names it (unitree_sdk2; `../shared/facts/g1_low_level.md`),
+/// and the motor slots it does not have (a spec that drives one of them is refused on that robot).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct G1Variant {
+    pub mode_machine: u8,
+    pub name: &'static str,
+    pub missing: &'static [usize],
+}
+
+/// Waist roll and pitch (locked or absent), and the wrists' pitch and yaw (23-dof arms).
+const NO_WAIST_ROLL_PITCH: [usize; 2] = [13, 14];
+const DOF23_MISSING: [usize; 6] = [13, 14, 20, 21, 27, 28];
+/// The dual-arm G1 is an upper body: no legs.
+const NO_LEGS: [usize; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11];
+
+pub const G1_VARIANTS: [G1Variant; 7] = [
+    G1Variant {
+        mode_machine: 1,
+        name: "g1_23dof",
+        missing: &DOF23_MISSING,
+    },
+    G1Variant {
+        mode_machine: 2,
+        name: "g1_29dof",
+        missing: &[],
+    },
+    G1Variant {
+        mode_machine: 3,
+        name: "g1_lock_waist",
+        missing: &NO_WAIST_ROLL_PITCH,
+    },
+    G1Variant {
+        mode_machine: 4,
+        name: "g1_23dof_rev_1_0",
+        missing: &DOF23_MISSING,
+    },
+    G1Variant {
+        mode_machine: 5,
+        name: "g1_29dof_rev_1_0",
+        missing: &[],
+    },
+    G1Variant {
+        mode_machine: 6,
+        name: "g1_lock_waist_rev_1_0",
+        missing: &NO_WAIST_ROLL_PITCH,
+    },
+    G1Variant {
+        mode_machine: 9,
+        name: "g1_dual_arm",
+        missing: &NO_LEGS,
+    },
+];
+
+/// The variant a LowState's `mode_machine` names; `None` for 0 (not set: simulators) or a value
+/// this table does not know.
+pub fn g1_variant(mode_machine: u8) -> Option<&'static G1Variant> {
+    G1_VARIANTS.iter().find(|v| v.mode_machine == mode_machine)
+}
+
 /// Reflected rotor inertia (MuJoCo `armature`) of a G1 joint, kg·m², by slot name with or without
 /// its side (mjlab's `g1_constants.py`): the simulator adds it to the 29-dof MJCF, and `check-spec`
 /// judges gains against it. A joint's inertia is at least this.
