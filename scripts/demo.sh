@@ -13,7 +13,7 @@ cargo build --release --workspace --bins
 mkdir -p out
 spec=specs/stairs/g1_stairs_lstm.toml
 status=0
-# The low staircases the committed policy climbs (README, "Stair policy"), then the 15 cm presets it
+# The low staircases the committed policy climbs (docs/stair_results.md), then the 15 cm presets it
 # does not climb yet: every run reports what happened.
 for world in specs/worlds/stairs_up_low.toml specs/worlds/stairs_down_low.toml stairs-up stairs-down; do
   name=$(basename "$world" .toml)

@@ -22,7 +22,7 @@ cargo test --release --workspace --no-fail-fast
 # named as damaged (exit 2) by replay, log-info and plot; no abort, no panic (~35 s).
 scripts/flip_experiment.py --flips 1000 > target/flip_experiment.json
 echo "[test] flip experiment: $(python3 -c 'import json; d=json.load(open("target/flip_experiment.json")); print(d["flips"], "flips,", d["aborts_or_panics"], "aborts,", d["not_named_damaged"], "not named")')" >&2
-# The robot's CPU (README, "aarch64 replay and deploy image"): cross-build g1fw once, replay the corpus
+# The robot's CPU (docs/aarch64.md): cross-build g1fw once, replay the corpus
 # under qemu-aarch64 bit for bit, pack the deploy image from the same build, check the image.
 aarch64_start=$(date +%s)
 cargo xtask cross-replay
@@ -32,7 +32,7 @@ cargo test --release --workspace --test image -- --ignored
 echo "[test] aarch64 replay and deploy image passed in $(( $(date +%s) - aarch64_start )) s" >&2
 # The CAN hardware-in-loop suite in a VM (the host kernel has no CAN): User-Mode Linux, or QEMU where UML
 # cannot boot (chosen by itself; ARCHITECTURE.md, "The HIL VM"). Smoke test of the plumbing, then the
-# python-can peer test against g1fw and g1-can-emu (README, "CAN hardware-in-loop").
+# python-can peer test against g1fw and g1-can-emu (docs/hil.md).
 hil_start=$(date +%s)
 cargo xtask hil
 echo "[test] HIL suite passed in $(( $(date +%s) - hil_start )) s on $(python3 -c 'import json; print(json.load(open("target/hil/last/summary.json"))["vm"])')" >&2

@@ -59,7 +59,7 @@ fn check_clean(r: &Report, what: &str) {
     assert!(h <= 0.02, "{what}: height RMSE {h} m > 2 cm");
     let c = e.est_contact_agreement.unwrap();
     assert!(c >= 0.97, "{what}: contact agreement {c} < 97 % of foot-ticks");
-    // Both feet right at once: the strictest reading, held to a looser bar (see README).
+    // Both feet right at once: the strictest reading, held to a looser bar (see docs/results.md).
     let both = e.est_contact_agreement_both_feet.unwrap();
     assert!(both >= 0.95, "{what}: both-feet contact agreement {both} < 95 %");
     // The naive contact rule is worse.

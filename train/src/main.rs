@@ -127,7 +127,7 @@ enum Cmd {
         #[arg(long)]
         quiet: bool,
     },
-    /// Train the stair policy with PPO on in-process MuJoCo environments (README "Stair policy").
+    /// Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
     ///
     /// Observations, action rules and the actor's executor are the firmware's own, built from
     /// --spec. Writes into --out: checkpoint.safetensors + state.json (re-running the same

@@ -43,7 +43,7 @@ fn the_committed_stair_policy_is_judged_through_g1fw() {
     let mut kinds: Vec<(&str, u32, u64)> = j.rows.iter().map(|r| (r.0.as_str(), r.1, r.3)).collect();
     kinds.sort();
     assert_eq!(kinds, [("down", 12, 1), ("flat", 0, 1), ("up", 12, 1)], "{j:?}");
-    // README: the committed policy walks on flat ground (it climbs 5-8 cm, not 12).
+    // docs/stair_results.md: the committed policy walks on flat ground (it climbs 5-8 cm, not 12).
     assert!(j.flat_ok, "the committed policy failed its flat run: {j:?}");
     assert_eq!(
         j.score,
