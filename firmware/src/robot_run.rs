@@ -119,6 +119,12 @@ pub struct RunReport {
     pub dds: Option<DdsHalCounters>,
     /// `--unitree-mujoco` was on: states without a CRC or tick were accepted, stamped by arrival.
     pub unitree_mujoco: bool,
+    /// What started a tick (DDS runs): `clock` or `state`.
+    pub pace: Option<robot_io::dds::Pace>,
+    /// Clock pacing: how late ticks woke after their deadlines (p50, p99, max, µs).
+    pub period_jitter: Option<robot_io::dds::JitterSummary>,
+    /// Things the operator should know that did not stop the run.
+    pub warnings: Vec<String>,
     /// The UDP lidar's counters (absent without `--lidar-udp`).
     pub lidar: Option<LidarReport>,
     pub perception: PerceptionReport,
@@ -249,6 +255,7 @@ pub fn run_dds(
     endpoint: robot_io::dds::Endpoint,
     opts: &RunOptions,
     tick_timeout: Option<Duration>,
+    pace: robot_io::dds::Pace,
     unitree_mujoco: bool,
 ) -> Result<RunReport> {
     let mut meta = RunMeta::default();
@@ -270,6 +277,7 @@ pub fn run_dds(
             cfg.tick_timeout = t;
         }
         cfg.unitree_mujoco = unitree_mujoco;
+        cfg.pace = pace;
         Ok(DdsHal::open(cfg)?)
     })?;
     let counters = hal.counters();
@@ -293,7 +301,26 @@ pub fn run_dds(
             report.end, counters.crc_zero, counters.link.samples_in
         );
     }
+    // States arriving far from the control rate (unitree_mujoco at its default 5 ms step): each
+    // command is then held longer than the policy was trained for, or states are dropped unseen.
+    let ratio = counters.link.samples_in as f64 / report.ticks.max(1) as f64;
+    if report.ticks >= 100 && !(0.8..=1.25).contains(&ratio) {
+        let note = format!(
+            "rt/lowstate arrived {:.2} times per control tick ({} samples in {} ticks of {:.1} ms): the robot \
+             publishes at the control rate; a simulator should step at the spec's control period (unitree_mujoco: \
+             SIMULATE_DT = {:.3})",
+            ratio,
+            counters.link.samples_in,
+            report.ticks,
+            1e3 * report.time_s / report.ticks.max(1) as f64,
+            report.time_s / report.ticks.max(1) as f64
+        );
+        tracing::warn!("{note}");
+        report.warnings.push(note);
+    }
     report.dds = Some(counters);
+    report.pace = Some(pace);
+    report.period_jitter = (pace == robot_io::dds::Pace::Clock).then(|| hal.jitter());
     report.unitree_mujoco = unitree_mujoco;
     Ok(report)
 }
@@ -469,6 +496,9 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         can: None,
         dds: None,
         unitree_mujoco: false,
+        pace: None,
+        period_jitter: None,
+        warnings: Vec::new(),
         lidar,
         spec: spec_name,
         weights_sha256,

@@ -111,8 +111,19 @@ fn the_peer_walker_walks_in_unitree_mujoco_and_damps_at_the_end() {
     assert!(r["trip"].is_null(), "no trip expected: {ctx}");
     assert_eq!(r["end"], "completed", "{ctx}");
     assert_eq!(r["unitree_mujoco"], true, "{ctx}");
-    let stamped = r["dds"]["stamped"].as_u64().unwrap();
-    assert!(stamped >= 4900, "every state stamped by arrival: {ctx}");
+    // Every state the clock-paced loop took was stamped; the bridge's Python timer sometimes
+    // publishes twice in one tick and not in the next (skipped, then a stale tick).
+    let (stamped, stale) = (
+        r["dds"]["stamped"].as_u64().unwrap(),
+        r["dds"]["stale_ticks"].as_u64().unwrap(),
+    );
+    assert_eq!(
+        stamped + stale,
+        5001,
+        "every tick a stamped state or a stale one: {ctx}"
+    );
+    assert!(stamped >= 4000, "{ctx}");
+    assert_eq!(r["pace"], "clock", "{ctx}");
     assert!(
         r["end_damping"]["sent"].as_u64().unwrap() >= 100,
         "damping after the end: {ctx}"

@@ -310,6 +310,12 @@ struct RunArgs {
     /// The report and the log say it was on. Never use it on the robot, which fills in both.
     #[arg(long, requires = "dds")]
     unitree_mujoco: bool,
+    /// With --dds, what starts a control tick: `clock` (the robot's way, as Unitree's deploy loops:
+    /// a monotonic clock at the control period, reading the newest rt/lowstate; a tick without a
+    /// newer one counts as stale) or `state` (each new rt/lowstate; lock-step with `g1-sim --dds`).
+    /// The report gives the clock's lateness (p50, p99, max).
+    #[arg(long, value_name = "clock|state", default_value = "clock", requires = "dds")]
+    tick_on: robot_io::dds::Pace,
     /// Bus layout for motors on CAN (the vcan bench): motor slots, node ids and ranges, the IMU's
     /// bus, timeouts (specs/can/*.toml).
     #[arg(long, value_name = "FILE")]
@@ -941,7 +947,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
                      simulator only; never on the robot)"
                 );
             }
-            firmware::robot_run::run_dds(spec, endpoint, &opts, tick_timeout, a.unitree_mujoco)?
+            firmware::robot_run::run_dds(spec, endpoint, &opts, tick_timeout, a.tick_on, a.unitree_mujoco)?
         }
         (None, None) => {
             bail!("name the robot's transport: --dds IFACE[,DOMAIN] (the G1) or --can-config FILE (a CAN bench)")

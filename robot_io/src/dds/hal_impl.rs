@@ -1,15 +1,112 @@
-//! The firmware's HAL over DDS. The tick follows `rt/lowstate` arrivals, as on the robot: each
-//! new sample starts a tick. When none comes within `tick_timeout` the tick runs anyway without a
-//! frame, so the supervisor sees the silence (its state timeout damps) and damping keeps going out.
-//! Ticks are counted, and time is `index × period`: control never reads the wall clock; what the
-//! arrivals were is in the log, which replay follows.
-use std::time::Duration;
+//! The firmware's HAL over DDS, in one of two pacings ([`Pace`]):
+//! - **clock** (the default of `g1fw run`, as Unitree's deploy loops): after the first state, ticks
+//!   start on a monotonic clock at absolute deadlines (`first + k · period`, so lateness does not
+//!   accumulate) and take the newest `rt/lowstate`; a tick with no newer sample runs without a frame
+//!   (counted `stale_ticks`; the supervisor's state timeout still trips). How late each tick woke
+//!   is kept in a fixed histogram ([`PeriodJitter`]: p50, p99, max).
+//! - **state** (lock-step with `g1-sim --dds`): each new sample starts a tick; when none comes
+//!   within `tick_timeout` the tick runs anyway without a frame.
+//!
+//! Either way ticks are counted and time is `index × period`: control never reads the wall clock;
+//! which sample each tick took is in the log, which replay follows.
+use std::time::{Duration, Instant};
 
 use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::cdr::{low_cmd_to_cdr, low_state_from_cdr, CdrError, LOW_CMD_CDR_LEN, LOW_STATE_CDR_LEN};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, Stamp, UnsealedStamper, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::{DdsError, DdsLink, Endpoint, LinkCounters, CONTROLLER, LOW_STATE_TOPIC, SAMPLE_CAP};
+
+/// What starts a tick.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pace {
+    /// A monotonic clock at the control period, reading the newest state.
+    #[default]
+    Clock,
+    /// Each new state (lock-step with a simulator that waits for the command).
+    State,
+}
+
+impl std::str::FromStr for Pace {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "clock" => Ok(Pace::Clock),
+            "state" => Ok(Pace::State),
+            _ => Err(format!(
+                "'{s}': the tick pace is clock (the robot's) or state (lock-step)"
+            )),
+        }
+    }
+}
+
+/// How late clock-paced ticks woke after their deadline: 1 µs buckets up to 20 ms, the rest in the
+/// last. Fixed size, allocated at open; nothing allocates per tick.
+#[derive(Clone)]
+pub struct PeriodJitter {
+    buckets: Vec<u32>,
+    max_ns: u64,
+    n: u64,
+}
+
+/// Percentiles of [`PeriodJitter`], µs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct JitterSummary {
+    pub ticks: u64,
+    pub p50_us: f64,
+    pub p99_us: f64,
+    pub max_us: f64,
+}
+
+impl PeriodJitter {
+    const BUCKETS: usize = 20_001;
+
+    pub fn new() -> Self {
+        Self {
+            buckets: vec![0; Self::BUCKETS],
+            max_ns: 0,
+            n: 0,
+        }
+    }
+
+    pub fn record(&mut self, late: Duration) {
+        let ns = late.as_nanos().min(u64::MAX as u128) as u64;
+        let us = ((ns / 1000) as usize).min(Self::BUCKETS - 1);
+        self.buckets[us] = self.buckets[us].saturating_add(1);
+        self.max_ns = self.max_ns.max(ns);
+        self.n += 1;
+    }
+
+    pub fn summary(&self) -> JitterSummary {
+        let quantile = |q: f64| {
+            let want = ((q * self.n as f64).ceil() as u64).max(1);
+            let mut seen = 0u64;
+            for (us, &c) in self.buckets.iter().enumerate() {
+                seen += c as u64;
+                if seen >= want {
+                    return us as f64;
+                }
+            }
+            (Self::BUCKETS - 1) as f64
+        };
+        if self.n == 0 {
+            return JitterSummary::default();
+        }
+        JitterSummary {
+            ticks: self.n,
+            p50_us: quantile(0.5),
+            p99_us: quantile(0.99),
+            max_us: self.max_ns as f64 / 1000.0,
+        }
+    }
+}
+
+impl Default for PeriodJitter {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 #[derive(Clone, Debug)]
 pub struct DdsHalConfig {
@@ -20,8 +117,9 @@ pub struct DdsHalConfig {
     pub discovery: Duration,
     /// How long the first `rt/lowstate` may take.
     pub startup_timeout: Duration,
-    /// A tick without a new sample runs after this long.
+    /// A tick without a new sample runs after this long (`Pace::State`).
     pub tick_timeout: Duration,
+    pub pace: Pace,
     /// unitree_mujoco's Python bridge only (`g1fw run --unitree-mujoco`): accept states whose CRC
     /// and tick were never filled in, stamped by arrival (`sensor_io::unitree_hg::UnsealedStamper`).
     pub unitree_mujoco: bool,
@@ -37,6 +135,7 @@ impl DdsHalConfig {
             // Ten periods: late enough that a loaded host's scheduling hiccup is not a missing
             // frame, early enough that damping follows a dead link within the state timeout.
             tick_timeout: Duration::from_nanos(period_ns * 10),
+            pace: Pace::Clock,
             unitree_mujoco: false,
         }
     }
@@ -49,8 +148,10 @@ pub struct DdsHalCounters {
     pub link: LinkCounters,
     /// Samples replaced by a newer one before a tick took them.
     pub skipped: u64,
-    /// Ticks that ran without a new sample (after `tick_timeout`).
+    /// Ticks that ran without a new sample (`Pace::State`: after `tick_timeout`).
     pub silent_ticks: u64,
+    /// Clock-paced ticks that found no sample newer than the last one.
+    pub stale_ticks: u64,
     /// Samples rejected: wrong size or encoding, CRC, non-finite.
     pub rejected: u64,
     /// Decoded samples whose `tick` equals the previous sample's (a frozen state, or a sender that
@@ -89,6 +190,9 @@ pub struct DdsHal {
     /// `--unitree-mujoco`'s stamping.
     stamper: UnsealedStamper,
     repeat_run: u64,
+    /// Clock pacing: when the first tick started, and how late ticks woke.
+    first_tick_at: Option<Instant>,
+    jitter: PeriodJitter,
 }
 
 impl DdsHal {
@@ -115,11 +219,18 @@ impl DdsHal {
             sent_tick: 0,
             stamper: UnsealedStamper::default(),
             repeat_run: 0,
+            first_tick_at: None,
+            jitter: PeriodJitter::new(),
         })
     }
 
     pub fn endpoint(&self) -> &Endpoint {
         self.link.endpoint()
+    }
+
+    /// How late clock-paced ticks woke after their deadlines (empty under `Pace::State`).
+    pub fn jitter(&self) -> JitterSummary {
+        self.jitter.summary()
     }
 
     pub fn counters(&self) -> DdsHalCounters {
@@ -180,12 +291,40 @@ impl TimeBase for DdsHal {
 
     fn wait_tick(&mut self) -> Result<TickTime, DdsError> {
         let first = self.next_tick == 0;
-        let timeout = if first {
-            self.cfg.startup_timeout
+        let index = self.next_tick;
+        let newer = if first {
+            let got = self
+                .link
+                .wait_newer(self.last_seq, self.cfg.startup_timeout, &mut self.raw)?;
+            self.first_tick_at = Some(Instant::now());
+            if got.is_none() {
+                return Err(DdsError::Timeout {
+                    topic: LOW_STATE_TOPIC,
+                    waited_ms: self.cfg.startup_timeout.as_millis() as u64,
+                    endpoint: self.cfg.endpoint.clone(),
+                    hint: "is the robot (or g1-sim --dds / unitree_mujoco) running on this interface and domain? \
+                           On the robot the domain is 0 and the interface the one in 192.168.123.0/24",
+                });
+            }
+            got
         } else {
-            self.cfg.tick_timeout
+            match self.cfg.pace {
+                Pace::State => self
+                    .link
+                    .wait_newer(self.last_seq, self.cfg.tick_timeout, &mut self.raw)?,
+                Pace::Clock => {
+                    let start = self.first_tick_at.unwrap_or_else(Instant::now);
+                    let deadline = start + Duration::from_nanos(index.saturating_mul(self.cfg.period_ns));
+                    let now = Instant::now();
+                    if let Some(wait) = deadline.checked_duration_since(now) {
+                        std::thread::sleep(wait);
+                    }
+                    self.jitter.record(Instant::now().saturating_duration_since(deadline));
+                    self.link.wait_newer(self.last_seq, Duration::ZERO, &mut self.raw)?
+                }
+            }
         };
-        match self.link.wait_newer(self.last_seq, timeout, &mut self.raw)? {
+        match newer {
             Some((seq, len)) => {
                 if !first {
                     self.counters.skipped += seq - self.last_seq - 1;
@@ -195,22 +334,15 @@ impl TimeBase for DdsHal {
                 self.arrived = true;
                 self.unread = true;
             }
-            None if first => {
-                return Err(DdsError::Timeout {
-                    topic: LOW_STATE_TOPIC,
-                    waited_ms: timeout.as_millis() as u64,
-                    endpoint: self.cfg.endpoint.clone(),
-                    hint: "is the robot (or g1-sim --dds / unitree_mujoco) running on this interface and domain? \
-                           On the robot the domain is 0 and the interface the one in 192.168.123.0/24",
-                })
-            }
             None => {
                 self.arrived = false;
                 self.unread = false;
-                self.counters.silent_ticks += 1;
+                match self.cfg.pace {
+                    Pace::State => self.counters.silent_ticks += 1,
+                    Pace::Clock => self.counters.stale_ticks += 1,
+                }
             }
         }
-        let index = self.next_tick;
         self.next_tick += 1;
         Ok(TickTime {
             index,

@@ -15,7 +15,7 @@ mod hal_impl;
 mod link;
 mod raw;
 
-pub use hal_impl::{DdsHal, DdsHalConfig, DdsHalCounters};
+pub use hal_impl::{DdsHal, DdsHalConfig, DdsHalCounters, JitterSummary, Pace, PeriodJitter};
 pub use link::{interface_address, DdsLink, Endpoint, LinkCounters, Topics, SAMPLE_CAP};
 pub use raw::{CdrSample, RawCdr};
 

@@ -10,6 +10,12 @@
 //! that ran on its own timeout, shifts the pairing. Without loss the run repeats; with it, the
 //! firmware's log still records exactly what it saw, and replay reproduces that bit for bit.
 //! unitree_mujoco instead steps in wall-clock time and never waits for the controller.
+//!
+//! Free-running (`--dds-free-run`), as unitree_mujoco and the robot: held (not stepped) until the
+//! first command, the state published every control period meanwhile (a robot on its gantry); then
+//! one control tick per period on a monotonic clock at absolute deadlines, with the newest command
+//! (the last one again when none came), and the state published after each. Ticks whose step ended
+//! past the next deadline are counted (`late_ticks`), as are ticks without a new command.
 use std::time::{Duration, Instant};
 
 use hal::{LowCommand, LowState};
@@ -34,6 +40,8 @@ pub struct DdsServeOptions {
     /// Send the simulated MID-360's Livox datagrams here over UDP every tick, as the G1's lidar
     /// sends them to port 56301 (needs a world, so the simulator has a lidar).
     pub lidar_to: Option<std::net::SocketAddr>,
+    /// Step on the wall clock at the control period instead of once per command.
+    pub free_run: bool,
     pub quiet: bool,
 }
 
@@ -58,6 +66,10 @@ pub struct DdsSummary {
     /// Simulated time of the fall, s (a controller that damps at its end lets the robot sink
     /// after its last policy command: this says whether the fall came before or after).
     pub fell_at_s: Option<f64>,
+    /// Free-running: ticks whose step ended past the next deadline, and ticks that found no new
+    /// command (the last one held).
+    pub late_ticks: u64,
+    pub ticks_without_command: u64,
 }
 
 /// Serves until idle, the time limit, or a DDS failure.
@@ -96,7 +108,63 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
     summary.base_z_min_m = start[2];
     let mut seen = 0u64;
     let mut last_command: Option<Instant> = None;
+    let period = Duration::from_secs_f64(sim.config().control_dt);
+    let mut free_start: Option<Instant> = None;
+    let mut free_tick = 0u32;
     loop {
+        if opts.free_run {
+            // Held until the first command; then one tick per period whatever arrives.
+            let wait = if free_start.is_some() { Duration::ZERO } else { period };
+            let got = link.wait_newer(seen, wait, &mut raw)?;
+            if let Some((seq, len)) = got {
+                seen = seq;
+                last_command = Some(Instant::now());
+                let decoded = low_cmd_from_cdr(&raw[..len.min(raw.len())], &mut c_cmd)
+                    .map_err(|e| e.to_string())
+                    .and_then(|()| decode_low_cmd(&c_cmd, &mut cmd).map_err(|e| e.to_string()));
+                match decoded {
+                    Ok(()) => sim.apply_command(&cmd)?,
+                    Err(e) => {
+                        if summary.rejected_commands == 0 && !opts.quiet {
+                            eprintln!("g1-sim: rejected rt/lowcmd sample: {e}");
+                        }
+                        summary.rejected_commands += 1;
+                    }
+                }
+                free_start.get_or_insert_with(Instant::now);
+            } else if free_start.is_some() {
+                summary.ticks_without_command += 1;
+            }
+            let Some(t0) = free_start else {
+                summary.resent_states += 1;
+                publish(sim, &link)?;
+                continue;
+            };
+            sim.step_control_tick();
+            summary.ticks += 1;
+            send_lidar(sim, lidar.as_ref(), &mut summary);
+            let z = sim.truth().base_pos[2];
+            summary.base_z_min_m = summary.base_z_min_m.min(z);
+            if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
+                summary.fell_at_s = Some(sim.time());
+            }
+            publish(sim, &link)?;
+            free_tick += 1;
+            let deadline = t0 + period * free_tick;
+            match deadline.checked_duration_since(Instant::now()) {
+                Some(wait) => std::thread::sleep(wait),
+                None => summary.late_ticks += 1,
+            }
+            if let (Some(t), Some(idle)) = (last_command, opts.idle_exit) {
+                if t.elapsed() >= idle {
+                    break;
+                }
+            }
+            if opts.max_sim_s.is_some_and(|m| sim.time() >= m) {
+                break;
+            }
+            continue;
+        }
         match link.wait_newer(seen, opts.resend_after, &mut raw)? {
             Some((seq, len)) => {
                 seen = seq;
@@ -117,15 +185,7 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                 sim.apply_command(&cmd)?;
                 sim.step_control_tick();
                 summary.ticks += 1;
-                if let Some(sock) = &lidar {
-                    for d in sim_hal::bridge::datagrams(sim.lidar_datagrams()) {
-                        let Ok(d) = d else { break };
-                        match sock.send(d) {
-                            Ok(_) => summary.lidar_datagrams_sent += 1,
-                            Err(_) => summary.lidar_send_errors += 1,
-                        }
-                    }
-                }
+                send_lidar(sim, lidar.as_ref(), &mut summary);
                 let z = sim.truth().base_pos[2];
                 summary.base_z_min_m = summary.base_z_min_m.min(z);
                 if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
@@ -152,4 +212,16 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
     summary.base_travel_m = [end[0] - start[0], end[1] - start[1]];
     summary.fell = summary.base_z_min_m < FELL_BELOW_M;
     Ok(summary)
+}
+
+/// The tick's Livox datagrams to `--lidar-udp-to`, if set.
+fn send_lidar(sim: &Simulator, lidar: Option<&std::net::UdpSocket>, summary: &mut DdsSummary) {
+    let Some(sock) = lidar else { return };
+    for d in sim_hal::bridge::datagrams(sim.lidar_datagrams()) {
+        let Ok(d) = d else { break };
+        match sock.send(d) {
+            Ok(_) => summary.lidar_datagrams_sent += 1,
+            Err(_) => summary.lidar_send_errors += 1,
+        }
+    }
 }

@@ -47,6 +47,12 @@ struct Cli {
     #[arg(long, value_name = "IFACE[,DOMAIN]", conflicts_with_all = ["tcp", "faults", "bench_bare"])]
     dds: Option<robot_io::dds::Endpoint>,
 
+    /// With --dds: step in wall-clock time at the control period, as unitree_mujoco and the robot
+    /// do, taking the newest command each tick, instead of lock-stepping one tick per command. The
+    /// robot is held until the first command arrives.
+    #[arg(long, requires = "dds")]
+    dds_free_run: bool,
+
     /// With --dds: exit when no command came for this many seconds after the first.
     #[arg(long, value_name = "S", default_value_t = 2.0, requires = "dds")]
     dds_idle_exit: f64,
@@ -228,6 +234,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             idle_exit: Some(Duration::from_secs_f64(cli.dds_idle_exit)),
             max_sim_s: cli.dds_max_time,
             lidar_to: cli.lidar_udp_to,
+            free_run: cli.dds_free_run,
             quiet,
         };
         let s = g1_sim::dds_serve::serve_dds(&mut sim, &opts, || {
