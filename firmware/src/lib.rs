@@ -15,9 +15,11 @@
 //! - [`alloc_probe`]: a counting global allocator that tests install to prove the tick allocates nothing.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 pub mod alloc_probe;
+#[cfg(feature = "lab")]
 pub mod bev_render;
 pub mod controller;
 pub mod envelope;
+#[cfg(feature = "lab")]
 pub mod eval;
 pub mod lidar_source;
 pub mod log;
@@ -27,14 +29,18 @@ pub mod obs;
 pub mod operator;
 pub mod perception;
 pub mod perception_worker;
+#[cfg(feature = "lab")]
 pub mod plot;
 pub mod policy_io;
+#[cfg(feature = "lab")]
 pub mod profile_plot;
 pub mod replay;
 pub mod robot;
 pub mod robot_run;
 pub mod rt;
+pub mod run_report;
 pub mod runtime;
+#[cfg(feature = "lab")]
 pub mod sim_run;
 pub mod spec;
 pub mod supervisor;

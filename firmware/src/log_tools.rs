@@ -3,11 +3,14 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
+#[cfg(feature = "lab")]
+use anyhow::{bail, Context};
 use serde::Serialize;
 
 use crate::log::channels as ch;
 use crate::log::LogFile;
+#[cfg(feature = "lab")]
 use crate::plot::{velocity_tracking_png, VelocitySeries};
 
 #[derive(Debug, Serialize)]
@@ -64,6 +67,7 @@ pub fn log_info(path: &Path) -> Result<LogInfo> {
 }
 
 /// Commanded (operator channel) vs measured (simulator truth) body velocity, with safety events.
+#[cfg(feature = "lab")]
 pub fn plot_log(path: &Path, out: &Path) -> Result<()> {
     let log = LogFile::open(path)?;
     let meta = log.run_metadata()?;

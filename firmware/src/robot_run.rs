@@ -23,8 +23,8 @@ use crate::log::{LogOptions, LogStats, Logger};
 use crate::operator::CommandSchedule;
 use crate::perception_worker::{PerceptionExec, DEFAULT_CONSUME_AFTER};
 use crate::replay::key;
+use crate::run_report::{SafetyReport, TripReport};
 use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
-use crate::sim_run::{SafetyReport, TripReport};
 use crate::spec::DeploySpec;
 use hal::{LowLevel, TimeBase};
 
@@ -363,7 +363,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     }
     let spec_name = spec.path.display().to_string();
     let control_dt = spec.control_dt();
-    let mut meta = crate::sim_run::spec_meta(&spec, opts.hold_only);
+    let mut meta = crate::run_report::spec_meta(&spec, opts.hold_only);
     meta.extend(hal_meta);
     meta.set(key::PERCEPTION_EXEC, opts.perception.label());
     // The policy's joints: a held joint the variant lacks is only a slot nobody reads (a portable

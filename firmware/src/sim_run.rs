@@ -15,7 +15,8 @@ use crate::log::{LogOptions, LogStats, Logger, RunMeta};
 use crate::operator::{CommandSchedule, HeadingSource, OperatorInput, OperatorSource, ScheduleSource};
 use crate::perception::TerrainSource;
 use crate::replay::key;
-use crate::runtime::{run_loop, FrameSource, LatencySummary, LoopEnd, Overruns, Runtime, TickView};
+pub use crate::run_report::{spec_meta, SafetyReport, TripReport};
+use crate::runtime::{run_loop, FrameSource, LatencySummary, LoopEnd, Runtime, TickView};
 use crate::spec::DeploySpec;
 
 impl FrameSource for BridgeHal {
@@ -368,57 +369,6 @@ pub struct EstimatorReport {
     pub baseline_contact_agreement_both_feet: Option<f64>,
 }
 
-#[derive(Clone, Debug, Serialize)]
-pub struct TripReport {
-    pub tick: u64,
-    pub time_s: f64,
-    pub reason: String,
-}
-
-impl TripReport {
-    /// The run's first latched damping, if any.
-    pub fn of(runtime: &Runtime, control_dt: f64) -> Option<Self> {
-        runtime.trip().map(|(tick, reason)| TripReport {
-            tick,
-            time_s: tick as f64 * control_dt,
-            reason: reason.to_string(),
-        })
-    }
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct SafetyReport {
-    pub crc_failures: u64,
-    pub missing_frames: u64,
-    pub stale_frames: u64,
-    pub malformed_frames: u64,
-    pub clamped_targets: u64,
-    /// Targets the command envelope clamped into the joint range (not a fault).
-    pub envelope_range_clamps: u64,
-    /// Command fields outside the envelope (each latches damping).
-    pub envelope_violations: u64,
-    /// The newest of them, in words.
-    pub envelope_last_violation: Option<String>,
-    pub overruns: Overruns,
-}
-
-impl SafetyReport {
-    pub fn of(runtime: &Runtime) -> Self {
-        let c = runtime.counters();
-        SafetyReport {
-            crc_failures: c.crc_failures,
-            missing_frames: c.missing_frames,
-            stale_frames: c.stale_frames,
-            malformed_frames: c.malformed_frames,
-            clamped_targets: runtime.controller().clamped_targets(),
-            envelope_range_clamps: runtime.controller().envelope_counts().range_clamps,
-            envelope_violations: runtime.controller().envelope_counts().violations,
-            envelope_last_violation: runtime.controller().envelope_counts().last.map(|v| v.to_string()),
-            overruns: runtime.overruns(),
-        }
-    }
-}
-
 /// A command the spec's `[commands]` limits changed before the policy saw it.
 #[derive(Clone, Debug, Serialize)]
 pub struct CommandClamp {
@@ -738,22 +688,6 @@ fn log_note(log: &Option<PathBuf>) -> String {
         Some(p) => format!(" (the log {} holds everything up to the failure)", p.display()),
         None => String::new(),
     }
-}
-
-/// What pins a run in its log: the spec text and hash, the start-up, the simulator settings.
-/// What pins any run to its spec in the log (replay checks these): the firmware version, the spec
-/// (path, text, sha256) and the start-up it ran with.
-pub(crate) fn spec_meta(spec: &DeploySpec, hold_only: bool) -> RunMeta {
-    let mut m = RunMeta::default();
-    m.set("firmware_version", env!("CARGO_PKG_VERSION"))
-        .set(key::SPEC_PATH, spec.path.display())
-        .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
-        .set(key::SPEC_TOML, &spec.source_text)
-        .set(key::HOLD_ONLY, hold_only)
-        .set(key::RAMP_S, spec.startup.ramp_s)
-        .set(key::HOLD_S, spec.startup.hold_s)
-        .set("control_hz", spec.rates.control_hz);
-    m
 }
 
 fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {

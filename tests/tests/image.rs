@@ -187,6 +187,15 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
     assert!(file("g1fw/weights/terrain_cnn.safetensors") == weights);
     file("g1fw/weights/terrain_cnn.toml");
     file("g1fw/README.md");
+    // The robot's g1fw links no lab tooling (issue 32): no plotting, no progress bars.
+    let linked = String::from_utf8(file("g1fw/LINKED_CRATES.txt").to_vec()).unwrap();
+    assert!(linked.lines().any(|l| l.starts_with("firmware ")), "{linked}");
+    for lab in ["plotters", "indicatif"] {
+        assert!(
+            !linked.lines().any(|l| l.split(' ').next() == Some(lab)),
+            "the image's g1fw links {lab}: {linked}"
+        );
+    }
     let mut cans: Vec<PathBuf> = std::fs::read_dir(root.join("specs/can"))
         .map(|d| d.map(|e| e.unwrap().path()).collect())
         .unwrap_or_default();

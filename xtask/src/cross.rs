@@ -142,6 +142,9 @@ pub fn build_aarch64(root: &Path) -> Result<Built> {
             "firmware",
             "--bin",
             "g1fw",
+            // The robot's binary without the lab commands (sim, eval, plot, bev) and what only
+            // they link (plotters, indicatif).
+            "--no-default-features",
         ])
         // With --target, these reach the aarch64 artifacts only, never build scripts or proc
         // macros, so the host build in the same target dir is not invalidated.
@@ -153,7 +156,7 @@ pub fn build_aarch64(root: &Path) -> Result<Built> {
         .status()
         .context("running cargo build for aarch64")?;
     if !status.success() {
-        bail!("cargo build --release --target {TARGET} -p firmware --bin g1fw failed ({status})");
+        bail!("cargo build --release --target {TARGET} -p firmware --bin g1fw --no-default-features failed ({status})");
     }
     let seconds = t0.elapsed().as_secs_f64();
     let bin = aarch64_bin(root);
@@ -361,4 +364,43 @@ pub fn run(args: Args) -> Result<()> {
         }
     );
     Ok(())
+}
+
+/// The crates the robot's `g1fw` links (normal dependencies of `firmware` for aarch64 without the
+/// lab feature), one `name version` per line, sorted: the image lists them (`LINKED_CRATES`).
+pub fn linked_crates(root: &Path) -> Result<String> {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let out = Command::new(cargo)
+        .current_dir(root)
+        .args([
+            "tree",
+            "--target",
+            TARGET,
+            "-p",
+            "firmware",
+            "--no-default-features",
+            "-e",
+            "normal",
+            "--prefix",
+            "none",
+            "--format",
+            "{p}",
+        ])
+        .output()
+        .context("running cargo tree")?;
+    if !out.status.success() {
+        bail!("cargo tree failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let mut lines: Vec<String> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| {
+            // "name v1.2.3 (/path)" or "name v1.2.3 (*)": keep name and version, no host paths.
+            let mut w = l.split_whitespace();
+            format!("{} {}", w.next().unwrap_or(""), w.next().unwrap_or(""))
+        })
+        .filter(|l| !l.trim().is_empty())
+        .collect();
+    lines.sort();
+    lines.dedup();
+    Ok(lines.join("\n") + "\n")
 }

@@ -236,6 +236,8 @@ The G1 control firmware, built by `cargo xtask image` from commit {commit} (SOUR
   itself is reached over DDS.
 - `weights/`: the terrain CNN (the same network is built into `g1fw`).
 - `{UNIT_NAME}`: the systemd unit; `README.md`: this file.
+- `{LINKED_CRATES}`: every crate `bin/g1fw` links (no plotting, progress bars or simulator tooling:
+  those are the lab commands, which this build leaves out).
 
 ## Install
 
@@ -286,6 +288,9 @@ For an MCAP log (every tick; replay it anywhere with `g1fw replay`), add
 {list}"
     )
 }
+
+/// The list of crates `bin/g1fw` links.
+pub const LINKED_CRATES: &str = "LINKED_CRATES.txt";
 
 /// Every file of the image except the README (which lists them).
 fn collect(root: &Path, bin: &Path) -> Result<Files> {
@@ -341,6 +346,7 @@ fn collect(root: &Path, bin: &Path) -> Result<Files> {
         files.add_file(format!("weights/{name}"), w, 0o644)?;
     }
     files.add(UNIT_NAME.into(), unit_text().into_bytes(), 0o644)?;
+    files.add(LINKED_CRATES.into(), cross::linked_crates(root)?.into_bytes(), 0o644)?;
     Ok(files)
 }
 

@@ -6,6 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use firmware::operator::CommandSchedule;
 use firmware::replay::{replay, ReplayOptions};
+#[cfg(feature = "lab")]
 use firmware::sim_run::{run_sim, SimOptions};
 use firmware::spec::DeploySpec;
 
@@ -26,6 +27,7 @@ enum Cmd {
     /// bridge, then print (and optionally write) a JSON report evaluated from ground truth. Exit 0
     /// when no safety trip latched, 3 when one did (the report names it), 2 on errors, 130 when
     /// interrupted.
+    #[cfg(feature = "lab")]
     Sim(Box<SimArgs>),
     /// Evaluate a (stair) policy through the real firmware loop: N episodes, each exactly a
     /// `g1fw sim` run (500 Hz, lock-stepped with its own g1-sim, perception on) walking forward at
@@ -35,6 +37,7 @@ enum Cmd {
     /// 0.8·vx·(time under policy) walked. Prints successes, failure causes (fell, safety trip and
     /// its reason, stalled, timeout, short) and a table per step height and kind; writes a JSON
     /// report with every episode.
+    #[cfg(feature = "lab")]
     Eval(Box<EvalArgs>),
     /// Run the firmware on a robot: `--dds IFACE[,DOMAIN]` speaks the G1's own DDS topics
     /// (rt/lowstate, rt/lowcmd; the real robot on domain 0, unitree_mujoco or `g1-sim --dds` on
@@ -58,6 +61,7 @@ enum Cmd {
     /// (the ticks before the damage are replayed; the damaged chunk is named).
     Replay(ReplayArgs),
     /// Render commanded vs measured base velocity of a logged simulation run to a PNG.
+    #[cfg(feature = "lab")]
     Plot {
         /// A log written by `g1fw sim --log`.
         log: PathBuf,
@@ -68,6 +72,7 @@ enum Cmd {
     /// Render one perception frame of a `g1fw sim --world` log to PNG: the six BEV channels
     /// (max z, min z, mean z, max−min, std, density; forward is up), the robot-centred cloud from
     /// above and from the side, and the terrain estimate against ground truth.
+    #[cfg(feature = "lab")]
     Bev {
         /// A log written by `g1fw sim --world ... --log`.
         log: PathBuf,
@@ -102,6 +107,7 @@ struct ReplayArgs {
     report: Option<PathBuf>,
 }
 
+#[cfg(feature = "lab")]
 #[derive(clap::Args)]
 struct SimArgs {
     /// Deploy spec (TOML): observation layout, joint map, gains, rates, weights file.
@@ -214,6 +220,7 @@ struct SimArgs {
 }
 
 /// Parses `--terrain-source`.
+#[cfg(feature = "lab")]
 fn parse_perception_sim(s: &str) -> Result<firmware::perception_worker::PerceptionExec, String> {
     firmware::perception_worker::PerceptionExec::parse(s, true)
 }
@@ -222,10 +229,12 @@ fn parse_perception_robot(s: &str) -> Result<firmware::perception_worker::Percep
     firmware::perception_worker::PerceptionExec::parse(s, false)
 }
 
+#[cfg(feature = "lab")]
 fn parse_terrain_source(s: &str) -> Result<firmware::perception::TerrainSource, String> {
     s.parse()
 }
 
+#[cfg(feature = "lab")]
 #[derive(clap::Args)]
 struct EvalArgs {
     /// Deploy spec (TOML) of the policy under test.
@@ -300,7 +309,7 @@ struct RunArgs {
         conflicts_with = "can_config"
     )]
     dds: Option<robot_io::dds::Endpoint>,
-    /// With --dds: a tick without a new rt/lowstate runs after this long (default 10 periods),
+    /// With --dds --tick-on state: a tick without a new rt/lowstate runs after this long (default 10 periods),
     /// so the safety supervisor sees the silence and damping keeps going out.
     #[arg(long, value_name = "MS", requires = "dds")]
     dds_tick_timeout_ms: Option<u32>,
@@ -459,7 +468,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        #[cfg(feature = "lab")]
         Cmd::Sim(a) => sim(*a),
+        #[cfg(feature = "lab")]
         Cmd::Eval(a) => eval(*a),
         Cmd::Run(a) => run_robot(*a),
         Cmd::Replay(a) => {
@@ -515,11 +526,13 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 }
             }
         }
+        #[cfg(feature = "lab")]
         Cmd::Plot { log, out } => {
             firmware::log_tools::plot_log(&log, &out)?;
             eprintln!("wrote {}", out.display());
             Ok(ExitCode::SUCCESS)
         }
+        #[cfg(feature = "lab")]
         Cmd::Bev { log, at, out } => {
             let info = firmware::bev_render::render_bev_png(&log, at, &out)?;
             println!("{}", serde_json::to_string_pretty(&info)?);
@@ -538,6 +551,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
     }
 }
 
+#[cfg(feature = "lab")]
 fn sim(a: SimArgs) -> Result<ExitCode> {
     if !(a.duration > 0.0 && a.duration.is_finite()) {
         bail!("--duration must be a positive number of seconds");
@@ -777,6 +791,7 @@ fn spec_outputs_distinct(spec: &DeploySpec, outputs: &[(&'static str, Option<&Pa
     distinct_files(outputs, &inputs)
 }
 
+#[cfg(feature = "lab")]
 fn eval(a: EvalArgs) -> Result<ExitCode> {
     use firmware::eval::{random_sweep, run_eval, EpisodeWorld, EvalOptions};
     if !(a.time_limit > 0.0 && a.time_limit.is_finite()) {
