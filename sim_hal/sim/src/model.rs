@@ -453,7 +453,7 @@ fn add_leg_capsules(spec: &mut MjSpec) -> Result<(), SimError> {
     // (body, name, fromto, radius, only if the body has no capsule): the 29-dof MJCF ships thigh and
     // shin capsules (mjlab's sizes, used here for the 12-dof model too); the foot capsule is ours.
     type Capsule = (&'static str, &'static str, [f64; 6], f64, bool);
-    const CAPSULES: [Capsule; 3] = [
+    const CAPSULES: [Capsule; 4] = [
         (
             "hip_yaw_link",
             "_thigh_collision",
@@ -468,6 +468,15 @@ fn add_leg_capsules(spec: &mut MjSpec) -> Result<(), SimError> {
             0.045,
             true,
         ),
+        // The ankle linkage below the shin: through g1fw the lower shin met stair nosings that the
+        // training profile let it pass through.
+        (
+            "knee_link",
+            "_linkage_brace_collision",
+            [0.01, 0.0, -0.2, 0.01, 0.0, -0.28],
+            0.03,
+            false,
+        ),
         (
             "ankle_roll_link",
             FOOT_SELF_SUFFIX,
@@ -481,8 +490,15 @@ fn add_leg_capsules(spec: &mut MjSpec) -> Result<(), SimError> {
             let Some(b) = spec.body_mut(&format!("{side}_{link}")) else {
                 continue;
             };
-            if if_missing && b.geom_iter(false).any(|g| g.type_() == _mjtGeomBase::mjGEOM_CAPSULE) {
+            let capsules = b
+                .geom_iter(false)
+                .filter(|g| g.type_() == _mjtGeomBase::mjGEOM_CAPSULE)
+                .count();
+            if if_missing && capsules > 0 {
                 continue;
+            }
+            if suffix == "_linkage_brace_collision" && capsules >= 2 {
+                continue; // mjlab's 29-dof MJCF ships its own
             }
             let g = b.add_geom();
             g.set_type(_mjtGeomBase::mjGEOM_CAPSULE);
@@ -497,8 +513,8 @@ fn add_leg_capsules(spec: &mut MjSpec) -> Result<(), SimError> {
     Ok(())
 }
 
-/// Training profile: only primitive geoms of the feet and of the knee links (shins) collide with
-/// the world; primitive geoms of the thighs, shins and feet of one leg collide with the other leg's
+/// Training profile: only primitive geoms of the feet, shins and thighs collide with the world;
+/// primitive geoms of the thighs, shins and feet of one leg collide with the other leg's
 /// (a policy trained without it learns a gait whose legs touch, which the deployed model, like the
 /// robot, does not let pass). Everything else (meshes, arms, pelvis) keeps its visuals only.
 fn lean_collisions(model: &mut MjModel) {
@@ -548,7 +564,9 @@ fn lean_collisions(model: &mut MjModel) {
         } else if let Some(bit) =
             side_of(body).filter(|_| primitive && (was_colliding || ty == _mjtGeomBase::mjGEOM_CAPSULE))
         {
-            let ground = foot_or_shin && !self_only;
+            // Feet, shins and thighs meet the terrain (through g1fw the thighs and knees met stair
+            // edges that a feet-and-shins-only profile let them pass through).
+            let ground = !self_only && (foot_or_shin || thighs.iter().any(|&(b, _)| b == body));
             (bit | if ground { TRAINING_ROBOT_BIT } else { 0 }, other(bit))
         } else {
             (0, 0)
