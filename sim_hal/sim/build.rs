@@ -1,6 +1,7 @@
 //! Bakes an rpath to the MuJoCo library into every binary of this crate (the `g1-sim` server, its
 //! tests and benches), so they run without `LD_LIBRARY_PATH`. The directory comes from
-//! `MUJOCO_DYNAMIC_LINK_DIR`, which the workspace's `.cargo/config.toml` points at `.deps/mujoco/lib`.
+//! `MUJOCO_DYNAMIC_LINK_DIR`, which the workspace's `.cargo/config.toml` points at `.deps/mujoco/lib`;
+//! it is also handed to dependents' build scripts (`train`) as `DEP_G1_SIM_MUJOCO_LIB_DIR`.
 use std::path::Path;
 
 fn fail(msg: &str) -> ! {
@@ -26,4 +27,6 @@ fn main() {
         .canonicalize()
         .unwrap_or_else(|e| fail(&format!("cannot resolve {dir}: {e}")));
     println!("cargo:rustc-link-arg=-Wl,-rpath,{}", dir.display());
+    // For dependents' build scripts (`links = "g1_sim_mujoco"`): DEP_G1_SIM_MUJOCO_LIB_DIR.
+    println!("cargo:lib_dir={}", dir.display());
 }
