@@ -22,19 +22,7 @@ pub const KP_MAX: f32 = 1000.0;
 /// Highest velocity gain any command may carry, N·m·s/rad (the spec's own bound for every gain).
 pub const KD_MAX: f32 = 100.0;
 
-/// Effort limit of a G1 joint's motor, N·m (`actuatorfrcrange` of Unitree's MJCF, `effort` of
-/// g1_29dof_rev_1_0.urdf), by slot name with or without its side.
-pub fn g1_motor_effort_limit(slot_name: &str) -> Option<f32> {
-    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
-    Some(match n {
-        "hip_pitch" | "hip_yaw" | "waist_yaw" => 88.0,
-        "hip_roll" | "knee" => 139.0,
-        "ankle_pitch" | "ankle_roll" | "waist_roll" | "waist_pitch" => 50.0,
-        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 25.0,
-        "wrist_pitch" | "wrist_yaw" => 5.0,
-        _ => return None,
-    })
-}
+pub use hal::g1_motor_effort_limit;
 
 /// What produced a command (logged with each violation).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -264,6 +264,21 @@ pub fn g1_variant(mode_machine: u8) -> Option<&'static G1Variant> {
     G1_VARIANTS.iter().find(|v| v.mode_machine == mode_machine)
 }
 
+/// Effort limit of a G1 joint's motor, N·m (`actuatorfrcrange` of Unitree's MJCF, `effort` of
+/// g1_29dof_rev_1_0.urdf), by slot name with or without its side. The
+/// command envelope bounds each motor's feed-forward torque by it.
+pub fn g1_motor_effort_limit(slot_name: &str) -> Option<f32> {
+    let n = slot_name.trim_start_matches("left_").trim_start_matches("right_");
+    Some(match n {
+        "hip_pitch" | "hip_yaw" | "waist_yaw" => 88.0,
+        "hip_roll" | "knee" => 139.0,
+        "ankle_pitch" | "ankle_roll" | "waist_roll" | "waist_pitch" => 50.0,
+        "shoulder_pitch" | "shoulder_roll" | "shoulder_yaw" | "elbow" | "wrist_roll" => 25.0,
+        "wrist_pitch" | "wrist_yaw" => 5.0,
+        _ => return None,
+    })
+}
+
 /// Reflected rotor inertia (MuJoCo `armature`) of a G1 joint, kg·m², by slot name with or without
 /// its side (mjlab's `g1_constants.py`): the simulator adds it to the 29-dof MJCF, and `check-spec`
 /// judges gains against it. A joint's inertia is at least this.
