@@ -3,6 +3,8 @@
 //! validation was forgotten) latches damping and names the field and its source.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
+mod common;
+use common::{healthy, tick};
 use std::path::Path;
 
 use firmware::controller::{Controller, DampingReason, Mode};
@@ -12,7 +14,7 @@ use firmware::robot::G1_JOINT_RANGE;
 use firmware::runtime::Runtime;
 use firmware::spec::{DeploySpec, Scale};
 use firmware::supervisor::FrameStatus;
-use hal::{ErrorKind, LowCommand, LowState, TickTime, XorShift64, MOTOR_MODE_ENABLED, NUM_MOTORS};
+use hal::{ErrorKind, LowCommand, LowState, XorShift64, MOTOR_MODE_ENABLED, NUM_MOTORS};
 use proptest::prelude::*;
 
 fn spec() -> DeploySpec {
@@ -50,25 +52,9 @@ fn inside(cmd: &LowCommand, margin: f32) -> Result<(), String> {
     Ok(())
 }
 
-fn tick(k: u64) -> TickTime {
-    TickTime {
-        index: k,
-        time_ns: k * 2_000_000,
-    }
-}
-
 /// A state for tick `k`, upright and slowly moving, with the fault `fault` (0: none) applied.
 fn state(k: u64, fault: u8, rng: &mut XorShift64) -> (FrameStatus, LowState, OperatorInput) {
-    let mut s = LowState {
-        tick: k as u32,
-        ..Default::default()
-    };
-    s.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
-    for (i, m) in s.motors.iter_mut().enumerate() {
-        let x = k as f32 * 0.01 + i as f32;
-        (m.q, m.dq, m.tau_est) = (x.sin() * 0.1, x.cos() * 0.2, x.sin());
-        m.temperature = [40, 45];
-    }
+    let mut s = healthy(k);
     let mut op = OperatorInput {
         velocity: [0.4, 0.0, 0.1],
         ..Default::default()

@@ -3,6 +3,8 @@
 //! stays latched until an operator reset, and names its reason.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
+mod common;
+use common::{healthy, tick};
 use std::path::Path;
 
 use firmware::controller::{Controller, DampingReason, Mode};
@@ -10,7 +12,7 @@ use firmware::operator::OperatorInput;
 use firmware::runtime::{Runtime, TickSummary};
 use firmware::spec::DeploySpec;
 use firmware::supervisor::FrameStatus;
-use hal::{ErrorKind, LowCommand, LowState, TickTime};
+use hal::{ErrorKind, LowCommand, LowState};
 
 fn spec() -> DeploySpec {
     DeploySpec::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml")).unwrap()
@@ -18,28 +20,6 @@ fn spec() -> DeploySpec {
 
 fn runtime() -> Runtime {
     Runtime::new(Controller::new(spec()).unwrap())
-}
-
-/// A healthy, upright, slowly changing state for tick `k`.
-fn healthy(k: u64) -> LowState {
-    let mut s = LowState {
-        tick: k as u32,
-        ..Default::default()
-    };
-    s.imu.quaternion = [1.0, 0.0, 0.0, 0.0];
-    for (i, m) in s.motors.iter_mut().enumerate() {
-        let x = k as f32 * 0.01 + i as f32;
-        (m.q, m.dq, m.tau_est) = (x.sin() * 0.1, x.cos() * 0.2, x.sin());
-        m.temperature = [40, 45];
-    }
-    s
-}
-
-fn tick(k: u64) -> TickTime {
-    TickTime {
-        index: k,
-        time_ns: k * 2_000_000,
-    }
 }
 
 /// One tick; the command goes nowhere (these tests read it from `cmd`).
