@@ -1,6 +1,8 @@
 //! Checkpoints judged through `g1fw eval` (issue 29): the judged set runs the real loop, a run's
 //! judged checkpoints land in judge.json with the best actor kept, and the curves show them.
 //! Needs the `g1-sim` binary (scripts/test.sh builds the binaries before the tests).
+mod common;
+use common::have_12dof_model;
 use std::path::PathBuf;
 
 use train::ppo::env::{Column, Randomization};
@@ -19,21 +21,9 @@ fn small(every: usize) -> JudgeConfig {
     }
 }
 
-fn have_shared() -> bool {
-    if g1_sim::ModelChoice::G1_12Dof.path().exists() {
-        return true;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "../shared is missing, and CI must have it"
-    );
-    eprintln!("*** SKIP: the 12-dof model in ../shared is missing (CI has it) ***");
-    false
-}
-
 #[test]
 fn the_committed_stair_policy_is_judged_through_g1fw() {
-    if !have_shared() {
+    if !have_12dof_model() {
         return;
     }
     let spec = root().join("specs/stairs/g1_stairs_lstm.toml");
@@ -54,7 +44,7 @@ fn the_committed_stair_policy_is_judged_through_g1fw() {
 
 #[test]
 fn a_run_judges_its_checkpoints_and_keeps_the_best() {
-    if !have_shared() {
+    if !have_12dof_model() {
         return;
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_judge_{}", std::process::id()));

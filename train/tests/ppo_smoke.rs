@@ -2,6 +2,8 @@
 //! step rises (falling early costs the termination penalty; PPO quickly learns to stay up longer).
 //! And training is deterministic for a seed: the same run twice, or on another thread count, writes
 //! the same weights.
+mod common;
+use common::have_12dof_model;
 use std::path::{Path, PathBuf};
 
 use train::ppo::env::{Column, Randomization};
@@ -10,7 +12,7 @@ use train::ppo::runner::{train, RunConfig, ACTORS, CHECKPOINT, CURVES, HISTORY};
 #[test]
 fn ppo_return_rises_on_a_small_budget_and_resumes() {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
-    if !model_present() {
+    if !have_12dof_model() {
         return;
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_smoke_{}", std::process::id()));
@@ -105,19 +107,6 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     std::fs::remove_dir_all(&out).unwrap();
 }
 
-/// The 12-dof model from ../shared; a loud skip without it, a failure in CI (which always has it).
-fn model_present() -> bool {
-    if g1_sim::ModelChoice::G1_12Dof.path().exists() {
-        return true;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "the 12-dof model in ../shared is missing, and CI must have it"
-    );
-    eprintln!("SKIPPED: the 12-dof model in ../shared is missing (CI has it)");
-    false
-}
-
 /// A short run on the full curriculum mix with every randomisation on; returns the exported actor.
 fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
@@ -153,7 +142,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
 
 #[test]
 fn training_is_deterministic_for_a_seed_and_any_thread_count() {
-    if !model_present() {
+    if !have_12dof_model() {
         return;
     }
     let dir = std::env::temp_dir().join(format!("g1_ppo_det_{}", std::process::id()));
