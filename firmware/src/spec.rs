@@ -599,6 +599,55 @@ impl DeploySpec {
         Self::from_toml(&text, path)
     }
 
+    /// As [`DeploySpec::load`], with `KEY=VALUE` overrides (`g1fw run --set`) applied first: a dotted
+    /// key of the spec's TOML (`safety.state_timeout_s`) and a TOML value. The spec's text then is the
+    /// overridden TOML, which the log keeps, so replay runs what ran.
+    pub fn load_with_overrides(path: &Path, sets: &[String]) -> Result<Self, SpecError> {
+        if sets.is_empty() {
+            return Self::load(path);
+        }
+        let bytes = crate::read_capped(path, MAX_SPEC_BYTES as u64).map_err(|source| SpecError::Read {
+            path: path.into(),
+            source,
+        })?;
+        let text = String::from_utf8_lossy(&bytes);
+        let bad = |message: String| SpecError::Parse {
+            path: path.into(),
+            message,
+        };
+        let mut table: toml::Table = toml::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        for set in sets {
+            let (key, value) = set
+                .split_once('=')
+                .ok_or_else(|| bad(format!("--set {set}: write KEY=VALUE, e.g. safety.state_timeout_s=0.1")))?;
+            let value: toml::Value = match toml::from_str::<toml::Table>(&format!("v = {value}")) {
+                Ok(mut t) => t.remove("v").expect("parsed one key"),
+                Err(_) => toml::Value::String(value.to_string()),
+            };
+            let mut parts: Vec<&str> = key.trim().split('.').collect();
+            let leaf = parts
+                .pop()
+                .filter(|l| !l.is_empty())
+                .ok_or_else(|| bad(format!("--set {set}: no key")))?;
+            let mut at = &mut table;
+            for part in parts {
+                at = at
+                    .entry(part)
+                    .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+                    .as_table_mut()
+                    .ok_or_else(|| bad(format!("--set {set}: `{part}` is a value, not a table")))?;
+            }
+            at.insert(leaf.to_string(), value);
+        }
+        let text = format!(
+            "# {} with g1fw run --set {}\n{}",
+            path.display(),
+            sets.join(" --set "),
+            toml::to_string(&table).map_err(|e| bad(e.to_string()))?
+        );
+        Self::from_toml(&text, path)
+    }
+
     /// Parses and validates; `path` locates relative files and names the spec in errors.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, SpecError> {
         let mut spec = Self::parse(text, path)?;

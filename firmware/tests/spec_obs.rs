@@ -352,3 +352,23 @@ fn out_of_range_values_are_refused_by_field() {
         assert!(e.contains(field), "{to}: {e}");
     }
 }
+
+/// `g1fw run --set`: a dotted key takes a TOML value, the spec's text is the overridden one (the log
+/// keeps it, so replay runs what ran), and a misspelt key is refused as the file's would be.
+#[test]
+fn command_line_overrides_change_the_spec_and_its_text() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml");
+    let plain = DeploySpec::load(&path).unwrap();
+    let set = DeploySpec::load_with_overrides(&path, &["safety.state_timeout_s=0.1".into()]).unwrap();
+    assert_eq!(set.safety.state_timeout_s, 0.1);
+    assert_ne!(plain.safety.state_timeout_s, 0.1);
+    let again = DeploySpec::from_toml(&set.source_text, &path).unwrap();
+    assert_eq!(again.safety.state_timeout_s, 0.1, "the kept text carries the override");
+    assert!(set.source_text.starts_with('#') && set.source_text.contains("--set safety.state_timeout_s=0.1"));
+    let typo = DeploySpec::load_with_overrides(&path, &["safety.state_timeout=0.1".into()]).unwrap_err();
+    assert!(typo.to_string().contains("state_timeout"), "{typo}");
+    let no_eq = DeploySpec::load_with_overrides(&path, &["safety.state_timeout_s".into()]).unwrap_err();
+    assert!(no_eq.to_string().contains("KEY=VALUE"), "{no_eq}");
+    let bad_value = DeploySpec::load_with_overrides(&path, &["safety.state_timeout_s=-1".into()]).unwrap_err();
+    assert!(bad_value.to_string().contains("state_timeout_s"), "{bad_value}");
+}

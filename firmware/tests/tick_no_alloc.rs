@@ -429,6 +429,9 @@ fn dds_hal_tick_path_does_not_allocate() {
     let mut cfg = DdsHalConfig::new(endpoint, 2_000_000);
     cfg.discovery = std::time::Duration::from_millis(500);
     cfg.tick_timeout = std::time::Duration::from_millis(100);
+    // The robot above answers commands (lock-step): tick on its states, not on the clock, or a
+    // loaded machine turns late answers into stale states and a state timeout.
+    cfg.pace = robot_io::dds::Pace::State;
     let mut hal = DdsHal::open(cfg).expect("DDS HAL");
     let seen = run_ticks_on(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml"),

@@ -56,6 +56,10 @@ fn run(tag: &str, sim_args: &[&str], duration: f64) -> Option<Outcome> {
         .current_dir(repo_root())
         .args(["run", "--dds", "lo,1", "--spec"])
         .arg(peer_spec_path())
+        // Both programs pace themselves by the wall clock on a shared 2-core VM, where even a lone
+        // SCHED_FIFO loop sleeping 2 ms periods wakes up to 8-17 ms late (docs/robot.md, "Clock
+        // timing"): the 20 ms state timeout would then trip on the VM's stalls, not on the code.
+        .args(["--set", "safety.state_timeout_s=0.1"])
         .args(["--cmd", "0.5,0,0", "--duration", &duration.to_string(), "--report"])
         .arg(&report)
         .arg("--log")
@@ -95,7 +99,16 @@ fn a_clock_paced_run_against_a_free_running_robot_walks_reports_its_jitter_and_r
     );
     eprintln!("clock pacing: late by p50 {p50} µs, p99 {p99} µs, max {max} µs");
     assert!(p50 <= p99 && p99 <= max.ceil(), "{ctx}");
-    assert!(r["warnings"].as_array().unwrap().is_empty(), "{ctx}");
+    // The override is said, and nothing else is: the state rate matched the control rate.
+    let warnings = r["warnings"].as_array().unwrap();
+    assert_eq!(warnings.len(), 1, "{ctx}");
+    assert!(
+        warnings[0]
+            .as_str()
+            .unwrap()
+            .contains("--set safety.state_timeout_s=0.1"),
+        "{ctx}"
+    );
     // Walked while the policy ran (the end's damping may let it sink afterwards).
     assert!(o.sim["fell_at_s"].as_f64().is_none_or(|t| t >= 10.0), "{ctx}");
     let x = o.sim["base_travel_m"][0].as_f64().unwrap();

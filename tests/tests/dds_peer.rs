@@ -158,6 +158,9 @@ fn scenario(tag: &str, faults: &[&str], duration: f64, expect_run: bool) -> Opti
         .current_dir(repo_root())
         .args(["run", "--dds", "lo,1", "--spec"])
         .arg(peer_spec_path())
+        // g1-sim --dds and the peer step when a command comes (lock-step): tick on their states,
+        // as the deterministic tests do; the clock-paced loop is tests/dds_clock.rs's.
+        .args(["--tick-on", "state"])
         .args(["--cmd", "0.5,0,0", "--duration", &duration.to_string(), "--report"])
         .arg(&report)
         .arg("--log")
@@ -383,6 +386,7 @@ fn the_stair_policy_runs_over_dds_with_the_mid360_over_udp() {
         .command(&built_bin("g1fw"))
         .current_dir(repo_root())
         .args(["run", "--dds", "lo,1", "--spec", "specs/stairs/g1_stairs_lstm.toml"])
+        .args(["--tick-on", "state"])
         .args([
             "--lidar-udp",
             "127.0.0.1:56301",

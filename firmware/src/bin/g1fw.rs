@@ -309,6 +309,11 @@ struct RunArgs {
         conflicts_with = "can_config"
     )]
     dds: Option<robot_io::dds::Endpoint>,
+    /// Overrides one value of the spec for this run, as `KEY=VALUE` with a dotted key and a TOML value,
+    /// e.g. `safety.state_timeout_s=0.1` for a simulator on a busy desktop (repeatable). The run warns,
+    /// the report lists it under `warnings`, and the log keeps the spec as run, so replay repeats it.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
     /// With --dds --tick-on state: a tick without a new rt/lowstate runs after this long (default 10 periods),
     /// so the safety supervisor sees the silence and damping keeps going out.
     #[arg(long, value_name = "MS", requires = "dds")]
@@ -881,7 +886,15 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
     if a.dds_tick_timeout_ms == Some(0) {
         bail!("--dds-tick-timeout-ms must be at least 1");
     }
-    let spec = DeploySpec::load(&a.spec)?;
+    let spec = DeploySpec::load_with_overrides(&a.spec, &a.sets)?;
+    let overridden: Vec<String> = a
+        .sets
+        .iter()
+        .map(|set| format!("the spec was overridden for this run: --set {set}"))
+        .collect();
+    for note in &overridden {
+        tracing::warn!("{note}");
+    }
     spec_outputs_distinct(&spec, &[("--log", a.log.as_deref()), ("--report", a.report.as_deref())])?;
     let layout = match &a.can_config {
         Some(path) => {
@@ -968,6 +981,8 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
             bail!("name the robot's transport: --dds IFACE[,DOMAIN] (the G1) or --can-config FILE (a CAN bench)")
         }
     };
+    let mut report = report;
+    report.warnings.splice(0..0, overridden);
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
     if let Some(path) = a.report {
