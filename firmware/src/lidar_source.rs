@@ -27,7 +27,7 @@ pub struct WithLidar<H, L> {
     pub counters: LidarReadCounters,
 }
 
-impl<H, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> WithLidar<H, L> {
+impl<H, L: Lidar<{ hal::LIDAR_FRAME_CAP }>> WithLidar<H, L> {
     pub fn new(hal: H, lidar: Option<L>) -> Self {
         Self {
             hal,
@@ -46,7 +46,7 @@ impl<H, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> WithLidar<H, L> {
     }
 }
 
-impl<H: TimeBase, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> TimeBase for WithLidar<H, L> {
+impl<H: TimeBase, L: Lidar<{ hal::LIDAR_FRAME_CAP }>> TimeBase for WithLidar<H, L> {
     type Error = H::Error;
     fn wait_tick(&mut self) -> Result<TickTime, H::Error> {
         let t = self.hal.wait_tick()?;
@@ -70,11 +70,11 @@ impl<H: LowLevel, L> LowLevel for WithLidar<H, L> {
     }
 }
 
-impl<H: FrameSource, L: Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }>> FrameSource for WithLidar<H, L> {
+impl<H: FrameSource, L: Lidar<{ hal::LIDAR_FRAME_CAP }>> FrameSource for WithLidar<H, L> {
     fn received_frame(&self) -> Option<&[u8]> {
         self.hal.received_frame()
     }
-    fn truth(&self) -> Option<&sim_hal::bridge::Truth> {
+    fn truth(&self) -> Option<&hal::GroundTruth> {
         self.hal.truth()
     }
     fn read_lidar(&mut self, out: &mut LidarFrame) -> bool {
@@ -111,7 +111,7 @@ mod tests {
         calls: u64,
         completed: Option<u64>,
     }
-    impl Lidar<{ sim_hal::bridge::LIDAR_FRAME_CAP }> for FakeLidar {
+    impl Lidar<{ hal::LIDAR_FRAME_CAP }> for FakeLidar {
         type Error = E;
         fn read_frame(&mut self, out: &mut LidarFrame) -> Result<bool, E> {
             let Some(t) = self.completed.take() else {

@@ -17,10 +17,10 @@
 //! says; it is checked for plausibility and otherwise replaced by the last plausible one (or flat).
 //! Everything is allocated in [`Perception::new`]; a step does not allocate.
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
+use hal::LIDAR_FRAME_CAP;
 use hal::{PointFrame, TerrainToken};
 use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter};
 use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
-use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::runtime::Estimate;
 use crate::spec::{PerceptionSpec, TerrainEstimatorKind};

@@ -9,12 +9,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
+use robot_io::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
 use robot_io::{DdsHal, DdsHalConfig, DdsHalCounters};
 use serde::Serialize;
-use sim_hal::can::{CanBuses, CanCounters, CanHal, SocketCanBuses};
 
+use hal::LIDAR_FRAME_CAP;
 use robot_io::UdpLidar;
-use sim_hal::bridge::LIDAR_FRAME_CAP;
 
 use crate::controller::Controller;
 use crate::lidar_source::WithLidar;

@@ -677,7 +677,7 @@ pub trait FrameSource {
     /// Wire bytes of the LowState frame that arrived on the newest tick (valid or not), if any.
     fn received_frame(&self) -> Option<&[u8]>;
     /// Simulator ground truth of the newest tick (evaluation only, never control).
-    fn truth(&self) -> Option<&sim_hal::bridge::Truth> {
+    fn truth(&self) -> Option<&hal::GroundTruth> {
         None
     }
     /// Puts the newest complete lidar frame into `out`; false when there is none new (or no lidar).
@@ -697,7 +697,7 @@ pub struct TickView<'a> {
     /// The command went to the HAL (false on the final tick and when the HAL failed first).
     pub command_sent: bool,
     pub runtime: &'a Runtime,
-    pub truth: Option<&'a sim_hal::bridge::Truth>,
+    pub truth: Option<&'a hal::GroundTruth>,
     /// The HAL failed on this tick (the loop ends after it).
     pub hal_error: Option<HalFailure>,
 }

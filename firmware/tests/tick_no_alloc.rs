@@ -273,7 +273,7 @@ fn can_hal_tick_path_does_not_allocate() {
         head: 0,
         len: 0,
     };
-    let mut hal = sim_hal::can::CanHal::open(bus, layout, 2_000_000, std::time::Duration::from_secs(1)).unwrap();
+    let mut hal = robot_io::can::CanHal::open(bus, layout, 2_000_000, std::time::Duration::from_secs(1)).unwrap();
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
     rt.disable_frozen_check();
     let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
@@ -326,7 +326,7 @@ fn udp_lidar_ticks(exec: PerceptionExec) -> PerceptionSeen {
     use firmware::lidar_source::WithLidar;
     use robot_io::{UdpLidar, UdpLidarConfig};
     use std::sync::atomic::{AtomicBool, Ordering};
-    let lidar = UdpLidar::<{ sim_hal::bridge::LIDAR_FRAME_CAP }>::open(UdpLidarConfig {
+    let lidar = UdpLidar::<{ hal::LIDAR_FRAME_CAP }>::open(UdpLidarConfig {
         bind: "127.0.0.1:0".parse().unwrap(),
         lidar: None,
         ..UdpLidarConfig::default()

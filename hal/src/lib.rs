@@ -10,11 +10,13 @@
 mod lidar;
 mod rng;
 mod terrain;
+mod truth;
 mod types;
 
 pub use lidar::{LidarPoint, PointFrame};
 pub use rng::XorShift64;
 pub use terrain::{wrap_angle, TerrainClass, TerrainToken};
+pub use truth::{GroundTruth, StairProgress};
 pub use types::*;
 
 /// Number of motor slots in the unitree_hg messages (29 used on the 29-dof G1).
@@ -65,6 +67,10 @@ pub trait LowLevel {
     /// Sends one command for all 35 motor slots.
     fn write_command(&mut self, cmd: &LowCommand) -> Result<(), Self::Error>;
 }
+
+/// Points a lidar frame holds on the firmware side (the MID-360 sends ~20,000 per 10 Hz frame): the
+/// `CAP` of every [`Lidar`] the firmware reads.
+pub const LIDAR_FRAME_CAP: usize = 32_768;
 
 /// A lidar delivering whole frames into a caller-owned fixed-capacity buffer.
 pub trait Lidar<const CAP: usize> {

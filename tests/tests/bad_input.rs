@@ -48,7 +48,7 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
                 base_quat: [1.0, 0.0, 0.0, 0.0],
                 ..Truth::default()
             };
-            write_msg(s, Kind::Truth, &t.encode(), scratch).unwrap();
+            write_msg(s, Kind::Truth, &sim_hal::bridge::encode_truth(&t), scratch).unwrap();
         };
         send(&mut s, 0, &mut scratch);
         for tick in 1..=good_ticks {
@@ -58,12 +58,11 @@ fn fake_sim(socket: &Path, good_ticks: u32, fault: Fault) -> thread::JoinHandle<
             send(&mut s, tick, &mut scratch);
         }
         let _ = read_msg(&mut s, &mut payload);
-        let truth = Truth {
+        let truth = sim_hal::bridge::encode_truth(&Truth {
             base_pos: [0.0, 0.0, 0.78],
             base_quat: [1.0, 0.0, 0.0, 0.0],
             ..Truth::default()
-        }
-        .encode();
+        });
         match fault {
             Fault::CorruptCrc => {
                 encode_low_state(&state, &mut bytes);

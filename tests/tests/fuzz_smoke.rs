@@ -372,7 +372,7 @@ mod gen {
             }),
             ..Default::default()
         };
-        bp::append_msg(&mut s, bp::Kind::Truth, &t.encode());
+        bp::append_msg(&mut s, bp::Kind::Truth, &bp::encode_truth(&t));
         let mut cmd = [0u8; sensor_io::unitree_hg::LOW_CMD_LEN];
         sensor_io::unitree_hg::encode_low_cmd(&command(), &mut cmd);
         bp::append_msg(&mut s, bp::Kind::LowCmd, &cmd);

@@ -187,10 +187,12 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
     assert!(file("g1fw/weights/terrain_cnn.safetensors") == weights);
     file("g1fw/weights/terrain_cnn.toml");
     file("g1fw/README.md");
-    // The robot's g1fw links no lab tooling (issue 32): no plotting, no progress bars.
+    // The robot's g1fw links no lab tooling (issue 32): no plotting, no progress bars, no simulator
+    // bridge (sim_hal); the robot's own transports (robot_io: DDS, the lidar's UDP, CAN) it does.
     let linked = String::from_utf8(file("g1fw/LINKED_CRATES.txt").to_vec()).unwrap();
     assert!(linked.lines().any(|l| l.starts_with("firmware ")), "{linked}");
-    for lab in ["plotters", "indicatif"] {
+    assert!(linked.lines().any(|l| l.starts_with("robot_io ")), "{linked}");
+    for lab in ["plotters", "indicatif", "sim_hal"] {
         assert!(
             !linked.lines().any(|l| l.split(' ').next() == Some(lab)),
             "the image's g1fw links {lab}: {linked}"

@@ -80,6 +80,7 @@ fn whole_loop(
         ppo,
         random: Randomization::DEFAULT,
         max_init_level: 2,
+        vx: (0.4, 0.8),
         only: None,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,

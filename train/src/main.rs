@@ -196,6 +196,10 @@ enum Cmd {
         /// Highest curriculum level environments start at (0: 5 cm steps … 10: 26 cm).
         #[arg(long, default_value_t = 2)]
         max_init_level: usize,
+        /// Forward speed commands, m/s, drawn uniformly per episode: MIN,MAX (runs up to 11 used
+        /// 0.4,0.8; below 0.4 such policies stood at the first riser).
+        #[arg(long, value_name = "MIN,MAX", default_value = "0.3,0.8", value_parser = parse_vx_range)]
+        vx: (f64, f64),
         /// No observation/token noise, latency or pushes (tests).
         #[arg(long)]
         no_randomization: bool,
@@ -352,6 +356,7 @@ fn main() -> anyhow::Result<()> {
             entropy_coef,
             episode_s,
             max_init_level,
+            vx,
             no_randomization,
             only,
             checkpoint_every,
@@ -409,6 +414,7 @@ fn main() -> anyhow::Result<()> {
                     train::ppo::env::Randomization::DEFAULT
                 },
                 max_init_level,
+                vx,
                 only,
                 checkpoint_every_s: checkpoint_every,
                 quiet,
@@ -716,4 +722,18 @@ fn main() -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--vx MIN,MAX`: a forward speed range, m/s.
+fn parse_vx_range(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("'{s}': give MIN,MAX in m/s with 0 <= MIN <= MAX <= 2, e.g. 0.3,0.8");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if !(0.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
+        return Err(bad());
+    }
+    Ok((a, b))
 }

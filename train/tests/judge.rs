@@ -67,6 +67,7 @@ fn a_run_judges_its_checkpoints_and_keeps_the_best() {
         ppo: Default::default(),
         random: Randomization::NONE,
         max_init_level: 0,
+        vx: (0.4, 0.8),
         only: Some(Column::Flat),
         checkpoint_every_s: f64::INFINITY,
         quiet: true,

@@ -143,7 +143,7 @@ pub fn build_aarch64(root: &Path) -> Result<Built> {
             "--bin",
             "g1fw",
             // The robot's binary without the lab commands (sim, eval, plot, bev) and what only
-            // they link (plotters, indicatif).
+            // they link (plotters, indicatif, the simulator bridge in sim_hal).
             "--no-default-features",
         ])
         // With --target, these reach the aarch64 artifacts only, never build scripts or proc

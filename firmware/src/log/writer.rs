@@ -14,9 +14,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam_queue::ArrayQueue;
+use hal::GroundTruth;
 use hal::LowCommand;
 use serde::Serialize;
-use sim_hal::bridge::Truth;
 
 use super::channels::{self as ch, encode_lidar_frame, encode_low_cmd_frame, encode_low_state_frame};
 use crate::controller::Mode;
@@ -57,7 +57,7 @@ pub struct Record {
     pub act_len: usize,
     pub action: [f32; MAX_ACT],
     pub target_q: [f32; hal::NUM_MOTORS],
-    pub truth: Option<Truth>,
+    pub truth: Option<GroundTruth>,
     pub hal_error: Option<HalFailure>,
     /// Records dropped (pool full) since the previous record.
     pub dropped_before: u64,
@@ -133,7 +133,7 @@ impl PerceptionRecord {
             summary: PerceptionSummary::default(),
             truth: None,
             n: 0,
-            points: vec![[0.0; 4]; sim_hal::bridge::LIDAR_FRAME_CAP].into_boxed_slice(),
+            points: vec![[0.0; 4]; hal::LIDAR_FRAME_CAP].into_boxed_slice(),
             grid: Box::new(BevGrid::zeroed()),
             frame: sensor_io::livox::boxed_point_frame(),
         })

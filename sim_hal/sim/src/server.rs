@@ -171,7 +171,11 @@ fn send_state<W: Write>(
         append_msg(&mut b.scratch, Kind::LidarPackets, sim.lidar_datagrams());
     }
     if truth {
-        append_msg(&mut b.scratch, Kind::Truth, &sim.truth().encode());
+        append_msg(
+            &mut b.scratch,
+            Kind::Truth,
+            &sim_hal::bridge::encode_truth(&sim.truth()),
+        );
     }
     // One write for both messages: one wake-up of the client per tick.
     w.write_all(&b.scratch)?;

@@ -43,7 +43,13 @@ fn control_tick_path_does_not_allocate() {
         encode_low_state(&st, &mut bytes);
         wire.clear();
         write_msg(wire, Kind::LowState, &bytes, &mut scratch).unwrap();
-        write_msg(wire, Kind::Truth, &sim.truth().encode(), &mut scratch).unwrap();
+        write_msg(
+            wire,
+            Kind::Truth,
+            &sim_hal::bridge::encode_truth(&sim.truth()),
+            &mut scratch,
+        )
+        .unwrap();
     };
     tick(&mut sim, &mut wire); // warm-up: buffers reach their size
     ARMED.with(|a| a.set(true));

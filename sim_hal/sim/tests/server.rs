@@ -10,7 +10,7 @@ use common::{load29, require_deps};
 use g1_sim::server::{serve_unix, ServeError, ServeOptions, SessionEnd};
 use hal::{LowCommand, LowState};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, LOW_CMD_LEN};
-use sim_hal::bridge::{read_msg, write_msg, Kind, ProtocolError, Truth, Welcome, PROTOCOL_VERSION};
+use sim_hal::bridge::{read_msg, write_msg, Kind, ProtocolError, Welcome, PROTOCOL_VERSION};
 
 fn sock_path(tag: &str) -> PathBuf {
     std::env::temp_dir().join(format!("g1-sim-test-{tag}-{}.sock", std::process::id()))
@@ -81,7 +81,7 @@ fn unix_socket_session_hello_lowcmd_lowstate_bye() {
     assert_eq!(st.tick, 0);
     assert_eq!(st.motors[3].q, 0.3);
     assert_eq!(c.recv().unwrap(), Kind::Truth);
-    assert_eq!(Truth::decode(&c.payload).unwrap().base_pos[2], 0.7837);
+    assert_eq!(sim_hal::bridge::decode_truth(&c.payload).unwrap().base_pos[2], 0.7837);
 
     let mut bytes = [0u8; LOW_CMD_LEN];
     encode_low_cmd(&hold, &mut bytes);
@@ -90,7 +90,7 @@ fn unix_socket_session_hello_lowcmd_lowstate_bye() {
         c.recv_state(&mut st);
         assert_eq!(st.tick, tick);
         assert_eq!(c.recv().unwrap(), Kind::Truth);
-        let t = Truth::decode(&c.payload).unwrap();
+        let t = sim_hal::bridge::decode_truth(&c.payload).unwrap();
         assert!((t.sim_time_s - 0.002 * tick as f64).abs() < 1e-12);
     }
     assert!(st.motors[3].tau_est != 0.0, "PD is acting");

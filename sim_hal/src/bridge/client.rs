@@ -27,8 +27,8 @@ use sensor_io::livox::{AssemblerStats, FrameAssembler};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_cmd, DecodeError, LOW_CMD_LEN, LOW_STATE_LEN};
 
 use super::protocol::{
-    datagrams, read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome, FLAG_NO_FRAME,
-    PROTOCOL_VERSION,
+    datagrams, decode_truth, read_expect, read_expect_flags, write_msg, Kind, ProtocolError, Truth, Welcome,
+    FLAG_NO_FRAME, PROTOCOL_VERSION,
 };
 use super::spin::SpinStream;
 
@@ -129,8 +129,7 @@ impl Write for Stream {
     }
 }
 
-/// Points a lidar frame can hold on the firmware side (the MID-360 sends ~20,000 per 10 Hz frame).
-pub const LIDAR_FRAME_CAP: usize = 32_768;
+pub use hal::LIDAR_FRAME_CAP;
 
 /// What the client asks the simulator for besides the robot's state.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -364,7 +363,7 @@ impl BridgeHal {
         }
         if self.want_truth {
             read_expect(&mut self.stream, &mut self.payload, Kind::Truth)?;
-            self.truth = Truth::decode(&self.payload)?;
+            self.truth = decode_truth(&self.payload)?;
         }
         Ok(())
     }

@@ -242,167 +242,114 @@ impl Welcome {
     }
 }
 
-/// Privileged ground truth of one tick, for evaluation only (never on the control path).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Truth {
-    pub sim_time_s: f64,
-    /// Base (pelvis) position in the world, m.
-    pub base_pos: [f64; 3],
-    /// Base orientation, w x y z.
-    pub base_quat: [f64; 4],
-    /// Base linear velocity, world frame, m/s.
-    pub base_lin_vel_world: [f64; 3],
-    /// Base linear velocity, body frame, m/s.
-    pub base_lin_vel_body: [f64; 3],
-    /// Base angular velocity, body frame, rad/s.
-    pub base_ang_vel_body: [f64; 3],
-    /// Left and right foot touching anything other than the robot.
-    pub foot_contact: [bool; 2],
-    /// Ground-truth terrain token at the base's pose, when the simulator runs a terrain world.
-    pub terrain: Option<hal::TerrainToken>,
-    /// Height of the walking surface under the base (x, y), m (0 on flat ground and without a
-    /// world).
-    pub ground_height_m: f64,
-    /// Where the base is on the world's staircase (`None` without one).
-    pub stairs: Option<StairProgress>,
-}
-
-/// The base's progress over a staircase (ground truth, evaluation only). Axis coordinates as in
-/// `g1_sim::world`: `s` along the staircase axis from the first riser, `t` to its left.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct StairProgress {
-    /// Base position along the staircase axis, from the first riser, m.
-    pub axis_s: f64,
-    /// Base position across the axis (left positive), m.
-    pub axis_t: f64,
-    /// The staircase axis (direction of +s, from its first riser to its last), rad from world +x
-    /// (a fixed property of the world: where an operator would point the robot).
-    pub axis_yaw_rad: f32,
-    /// End landing level minus start landing level, m (> 0: the stairs go up along +s).
-    pub rise_m: f32,
-    /// Risers in the staircase.
-    pub risers: u16,
-    /// Risers whose edge lies behind the base (`riser.s < axis_s`) while the base is within the
-    /// stair width (`|axis_t| ≤ width/2`); 0 beside the staircase.
-    pub risers_passed: u16,
-    /// The base is on the end landing: `axis_s ≥ last riser + `[`END_LANDING_MARGIN_M`], at most
-    /// the landing's far end, and within the stair width.
-    pub on_end_landing: bool,
-}
+/// The `Truth` message carries `hal`'s ground truth (an observer's payload, never on the control
+/// path); the bridge only encodes it.
+pub use hal::{GroundTruth as Truth, StairProgress};
 
 /// How far past the last riser's edge the base (pelvis) must be to count as on the end landing, m:
 /// with the G1's ~0.2 m feet under the pelvis, both feet are then past the edge.
 pub const END_LANDING_MARGIN_M: f64 = 0.25;
 
-impl StairProgress {
-    const LEN: usize = 1 + 8 + 8 + 4 + 4 + 2 + 2 + 1;
-    fn encode(&self, b: &mut [u8]) {
-        b[0] = 1;
-        b[1..9].copy_from_slice(&self.axis_s.to_le_bytes());
-        b[9..17].copy_from_slice(&self.axis_t.to_le_bytes());
-        b[17..21].copy_from_slice(&self.axis_yaw_rad.to_le_bytes());
-        b[21..25].copy_from_slice(&self.rise_m.to_le_bytes());
-        b[25..27].copy_from_slice(&self.risers.to_le_bytes());
-        b[27..29].copy_from_slice(&self.risers_passed.to_le_bytes());
-        b[29] = self.on_end_landing as u8;
-    }
-    fn decode(b: &[u8]) -> Option<Self> {
-        let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
-        (b[0] != 0).then(|| Self {
-            axis_s: f64::from_le_bytes(b[1..9].try_into().expect("8 bytes")),
-            axis_t: f64::from_le_bytes(b[9..17].try_into().expect("8 bytes")),
-            axis_yaw_rad: f32_at(17),
-            rise_m: f32_at(21),
-            risers: u16::from_le_bytes([b[25], b[26]]),
-            risers_passed: u16::from_le_bytes([b[27], b[28]]),
-            on_end_landing: b[29] != 0,
-        })
-    }
+const STAIRS_LEN: usize = 1 + 8 + 8 + 4 + 4 + 2 + 2 + 1;
+
+fn encode_stairs(this: &StairProgress, b: &mut [u8]) {
+    b[0] = 1;
+    b[1..9].copy_from_slice(&this.axis_s.to_le_bytes());
+    b[9..17].copy_from_slice(&this.axis_t.to_le_bytes());
+    b[17..21].copy_from_slice(&this.axis_yaw_rad.to_le_bytes());
+    b[21..25].copy_from_slice(&this.rise_m.to_le_bytes());
+    b[25..27].copy_from_slice(&this.risers.to_le_bytes());
+    b[27..29].copy_from_slice(&this.risers_passed.to_le_bytes());
+    b[29] = this.on_end_landing as u8;
 }
 
-impl Truth {
-    /// Angle between the base's z axis and the world's vertical, degrees.
-    pub fn tilt_deg(&self) -> f64 {
-        let [_, x, y, _] = self.base_quat;
-        // Body z axis in world: its z component is 1 - 2(x² + y²).
-        libm::acos((1.0 - 2.0 * (x * x + y * y)).clamp(-1.0, 1.0)).to_degrees()
-    }
+fn decode_stairs(b: &[u8]) -> Option<StairProgress> {
+    let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
+    (b[0] != 0).then(|| StairProgress {
+        axis_s: f64::from_le_bytes(b[1..9].try_into().expect("8 bytes")),
+        axis_t: f64::from_le_bytes(b[9..17].try_into().expect("8 bytes")),
+        axis_yaw_rad: f32_at(17),
+        rise_m: f32_at(21),
+        risers: u16::from_le_bytes([b[25], b[26]]),
+        risers_passed: u16::from_le_bytes([b[27], b[28]]),
+        on_end_landing: b[29] != 0,
+    })
+}
 
-    /// The evaluations' fall: base below 0.5 m or tilted more than 60°.
-    pub fn fallen(&self) -> bool {
-        self.base_pos[2] < 0.5 || self.tilt_deg() > 60.0
-    }
+/// Bytes of an encoded [`Truth`].
+pub const TRUTH_LEN: usize = TRUTH_STAIRS_AT + STAIRS_LEN;
+const TRUTH_TERRAIN_AT: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
+const TRUTH_GROUND_AT: usize = TRUTH_TERRAIN_AT + 1 + 12;
+const TRUTH_STAIRS_AT: usize = TRUTH_GROUND_AT + 8;
 
-    pub const LEN: usize = Self::STAIRS_AT + StairProgress::LEN;
-    const TERRAIN_AT: usize = 8 * (1 + 3 + 4 + 3 + 3 + 3) + 2;
-    const GROUND_AT: usize = Self::TERRAIN_AT + 1 + 12;
-    const STAIRS_AT: usize = Self::GROUND_AT + 8;
-    pub fn encode(&self) -> [u8; Self::LEN] {
-        let mut b = [0u8; Self::LEN];
-        // No intermediate Vec: this runs every tick when truth is requested.
-        let time = [self.sim_time_s];
-        let vals = time
-            .iter()
-            .chain(&self.base_pos)
-            .chain(&self.base_quat)
-            .chain(&self.base_lin_vel_world)
-            .chain(&self.base_lin_vel_body)
-            .chain(&self.base_ang_vel_body)
-            .copied()
-            .enumerate();
-        for (i, v) in vals {
-            b[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
-        }
-        let t = Self::TERRAIN_AT;
-        b[t - 2] = self.foot_contact[0] as u8;
-        b[t - 1] = self.foot_contact[1] as u8;
-        // Class byte 0xFF: no terrain world.
-        match self.terrain {
-            None => b[t] = 0xFF,
-            Some(z) => {
-                b[t] = z.class as u8;
-                b[t + 1..t + 5].copy_from_slice(&z.step_height_m.to_le_bytes());
-                b[t + 5..t + 9].copy_from_slice(&z.step_depth_m.to_le_bytes());
-                b[t + 9..t + 13].copy_from_slice(&z.yaw_rad.to_le_bytes());
-            }
-        }
-        b[Self::GROUND_AT..Self::STAIRS_AT].copy_from_slice(&self.ground_height_m.to_le_bytes());
-        // First byte 0: no staircase.
-        if let Some(p) = &self.stairs {
-            p.encode(&mut b[Self::STAIRS_AT..]);
-        }
-        b
+/// The `Truth` message's payload.
+pub fn encode_truth(this: &Truth) -> [u8; TRUTH_LEN] {
+    let mut b = [0u8; TRUTH_LEN];
+    // No intermediate Vec: this runs every tick when truth is requested.
+    let time = [this.sim_time_s];
+    let vals = time
+        .iter()
+        .chain(&this.base_pos)
+        .chain(&this.base_quat)
+        .chain(&this.base_lin_vel_world)
+        .chain(&this.base_lin_vel_body)
+        .chain(&this.base_ang_vel_body)
+        .copied()
+        .enumerate();
+    for (i, v) in vals {
+        b[8 * i..8 * i + 8].copy_from_slice(&v.to_le_bytes());
     }
-    pub fn decode(b: &[u8]) -> Result<Self, ProtocolError> {
-        if b.len() != Self::LEN {
-            return Err(ProtocolError::BadLength {
-                kind: Kind::Truth,
-                expected: Self::LEN,
-                got: b.len(),
-            });
+    let t = TRUTH_TERRAIN_AT;
+    b[t - 2] = this.foot_contact[0] as u8;
+    b[t - 1] = this.foot_contact[1] as u8;
+    // Class byte 0xFF: no terrain world.
+    match this.terrain {
+        None => b[t] = 0xFF,
+        Some(z) => {
+            b[t] = z.class as u8;
+            b[t + 1..t + 5].copy_from_slice(&z.step_height_m.to_le_bytes());
+            b[t + 5..t + 9].copy_from_slice(&z.step_depth_m.to_le_bytes());
+            b[t + 9..t + 13].copy_from_slice(&z.yaw_rad.to_le_bytes());
         }
-        let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().expect("8 bytes"));
-        let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
-        let t = Self::TERRAIN_AT;
-        let a3 = |i: usize| [f(i), f(i + 1), f(i + 2)];
-        Ok(Self {
-            sim_time_s: f(0),
-            base_pos: a3(1),
-            base_quat: [f(4), f(5), f(6), f(7)],
-            base_lin_vel_world: a3(8),
-            base_lin_vel_body: a3(11),
-            base_ang_vel_body: a3(14),
-            foot_contact: [b[t - 2] != 0, b[t - 1] != 0],
-            terrain: hal::TerrainClass::from_index(b[t] as usize).map(|class| hal::TerrainToken {
-                class,
-                step_height_m: f32_at(t + 1),
-                step_depth_m: f32_at(t + 5),
-                yaw_rad: f32_at(t + 9),
-            }),
-            ground_height_m: f64::from_le_bytes(b[Self::GROUND_AT..Self::STAIRS_AT].try_into().expect("8 bytes")),
-            stairs: StairProgress::decode(&b[Self::STAIRS_AT..]),
-        })
     }
+    b[TRUTH_GROUND_AT..TRUTH_STAIRS_AT].copy_from_slice(&this.ground_height_m.to_le_bytes());
+    // First byte 0: no staircase.
+    if let Some(p) = &this.stairs {
+        encode_stairs(p, &mut b[TRUTH_STAIRS_AT..]);
+    }
+    b
+}
+
+/// Reads a `Truth` message's payload.
+pub fn decode_truth(b: &[u8]) -> Result<Truth, ProtocolError> {
+    if b.len() != TRUTH_LEN {
+        return Err(ProtocolError::BadLength {
+            kind: Kind::Truth,
+            expected: TRUTH_LEN,
+            got: b.len(),
+        });
+    }
+    let f = |i: usize| f64::from_le_bytes(b[8 * i..8 * i + 8].try_into().expect("8 bytes"));
+    let f32_at = |i: usize| f32::from_le_bytes(b[i..i + 4].try_into().expect("4 bytes"));
+    let t = TRUTH_TERRAIN_AT;
+    let a3 = |i: usize| [f(i), f(i + 1), f(i + 2)];
+    Ok(Truth {
+        sim_time_s: f(0),
+        base_pos: a3(1),
+        base_quat: [f(4), f(5), f(6), f(7)],
+        base_lin_vel_world: a3(8),
+        base_lin_vel_body: a3(11),
+        base_ang_vel_body: a3(14),
+        foot_contact: [b[t - 2] != 0, b[t - 1] != 0],
+        terrain: hal::TerrainClass::from_index(b[t] as usize).map(|class| hal::TerrainToken {
+            class,
+            step_height_m: f32_at(t + 1),
+            step_depth_m: f32_at(t + 5),
+            yaw_rad: f32_at(t + 9),
+        }),
+        ground_height_m: f64::from_le_bytes(b[TRUTH_GROUND_AT..TRUTH_STAIRS_AT].try_into().expect("8 bytes")),
+        stairs: decode_stairs(&b[TRUTH_STAIRS_AT..]),
+    })
 }
 
 /// Fuzz harness (the `bridge_protocol` cargo-fuzz target and the stable `fuzz_smoke` test): reads
@@ -436,9 +383,9 @@ pub fn fuzz_bridge(data: &[u8]) {
                 }
             }
             Kind::Truth => {
-                if let Ok(t) = Truth::decode(&payload) {
-                    let once = t.encode();
-                    let twice = Truth::decode(&once).expect("own encoding decodes").encode();
+                if let Ok(t) = decode_truth(&payload) {
+                    let once = encode_truth(&t);
+                    let twice = encode_truth(&decode_truth(&once).expect("own encoding decodes"));
                     assert_eq!(once, twice);
                 }
             }
@@ -561,7 +508,7 @@ mod tests {
             ground_height_m: 0.0,
             stairs: None,
         };
-        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
+        assert_eq!(decode_truth(&encode_truth(&t)).unwrap(), t);
         let t = Truth {
             terrain: Some(hal::TerrainToken {
                 class: hal::TerrainClass::StairsDown,
@@ -581,7 +528,7 @@ mod tests {
             }),
             ..t
         };
-        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
+        assert_eq!(decode_truth(&encode_truth(&t)).unwrap(), t);
         let t = Truth {
             stairs: Some(StairProgress {
                 on_end_landing: true,
@@ -589,7 +536,7 @@ mod tests {
             }),
             ..t
         };
-        assert_eq!(Truth::decode(&t.encode()).unwrap(), t);
-        assert!(Truth::decode(&[0u8; 3]).is_err());
+        assert_eq!(decode_truth(&encode_truth(&t)).unwrap(), t);
+        assert!(decode_truth(&[0u8; 3]).is_err());
     }
 }

@@ -47,6 +47,8 @@ pub struct RunConfig {
     pub ppo: PpoConfig,
     pub random: Randomization,
     pub max_init_level: usize,
+    /// Forward speed commands are drawn from this range, m/s.
+    pub vx: (f64, f64),
     /// Train on one terrain column only (default: the curriculum's mix).
     pub only: Option<super::env::Column>,
     pub checkpoint_every_s: f64,
@@ -235,7 +237,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         spec: Arc::new(spec),
         episode_s: cfg.episode_s,
         random: cfg.random,
-        vx: (0.4, 0.8),
+        vx: cfg.vx,
         max_init_level: cfg.max_init_level,
         only: cfg.only,
     };

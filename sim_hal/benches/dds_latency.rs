@@ -6,7 +6,7 @@
 //! C layout → CRC), encode a command (C layout + CRC → CDR) and send it. Also timed on the
 //! controller: arrival (the wait returning) → command handed to the transport.
 //!
-//!     cargo bench -p robot_io --bench dds_latency [-- SAMPLES]
+//!     cargo bench -p sim_hal --bench dds_latency [-- SAMPLES]
 // Test data from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
 use std::io::{BufReader, Write};
