@@ -825,6 +825,17 @@ impl DeploySpec {
     /// and checked again.
     pub fn validate(&self) -> Result<(), SpecError> {
         self.validate_safety()?;
+        self.validate_estimator()?;
+        self.validate_perception()?;
+        self.validate_rates_and_startup()?;
+        let used = self.validate_policy()?;
+        self.validate_held(used)?;
+        self.validate_commands_and_phase()?;
+        self.validate_observation()
+    }
+
+    /// The estimator's contact thresholds and noise figures.
+    fn validate_estimator(&self) -> Result<(), SpecError> {
         let e = &self.estimator;
         let positive = [
             ("estimator.contact_on_force_n", e.contact_on_force_n),
@@ -847,6 +858,11 @@ impl DeploySpec {
                 "must be >= 0 (0 turns the prior off)",
             ));
         }
+        Ok(())
+    }
+
+    /// The lidar mount, self-filter, BEV memory and terrain network.
+    fn validate_perception(&self) -> Result<(), SpecError> {
         let pc = &self.perception;
         if let Err(e) = pc.self_filter() {
             return Err(self.invalid("perception.self_filter", e.to_string()));
@@ -884,6 +900,11 @@ impl DeploySpec {
         if !(pc.fallback_base_height_m.is_finite() && pc.fallback_base_height_m > 0.0) {
             return Err(self.invalid("perception.fallback_base_height_m", "must be > 0"));
         }
+        Ok(())
+    }
+
+    /// Control, policy and perception rates; the start-up ramp and hold.
+    fn validate_rates_and_startup(&self) -> Result<(), SpecError> {
         let r = &self.rates;
         if r.perception_hz == 0 || !r.control_hz.is_multiple_of(r.perception_hz) {
             return Err(self.invalid(
@@ -913,7 +934,12 @@ impl DeploySpec {
                 ),
             ));
         }
+        Ok(())
+    }
 
+    /// The joint map, gains, action scale and clip, network and default pose. Returns the motor
+    /// slots the policy drives (held groups may not drive them too).
+    fn validate_policy(&self) -> Result<[bool; hal::NUM_MOTORS], SpecError> {
         let p = &self.policy;
         let n = p.joint_ids_map.len();
         if n == 0 {
@@ -1045,7 +1071,12 @@ impl DeploySpec {
                 }
             }
         }
+        Ok(used)
+    }
 
+    /// Joints held at a pose outside the policy (the arms, the waist).
+    fn validate_held(&self, mut used: [bool; hal::NUM_MOTORS]) -> Result<(), SpecError> {
+        let margin = self.safety.joint_range_margin_rad;
         for (g, group) in self.held.iter().enumerate() {
             let k = group.joints.len();
             for (j, name) in group.joints.iter().enumerate() {
@@ -1092,7 +1123,11 @@ impl DeploySpec {
                 }
             }
         }
+        Ok(())
+    }
 
+    /// The operator's command limits and the gait phase clock.
+    fn validate_commands_and_phase(&self) -> Result<(), SpecError> {
         for (field, v) in [("commands.min", self.commands.min), ("commands.max", self.commands.max)] {
             let bad = |x: &f32| !(-MAX_COMMAND..=MAX_COMMAND).contains(x);
             if let Some((i, x)) = v.and_then(|v| v.into_iter().enumerate().find(|(_, x)| bad(x))) {
@@ -1123,7 +1158,12 @@ impl DeploySpec {
                 ));
             }
         }
+        Ok(())
+    }
 
+    /// The observation terms, their scales and history, and the network's input size.
+    fn validate_observation(&self) -> Result<(), SpecError> {
+        let n = self.num_joints();
         for (i, t) in self.observation.terms.iter().enumerate() {
             let field = format!("observation.terms[{i}]");
             if !(1..=MAX_OBS_HISTORY).contains(&t.history) {
