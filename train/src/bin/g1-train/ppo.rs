@@ -1,0 +1,211 @@
+//! `g1-train ppo`: Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
+use g1_sim::progress::default_jobs;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The deploy spec to train (its observation, gains, rates and network layout).
+    #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml")]
+    spec: PathBuf,
+    /// g1-12dof (default), g1-29dof (upper body held by the spec's [[held]] groups) or an MJCF.
+    #[arg(long, default_value = "g1-12dof")]
+    model: g1_sim::ModelChoice,
+    /// Run directory: created if missing; a run whose directory holds a checkpoint resumes from it
+    #[arg(long)]
+    out: PathBuf,
+    /// Parallel environments.
+    #[arg(long, default_value_t = 256)]
+    envs: usize,
+    /// Worker threads stepping environments (default: every core).
+    #[arg(long, default_value_t = default_jobs())]
+    threads: usize,
+    /// Total PPO iterations (a resumed run continues up to this count).
+    #[arg(long, default_value_t = 1000)]
+    iterations: usize,
+    /// Policy steps per environment and iteration.
+    #[arg(long, default_value_t = 24)]
+    steps: usize,
+    /// Passes over each rollout.
+    #[arg(long, default_value_t = 4)]
+    epochs: usize,
+    /// Minibatches per pass (of whole environment sequences), as rsl_rl.
+    #[arg(long, default_value_t = 4)]
+    minibatches: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Warm start: an actor with the tensor names of the spec's [policy.network] (its input is
+    /// widened with zero columns for the token), e.g. the peer walker
+    /// ../shared/peer_policy/unitree_g1_lstm/policy.safetensors for the LSTM spec. Ignored when
+    /// resuming.
+    #[arg(long)]
+    init_actor: Option<PathBuf>,
+    /// Hidden sizes of a fresh actor, one per linear/lstm layer of the spec's network but the
+    /// last, e.g. 128,64,64 for specs/stairs/g1_stairs_mlp.toml or 64,32 for the LSTM spec.
+    /// Needed without --init-actor on a new run; resuming and warm starts take the weights'.
+    #[arg(long, value_delimiter = ',')]
+    actor_hidden: Vec<usize>,
+    /// Also learn every transition mirrored left–right (the G1's symmetry: twice the data per
+    /// simulated step; feed-forward actors only).
+    #[arg(long)]
+    symmetry: bool,
+    /// Initial action noise standard deviation (actions are in units of action_scale).
+    #[arg(long, default_value_t = 0.3)]
+    init_std: f64,
+    /// Iterations that train only the critic (after a warm start).
+    #[arg(long, default_value_t = 10)]
+    critic_warmup: usize,
+    /// Starting learning rate (adaptive KL from there).
+    #[arg(long, default_value_t = 1e-4)]
+    lr: f64,
+    #[arg(long, default_value_t = 0.005)]
+    entropy_coef: f64,
+    /// Episode length, s (long enough for the longest staircase at the slowest command:
+    /// up to 2 m + 8 × 0.4 m + 0.5 m at 0.4 m/s is 14 s).
+    #[arg(long, default_value_t = 20.0)]
+    episode_s: f64,
+    /// Highest curriculum level environments start at (0: 5 cm steps … 10: 26 cm).
+    #[arg(long, default_value_t = 2)]
+    max_init_level: usize,
+    /// Forward speed commands, m/s, drawn uniformly per episode: MIN,MAX (runs up to 11 used
+    /// 0.4,0.8; below 0.4 such policies stood at the first riser).
+    #[arg(long, value_name = "MIN,MAX", default_value = "0.3,0.8", value_parser = parse_vx_range)]
+    vx: (f64, f64),
+    /// No observation/token noise, latency or pushes (tests).
+    #[arg(long)]
+    no_randomization: bool,
+    /// Train on one terrain column only (default: the curriculum's mix of flat 15 %, stairs
+    /// up 30 %, down 30 %, irregular outdoor up and down 12.5 % each).
+    #[arg(long, value_enum)]
+    only: Option<train::ppo::env::Column>,
+    /// Checkpoint at least this often, s.
+    #[arg(long, default_value_t = 120.0)]
+    checkpoint_every: f64,
+    /// Stop (after a checkpoint) once this run has spent this many seconds.
+    #[arg(long, default_value_t = f64::INFINITY)]
+    max_wall: f64,
+    /// Judge every Nth checkpoint through g1fw (up and down at 12, 16 and 20 cm, 2 episodes
+    /// each, and a flat run, with perception and the spec's terrain estimator; ~1 min):
+    /// judge.json, best.safetensors and the points in curves.png. 0: never.
+    #[arg(long, default_value_t = 5)]
+    judge_every: usize,
+    #[arg(long)]
+    quiet: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let Args {
+        spec,
+        model,
+        out,
+        envs,
+        threads,
+        iterations,
+        steps,
+        epochs,
+        minibatches,
+        seed,
+        init_actor,
+        actor_hidden,
+        symmetry,
+        init_std,
+        critic_warmup,
+        lr,
+        entropy_coef,
+        episode_s,
+        max_init_level,
+        vx,
+        no_randomization,
+        only,
+        checkpoint_every,
+        max_wall,
+        judge_every,
+        quiet,
+    } = args;
+    tracing_subscriber::fmt().with_writer(std::io::stderr).init();
+    // Counts that size allocations are bounded before anything is built: each environment
+    // holds its own MuJoCo model (~80 MB), each rollout steps × envs rows.
+    let bounded = |flag: &str, v: usize, lo: usize, hi: usize| -> anyhow::Result<()> {
+        anyhow::ensure!((lo..=hi).contains(&v), "{flag} must be {lo} to {hi} (got {v})");
+        Ok(())
+    };
+    bounded("--envs", envs, 2, 4096)?;
+    bounded("--threads", threads, 1, 256)?;
+    bounded("--steps", steps, 1, 10_000)?;
+    bounded("--epochs", epochs, 1, 100)?;
+    bounded("--minibatches", minibatches, 1, envs)?;
+    anyhow::ensure!(
+        lr.is_finite()
+            && lr > 0.0
+            && init_std.is_finite()
+            && init_std > 0.0
+            && episode_s.is_finite()
+            && episode_s > 0.0,
+        "--lr, --init-std and --episode-s must be positive numbers"
+    );
+    let judge_model = model.to_string();
+    let cfg = train::ppo::runner::RunConfig {
+        spec,
+        model,
+        out: out.clone(),
+        envs,
+        threads,
+        iterations,
+        seed,
+        init_actor,
+        actor_hidden,
+        symmetry,
+        init_std,
+        critic_warmup,
+        episode_s,
+        ppo: train::ppo::algo::PpoConfig {
+            steps,
+            epochs,
+            minibatches,
+            lr,
+            entropy_coef,
+            ..Default::default()
+        },
+        random: if no_randomization {
+            train::ppo::env::Randomization::NONE
+        } else {
+            train::ppo::env::Randomization::DEFAULT
+        },
+        max_init_level,
+        vx,
+        only,
+        checkpoint_every_s: checkpoint_every,
+        quiet,
+        max_wall_s: max_wall,
+        judge: train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model),
+    };
+    let history = train::ppo::runner::train(&cfg)?;
+    if let Some(l) = history.last() {
+        println!(
+            "iteration {}: {} env steps in {:.0} s ({:.0} steps/s, learner {:.0} % of wall time); \
+                 reward/step {:+.3}, level {:.2}; curves in {}",
+            l.iteration,
+            l.env_steps,
+            l.wall_s,
+            l.env_steps_per_s,
+            100.0 * l.learner_share,
+            l.mean_reward_per_step,
+            l.mean_level,
+            out.join(train::ppo::runner::CURVES).display()
+        );
+    }
+    Ok(())
+}
+
+/// `--vx MIN,MAX`: a forward speed range, m/s.
+fn parse_vx_range(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("'{s}': give MIN,MAX in m/s with 0 <= MIN <= MAX <= 2, e.g. 0.3,0.8");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if !(0.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
