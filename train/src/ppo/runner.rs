@@ -155,68 +155,18 @@ fn rollout(slots: &mut [Slot], log_std: &[f32], steps: usize, obs_dim: usize, cr
     Ok(())
 }
 
+/// The training loop: start (or resume), then iterations of a pipelined rollout and update, each
+/// logged, checkpointed every few minutes and judged through `g1fw` every few checkpoints.
 pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
     let spec =
         DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
-    let obs_dim = spec.observation_dim();
-    let act_dim = spec.num_joints();
-    let critic_dim = obs_dim + CRITIC_EXTRA;
-    let ckpt = cfg.out.join(CHECKPOINT);
-    let state_path = cfg.out.join(STATE);
-    let resuming = ckpt.exists() && state_path.exists();
-    // The actor's layers are the spec's; their sizes come from the weights it continues from.
-    let sized_by = if resuming {
-        Some(ckpt.clone())
-    } else {
-        cfg.init_actor.clone()
+    let dims = Dims {
+        obs: spec.observation_dim(),
+        act: spec.num_joints(),
+        critic: spec.observation_dim() + CRITIC_EXTRA,
     };
-    let bytes = match &sized_by {
-        Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
-        None => None,
-    };
-    let sizes = match &bytes {
-        Some(b) => Sizes::Weights(b),
-        None => Sizes::Hidden(&cfg.actor_hidden),
-    };
-    let arch = ActorArch::from_desc(&spec.policy.network, act_dim, sizes)
-        .with_context(|| format!("the actor of {}", cfg.spec.display()))?;
-    let mut ac = ActorCritic::with_arch(arch, critic_dim, cfg.init_std, cfg.seed)?;
-    let mut history: Vec<IterLog> = Vec::new();
-    let mut state = if resuming {
-        ac.load(&ckpt)?;
-        let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
-        if let Ok(h) = std::fs::read_to_string(cfg.out.join(HISTORY)) {
-            history = serde_json::from_str(&h).unwrap_or_default();
-        }
-        tracing::info!(
-            "resuming {} at iteration {} ({} env steps)",
-            cfg.out.display(),
-            st.iteration,
-            st.env_steps
-        );
-        st
-    } else {
-        let started_from = match &cfg.init_actor {
-            Some(p) => {
-                ac.load_actor_widened(p)?;
-                format!(
-                    "actor warm-started from {} (input widened by the token at zero weight)",
-                    p.display()
-                )
-            }
-            None => "random initialisation".to_string(),
-        };
-        RunState {
-            iteration: 0,
-            env_steps: 0,
-            wall_s: 0.0,
-            lr: cfg.ppo.lr,
-            normalizer: Normalizer::new(critic_dim),
-            levels: Vec::new(),
-            started_from,
-        }
-    };
+    let (ac, mut state, mut history) = start_or_resume(cfg, &spec, dims)?;
     let mirror = if cfg.symmetry {
         Some(super::symmetry::Mirror::from_spec(
             &spec,
@@ -225,44 +175,16 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     } else {
         None
     };
-    let weights = ac.actor_safetensors()?;
     // The export beside the checkpoint carries the spec's weights file name.
     let weights_name = spec
         .policy
         .weights
         .file_name()
         .map_or_else(|| "policy.safetensors".into(), |n| n.to_os_string());
-    let env_cfg = EnvConfig {
-        model: cfg.model.clone(),
-        spec: Arc::new(spec),
-        episode_s: cfg.episode_s,
-        random: cfg.random,
-        vx: cfg.vx,
-        max_init_level: cfg.max_init_level,
-        only: cfg.only,
-    };
-    let bar = g1_sim::progress::bar(cfg.envs, cfg.quiet, "creating environments");
-    let mut slots = Vec::with_capacity(cfg.envs);
-    for i in 0..cfg.envs {
-        let seed = cfg
-            .seed
-            .wrapping_mul(1_000_003)
-            .wrapping_add(i as u64 + state.iteration as u64 * 7919);
-        let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
-        if let Some(&l) = state.levels.get(i) {
-            env.level = l.min(LEVELS - 1);
-        }
-        slots.push(Slot {
-            env,
-            roll: EnvRollout::new(cfg.ppo.steps, obs_dim, critic_dim, act_dim, ac.state_len()),
-            rng: Rng(seed ^ 0xAC7_10A5),
-            ends: Vec::new(),
-        });
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
+    let mut slots = make_envs(cfg, spec, &ac, &state, dims)?;
     let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed ^ state.iteration as u64, mirror)?;
     learner.lr = state.lr;
+    let mut pipe = Pipeline::new(slots.len(), state.iteration)?;
 
     let start = Instant::now();
     let wall0 = state.wall_s;
@@ -270,130 +192,15 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let mut checkpoints = 0usize;
     let bar = g1_sim::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
-    let threads = cfg.threads.max(1);
-    // The environments form two halves that take turns: while one half rolls out on the worker
-    // threads with the newest weights, the learner (this thread) updates on the other half's
-    // rollout, which is one update old (PPO's ratio and clip take the lag). There is a worker per
-    // core, so a cheap update (an MLP) leaves every core to the simulation, and an expensive one
-    // (the LSTM's recurrent replay) still overlaps it.
-    let half = slots.len() / 2;
-    anyhow::ensure!(half > 0, "--envs must be at least 2 (two halves take turns)");
-    let workers = threads;
-    let mut have_data = [false; 2];
-    let mut turn = state.iteration % 2;
     while state.iteration < cfg.iterations {
-        let t0 = Instant::now();
-        let log_std: Vec<f32> = ac.log_std().to_vec1()?;
-        let (first, second) = slots.split_at_mut(half);
-        let (rolling, learning) = if turn == 0 { (first, second) } else { (second, first) };
-        let learn_idx = 1 - turn;
-        let mut rolls: Vec<EnvRollout> = learning
-            .iter_mut()
-            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0, 0)))
-            .collect();
-        let per = rolling.len().div_ceil(workers);
-        let critic_only = state.iteration < cfg.critic_warmup;
-        let (results, learned) = std::thread::scope(|s| {
-            let handles: Vec<_> = rolling
-                .chunks_mut(per)
-                .map(|chunk| {
-                    let ls = &log_std;
-                    s.spawn(move || {
-                        let t = Instant::now();
-                        let r = rollout(chunk, ls, cfg.ppo.steps, obs_dim, critic_dim);
-                        (r, t.elapsed().as_secs_f64())
-                    })
-                })
-                .collect();
-            let learned = if have_data[learn_idx] {
-                let t1 = Instant::now();
-                let r = (|| -> anyhow::Result<UpdateStats> {
-                    for r in &rolls {
-                        state.normalizer.update(&r.critic_obs);
-                    }
-                    compute_gae(&ac, &state.normalizer, &mut rolls, &cfg.ppo)?;
-                    Ok(learner.update(&ac, &state.normalizer, &rolls, critic_only)?)
-                })();
-                Some((r, t1.elapsed().as_secs_f64()))
-            } else {
-                None
-            };
-            let results: Vec<(anyhow::Result<()>, f64)> = handles
-                .into_iter()
-                .map(|h| h.join().expect("rollout worker panicked"))
-                .collect();
-            (results, learned)
-        });
-        let mut t_rollout = 0.0f64;
-        for (r, t) in results {
-            r?;
-            t_rollout = t_rollout.max(t);
-        }
-        have_data[turn] = true;
-        let t_iter = t0.elapsed().as_secs_f64();
-        let (stats, t_learn) = match learned {
-            Some((r, t)) => (r?, t),
-            None => (UpdateStats::default(), 0.0),
-        };
-        if t_learn > 0.0 {
-            let weights = ac.actor_safetensors()?;
-            for s in slots.iter_mut() {
-                s.env.set_weights(&weights)?;
-            }
-        }
-        let mean_reward = rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>()
-            / ((cfg.ppo.steps * rolls.len()) as f64).max(1.0);
-        let learned_envs: &mut [Slot] = if turn == 0 {
-            &mut slots[half..]
-        } else {
-            &mut slots[..half]
-        };
-        for (s, r) in learned_envs.iter_mut().zip(rolls.drain(..)) {
-            s.roll = r;
-        }
-        turn = 1 - turn;
-        if t_learn == 0.0 {
+        let Some(step) = pipe.step(cfg, &mut slots, &ac, &mut learner, &mut state, dims)? else {
             continue; // nothing learned yet: the first half-rollout only primes the pipeline
-        }
-        let steps = (cfg.ppo.steps * half) as u64;
-        state.env_steps += steps;
+        };
+        state.env_steps += step.env_steps;
         state.iteration += 1;
         state.lr = learner.lr;
-        let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
-        let stair_ends: Vec<_> = ends
-            .iter()
-            .filter(|e| e.column != Some(super::env::Column::Flat))
-            .collect();
-        let log = IterLog {
-            iteration: state.iteration,
-            env_steps: state.env_steps,
-            wall_s: wall0 + start.elapsed().as_secs_f64(),
-            mean_reward_per_step: mean_reward,
-            episodes: ends.len(),
-            mean_episode_return: (!ends.is_empty())
-                .then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
-            success_rate: (!stair_ends.is_empty())
-                .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
-            fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
-            fall_causes: (0..super::env::FALL_CAUSES.len())
-                .map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count())
-                .collect(),
-            mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
-            env_steps_per_s: steps as f64 / t_iter,
-            learner_share: t_learn / t_iter,
-            rollout_s: t_rollout,
-            update_s: t_learn,
-            update: stats,
-        };
-        bar.set_message(format!(
-            "{:.0} steps/s  reward/step {:+.3}  return {}  level {:.2}  success {}  falls {}",
-            log.env_steps_per_s,
-            log.mean_reward_per_step,
-            log.mean_episode_return.map_or("-".into(), |v| format!("{v:.2}")),
-            log.mean_level,
-            log.success_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
-            log.fall_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
-        ));
+        let log = iteration_log(&mut slots, &state, step, wall0 + start.elapsed().as_secs_f64());
+        bar.set_message(log.summary());
         bar.inc(1);
         if cfg.quiet {
             tracing::info!(?log, "iteration");
@@ -421,6 +228,289 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     }
     bar.finish();
     Ok(history)
+}
+
+/// Widths of the actor's observation, the action and the critic's observation.
+#[derive(Clone, Copy)]
+struct Dims {
+    obs: usize,
+    act: usize,
+    critic: usize,
+}
+
+/// The actor-critic, run state and history: from `--out`'s checkpoint when there is one, else new
+/// (warm-started from `--init-actor` when given).
+fn start_or_resume(
+    cfg: &RunConfig,
+    spec: &DeploySpec,
+    dims: Dims,
+) -> anyhow::Result<(ActorCritic, RunState, Vec<IterLog>)> {
+    let ckpt = cfg.out.join(CHECKPOINT);
+    let state_path = cfg.out.join(STATE);
+    let resuming = ckpt.exists() && state_path.exists();
+    // The actor's layers are the spec's; their sizes come from the weights it continues from.
+    let sized_by = if resuming {
+        Some(ckpt.clone())
+    } else {
+        cfg.init_actor.clone()
+    };
+    let bytes = match &sized_by {
+        Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
+        None => None,
+    };
+    let sizes = match &bytes {
+        Some(b) => Sizes::Weights(b),
+        None => Sizes::Hidden(&cfg.actor_hidden),
+    };
+    let arch = ActorArch::from_desc(&spec.policy.network, dims.act, sizes)
+        .with_context(|| format!("the actor of {}", cfg.spec.display()))?;
+    let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std, cfg.seed)?;
+    if resuming {
+        ac.load(&ckpt)?;
+        let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
+        let history = std::fs::read_to_string(cfg.out.join(HISTORY))
+            .map(|h| serde_json::from_str(&h).unwrap_or_default())
+            .unwrap_or_default();
+        tracing::info!(
+            "resuming {} at iteration {} ({} env steps)",
+            cfg.out.display(),
+            st.iteration,
+            st.env_steps
+        );
+        return Ok((ac, st, history));
+    }
+    let started_from = match &cfg.init_actor {
+        Some(p) => {
+            ac.load_actor_widened(p)?;
+            format!(
+                "actor warm-started from {} (input widened by the token at zero weight)",
+                p.display()
+            )
+        }
+        None => "random initialisation".to_string(),
+    };
+    let state = RunState {
+        iteration: 0,
+        env_steps: 0,
+        wall_s: 0.0,
+        lr: cfg.ppo.lr,
+        normalizer: Normalizer::new(dims.critic),
+        levels: Vec::new(),
+        started_from,
+    };
+    Ok((ac, state, Vec::new()))
+}
+
+/// `cfg.envs` environments with the actor's weights, at the levels a resumed run left them.
+fn make_envs(
+    cfg: &RunConfig,
+    spec: DeploySpec,
+    ac: &ActorCritic,
+    state: &RunState,
+    dims: Dims,
+) -> anyhow::Result<Vec<Slot>> {
+    let weights = ac.actor_safetensors()?;
+    let env_cfg = EnvConfig {
+        model: cfg.model.clone(),
+        spec: Arc::new(spec),
+        episode_s: cfg.episode_s,
+        random: cfg.random,
+        vx: cfg.vx,
+        max_init_level: cfg.max_init_level,
+        only: cfg.only,
+    };
+    let bar = g1_sim::progress::bar(cfg.envs, cfg.quiet, "creating environments");
+    let mut slots = Vec::with_capacity(cfg.envs);
+    for i in 0..cfg.envs {
+        let seed = cfg
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(i as u64 + state.iteration as u64 * 7919);
+        let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
+        if let Some(&l) = state.levels.get(i) {
+            env.level = l.min(LEVELS - 1);
+        }
+        slots.push(Slot {
+            env,
+            roll: EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, ac.state_len()),
+            rng: Rng(seed ^ 0xAC7_10A5),
+            ends: Vec::new(),
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(slots)
+}
+
+/// What one pipelined step learned, and how long its parts took.
+struct Step {
+    env_steps: u64,
+    stats: UpdateStats,
+    mean_reward: f64,
+    t_iter: f64,
+    t_rollout: f64,
+    t_learn: f64,
+}
+
+/// The environments form two halves that take turns: while one half rolls out on the worker
+/// threads with the newest weights, the learner (this thread) updates on the other half's rollout,
+/// which is one update old (PPO's ratio and clip take the lag). There is a worker per core, so a
+/// cheap update (an MLP) leaves every core to the simulation, and an expensive one (the LSTM's
+/// recurrent replay) still overlaps it.
+struct Pipeline {
+    half: usize,
+    have_data: [bool; 2],
+    turn: usize,
+}
+
+impl Pipeline {
+    fn new(envs: usize, iteration: usize) -> anyhow::Result<Self> {
+        let half = envs / 2;
+        anyhow::ensure!(half > 0, "--envs must be at least 2 (two halves take turns)");
+        Ok(Self {
+            half,
+            have_data: [false; 2],
+            turn: iteration % 2,
+        })
+    }
+
+    /// One half rolls out while the learner updates on the other; `None` until both halves have
+    /// data (the first call only primes the pipeline).
+    fn step(
+        &mut self,
+        cfg: &RunConfig,
+        slots: &mut [Slot],
+        ac: &ActorCritic,
+        learner: &mut Learner,
+        state: &mut RunState,
+        dims: Dims,
+    ) -> anyhow::Result<Option<Step>> {
+        let t0 = Instant::now();
+        let log_std: Vec<f32> = ac.log_std().to_vec1()?;
+        let (first, second) = slots.split_at_mut(self.half);
+        let (rolling, learning) = if self.turn == 0 {
+            (first, second)
+        } else {
+            (second, first)
+        };
+        let learn_idx = 1 - self.turn;
+        let mut rolls: Vec<EnvRollout> = learning
+            .iter_mut()
+            .map(|s| std::mem::replace(&mut s.roll, EnvRollout::new(0, 0, 0, 0, 0)))
+            .collect();
+        let per = rolling.len().div_ceil(cfg.threads.max(1));
+        let critic_only = state.iteration < cfg.critic_warmup;
+        let have_data = self.have_data[learn_idx];
+        let (results, learned) = std::thread::scope(|s| {
+            let handles: Vec<_> = rolling
+                .chunks_mut(per)
+                .map(|chunk| {
+                    let ls = &log_std;
+                    s.spawn(move || {
+                        let t = Instant::now();
+                        let r = rollout(chunk, ls, cfg.ppo.steps, dims.obs, dims.critic);
+                        (r, t.elapsed().as_secs_f64())
+                    })
+                })
+                .collect();
+            let learned = have_data.then(|| {
+                let t1 = Instant::now();
+                let r = (|| -> anyhow::Result<UpdateStats> {
+                    for r in &rolls {
+                        state.normalizer.update(&r.critic_obs);
+                    }
+                    compute_gae(ac, &state.normalizer, &mut rolls, &cfg.ppo)?;
+                    Ok(learner.update(ac, &state.normalizer, &rolls, critic_only)?)
+                })();
+                (r, t1.elapsed().as_secs_f64())
+            });
+            let results: Vec<(anyhow::Result<()>, f64)> = handles
+                .into_iter()
+                .map(|h| h.join().expect("rollout worker panicked"))
+                .collect();
+            (results, learned)
+        });
+        let mut t_rollout = 0.0f64;
+        for (r, t) in results {
+            r?;
+            t_rollout = t_rollout.max(t);
+        }
+        self.have_data[self.turn] = true;
+        let t_iter = t0.elapsed().as_secs_f64();
+        let (stats, t_learn) = match learned {
+            Some((r, t)) => (r?, t),
+            None => (UpdateStats::default(), 0.0),
+        };
+        if t_learn > 0.0 {
+            let weights = ac.actor_safetensors()?;
+            for s in slots.iter_mut() {
+                s.env.set_weights(&weights)?;
+            }
+        }
+        let mean_reward = rolls.iter().flat_map(|r| &r.rewards).map(|&x| x as f64).sum::<f64>()
+            / ((cfg.ppo.steps * rolls.len()) as f64).max(1.0);
+        let learned_envs: &mut [Slot] = if self.turn == 0 {
+            &mut slots[self.half..]
+        } else {
+            &mut slots[..self.half]
+        };
+        for (s, r) in learned_envs.iter_mut().zip(rolls.drain(..)) {
+            s.roll = r;
+        }
+        self.turn = 1 - self.turn;
+        Ok((t_learn > 0.0).then(|| Step {
+            env_steps: (cfg.ppo.steps * self.half) as u64,
+            stats,
+            mean_reward,
+            t_iter,
+            t_rollout,
+            t_learn,
+        }))
+    }
+}
+
+/// The iteration's figures, from the episodes that ended since the last one.
+fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
+    let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
+    let stair_ends: Vec<_> = ends
+        .iter()
+        .filter(|e| e.column != Some(super::env::Column::Flat))
+        .collect();
+    IterLog {
+        iteration: state.iteration,
+        env_steps: state.env_steps,
+        wall_s,
+        mean_reward_per_step: step.mean_reward,
+        episodes: ends.len(),
+        mean_episode_return: (!ends.is_empty()).then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
+        success_rate: (!stair_ends.is_empty())
+            .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
+        fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
+        fall_causes: (0..super::env::FALL_CAUSES.len())
+            .map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count())
+            .collect(),
+        mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
+        env_steps_per_s: step.env_steps as f64 / step.t_iter,
+        learner_share: step.t_learn / step.t_iter,
+        rollout_s: step.t_rollout,
+        update_s: step.t_learn,
+        update: step.stats,
+    }
+}
+
+impl IterLog {
+    /// One line for the progress bar.
+    fn summary(&self) -> String {
+        format!(
+            "{:.0} steps/s  reward/step {:+.3}  return {}  level {:.2}  success {}  falls {}",
+            self.env_steps_per_s,
+            self.mean_reward_per_step,
+            self.mean_episode_return.map_or("-".into(), |v| format!("{v:.2}")),
+            self.mean_level,
+            self.success_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+            self.fall_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+        )
+    }
 }
 
 fn save(
