@@ -51,3 +51,13 @@ pub use input_file::text;
 /// Every input file is read through these: regular files only (a FIFO, device or directory is
 /// refused without blocking), size-capped before allocating (the `input_file` crate).
 pub use input_file::{read_capped, read_text_capped};
+
+/// The text of a panic payload (`panic!` with a literal or a formatted message): what the control
+/// loop's guard and the perception worker report.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic with a non-text payload".into())
+}

@@ -22,7 +22,8 @@ use hal::{PointFrame, TerrainToken};
 use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter};
 use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 
-use crate::runtime::Estimate;
+/// The state estimate of one tick (attitude, base velocity and height, foot contacts).
+pub type Estimate = estimator::BaseEstimate;
 use crate::spec::{PerceptionSpec, TerrainEstimatorKind};
 use crate::terrain_net::TerrainNet;
 

@@ -12,7 +12,7 @@
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 
-use crate::runtime::Estimate;
+use crate::perception::Estimate;
 
 use crate::perception::{Perception, PerceptionSummary};
 
@@ -183,7 +183,7 @@ fn work(shared: &Shared) {
             match step {
                 Ok(summary) => slot.done = Some((job.perception, summary)),
                 Err(payload) => {
-                    slot.failed = Some(crate::runtime::panic_message(payload.as_ref()));
+                    slot.failed = Some(crate::panic_message(payload.as_ref()));
                     shared.changed.notify_all();
                     return;
                 }

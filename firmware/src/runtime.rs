@@ -31,8 +31,7 @@ use crate::perception_worker::{PerceptionExec, PerceptionWorker};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use estimator::StateEstimator;
 
-/// The state estimate of one tick (attitude, base velocity and height, foot contacts).
-pub type Estimate = estimator::BaseEstimate;
+pub use crate::perception::Estimate;
 
 /// Compute time of each group this tick, ns (0 when the group did not run).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -736,14 +735,7 @@ pub enum LoopEnd {
 #[cfg(panic = "abort")]
 compile_error!("g1fw's control-loop panic guard needs panic = \"unwind\" (the default); do not set abort");
 
-/// The text of a panic payload (`panic!` with a literal or a formatted message).
-pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
-    payload
-        .downcast_ref::<&str>()
-        .map(|s| s.to_string())
-        .or_else(|| payload.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "a panic with a non-text payload".into())
-}
+pub use crate::panic_message;
 
 /// Drives `runtime` from `hal` until tick `last_tick` (inclusive; no command is written on it, so a
 /// lock-stepped simulator stops there), the observer returns `false`, or the HAL fails.

@@ -650,7 +650,7 @@ impl DeploySpec {
 
     /// Parses and validates; `path` locates relative files and names the spec in errors.
     pub fn from_toml(text: &str, path: &Path) -> Result<Self, SpecError> {
-        let mut spec = Self::parse(text, path)?;
+        let mut spec = Self::parse_unvalidated(text, path)?;
         spec.validate()?;
         if let Some(model) = &spec.estimator.model {
             let file = spec.base_dir.join(model);
@@ -667,8 +667,9 @@ impl DeploySpec {
         Ok(spec)
     }
 
-    /// The TOML alone, not validated.
-    fn parse(text: &str, path: &Path) -> Result<Self, SpecError> {
+    /// The TOML alone, not validated (the fuzz harness, `controller::fuzz_deploy_spec`, starts here).
+    #[doc(hidden)]
+    pub fn parse_unvalidated(text: &str, path: &Path) -> Result<Self, SpecError> {
         if text.len() > MAX_SPEC_BYTES {
             return Err(SpecError::Parse {
                 path: path.into(),
@@ -1233,44 +1234,5 @@ impl DeploySpec {
             ));
         }
         Ok(())
-    }
-}
-
-/// Fuzz harness (the `deploy_spec` cargo-fuzz target and the stable `fuzz_smoke` test): the bytes
-/// before the first NUL are a deploy spec, the bytes after it a weight file. A spec that validates
-/// builds what `g1fw check-spec` builds (the controller, its observation, the warnings) and, if the
-/// weights load against its network, the controller with them. Paths inside the spec are not
-/// followed: the MJCF and terrain-network loaders have their own limits, and a fuzzer must not read
-/// the disk.
-#[doc(hidden)]
-pub fn fuzz_deploy_spec(data: &[u8]) {
-    let (text, weights) = match data.iter().position(|&b| b == 0) {
-        Some(i) => (&data[..i], Some(&data[i + 1..])),
-        None => (data, None),
-    };
-    let Ok(text) = std::str::from_utf8(text) else {
-        return;
-    };
-    let Ok(mut spec) = DeploySpec::parse(text, Path::new("/nonexistent/g1fw-fuzz/spec.toml")) else {
-        return;
-    };
-    spec.estimator.model = None;
-    spec.perception.terrain_network = None;
-    spec.perception.terrain_weights = None;
-    if spec.validate().is_err() {
-        return;
-    }
-    let dim = spec.observation_dim();
-    assert!(dim <= MAX_OBSERVATION_DIM && dim == spec.policy.network.input);
-    let _ = spec.explicit_pd_warnings();
-    let _ = spec.estimator.config();
-    let _ = spec.perception.self_filter().expect("validated");
-    let c = crate::controller::Controller::hold_only(spec.clone());
-    assert_eq!(c.observation().len(), dim);
-    if let Some(w) = weights {
-        if let Ok(net) = crate::nn::Network::from_safetensors_bytes(&spec.policy.network, w) {
-            assert_eq!(net.input_dim(), dim);
-            let _ = crate::controller::Controller::with_network(spec, net);
-        }
     }
 }

@@ -12,6 +12,9 @@ use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CHANNELS};
 
 use crate::nn::{Network, NetworkDesc, NnError};
 
+/// Largest network description read (the deploy spec's own cap).
+const MAX_DESC_BYTES: u64 = 1 << 20;
+
 /// The committed, trained network (see `firmware/weights/README.md` for how it was made).
 pub const EMBEDDED_WEIGHTS: &[u8] = include_bytes!("../weights/terrain_cnn.safetensors");
 pub const EMBEDDED_DESC: &str = include_str!("../weights/terrain_cnn.toml");
@@ -63,7 +66,7 @@ impl TerrainNet {
             source,
         };
         // A description is a few hundred bytes; the spec's limit is ample.
-        let bytes = crate::read_capped(desc_path, crate::spec::MAX_SPEC_BYTES as u64).map_err(read)?;
+        let bytes = crate::read_capped(desc_path, MAX_DESC_BYTES).map_err(read)?;
         let text =
             String::from_utf8(bytes).map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
         let desc = parse_desc(&text, &desc_path.display().to_string())?;

@@ -166,7 +166,7 @@ fn bridge_protocol() {
 
 #[test]
 fn deploy_spec() {
-    smoke("deploy_spec", firmware::spec::fuzz_deploy_spec);
+    smoke("deploy_spec", firmware::controller::fuzz_deploy_spec);
 }
 
 #[test]

@@ -337,7 +337,7 @@ where
 /// per kind and step height, points on their own axis); x: env steps and wall time.
 pub fn ppo_curves_png(
     path: &Path,
-    log: &[crate::ppo::runner::IterLog],
+    log: &[crate::ppo::iter_log::IterLog],
     judged: &[crate::ppo::judge::Judgement],
 ) -> anyhow::Result<()> {
     check_png(path)?;
@@ -346,7 +346,7 @@ pub fn ppo_curves_png(
     let areas = root.split_evenly((3, 2));
     let xmax = log.last().map_or(1.0, |l| l.env_steps as f64 / 1e6).max(1e-3);
     let x = (0.0, xmax);
-    let series = |f: &dyn Fn(&crate::ppo::runner::IterLog) -> Option<f64>| -> Vec<(f64, f64)> {
+    let series = |f: &dyn Fn(&crate::ppo::iter_log::IterLog) -> Option<f64>| -> Vec<(f64, f64)> {
         log.iter()
             .filter_map(|l| f(l).map(|v| (l.env_steps as f64 / 1e6, v)))
             .collect()

@@ -13,6 +13,7 @@
 pub mod algo;
 pub mod env;
 pub mod in_env;
+pub mod iter_log;
 pub mod judge;
 pub mod policy;
 pub mod reward;

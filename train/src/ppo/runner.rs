@@ -59,32 +59,7 @@ pub struct RunConfig {
     pub judge: super::judge::JudgeConfig,
 }
 
-/// One iteration's figures (history.json, curves.png).
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-pub struct IterLog {
-    pub iteration: usize,
-    pub env_steps: u64,
-    pub wall_s: f64,
-    pub mean_reward_per_step: f64,
-    pub episodes: usize,
-    pub mean_episode_return: Option<f64>,
-    pub success_rate: Option<f64>,
-    pub fall_rate: Option<f64>,
-    /// Falls by cause, in the order of `env::FALL_CAUSES` (tilt, joint speed, base height, base
-    /// angular speed; histories written before the last was added have three).
-    #[serde(default)]
-    pub fall_causes: Vec<usize>,
-    pub mean_level: f64,
-    pub env_steps_per_s: f64,
-    pub learner_share: f64,
-    /// Wall time of this iteration's rollouts (the slowest worker) and of the update, s. They
-    /// overlap: the iteration takes about the longer of the two.
-    #[serde(default)]
-    pub rollout_s: f64,
-    #[serde(default)]
-    pub update_s: f64,
-    pub update: UpdateStats,
-}
+pub use super::iter_log::IterLog;
 
 /// What resumes a run (beside the weights in checkpoint.safetensors).
 #[derive(Clone, Debug, Serialize, Deserialize)]
