@@ -260,7 +260,7 @@ fn check(field: &'static str, value: f64, lo: f64, hi: f64) -> Result<(), WorldE
                 _ if field == "step_height" => "must be within 0.03..0.30 m",
                 _ if field == "step_depth" => "must be within 0.15..0.60 m",
                 _ if field == "yaw_deg" => "must be within ±60 degrees",
-                _ => "out of range (see the scenario documentation in sim_hal/sim/src/world.rs)",
+                _ => "out of range (see the scenario documentation in sim/src/world.rs)",
             },
         })
     }

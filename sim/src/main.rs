@@ -120,7 +120,7 @@ struct Cli {
     faults: Vec<String>,
 
     /// Terrain world: a preset (flat, stairs-up, stairs-down, outdoor), a scenario file (.toml, see
-    /// sim_hal/sim/src/world.rs) or random:SEED. The robot starts at the origin facing +x; ground
+    /// sim/src/world.rs) or random:SEED. The robot starts at the origin facing +x; ground
     /// truth (terrain class, step height and depth, yaw to the stairs) goes out with `Truth`.
     #[arg(long, value_name = "PRESET|FILE.toml|random:SEED")]
     world: Option<String>,

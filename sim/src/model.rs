@@ -76,7 +76,7 @@ impl std::fmt::Display for ModelChoice {
 pub fn deps_dir() -> PathBuf {
     match std::env::var_os("G1_DEPS_DIR") {
         Some(d) if !d.is_empty() => PathBuf::from(d),
-        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../.deps")),
+        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../.deps")),
     }
 }
 
@@ -84,7 +84,7 @@ pub fn deps_dir() -> PathBuf {
 pub fn shared_dir() -> PathBuf {
     match std::env::var_os("G1_SHARED_DIR") {
         Some(d) if !d.is_empty() => PathBuf::from(d),
-        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared")),
+        _ => PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared")),
     }
 }
 

@@ -289,7 +289,7 @@ fn near_riser(world: &World, w: [f64; 3]) -> bool {
 
 #[test]
 fn committed_scenario_files_load() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../specs/worlds");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/worlds");
     let mut n = 0;
     for entry in std::fs::read_dir(&dir).expect("specs/worlds exists") {
         let path = entry.unwrap().path();
