@@ -33,14 +33,11 @@
 //! bit-identical states (optional IMU noise comes from a seeded PRNG).
 // The simulator never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
-pub mod dataset;
 pub mod dds_serve;
 pub mod faults;
 pub mod lidar;
 pub mod model;
 pub mod model_cache;
-pub mod progress;
-pub mod rng;
 pub mod server;
 pub mod slots;
 pub mod world;
@@ -48,10 +45,10 @@ pub mod world;
 use std::path::PathBuf;
 
 use hal::{ImuState, LowCommand, LowState, MotorState, MOTOR_MODE_ENABLED, NUM_MOTORS};
+use labkit::rng::Rng;
 pub use model::{ModelChoice, PhysicsProfile};
 use model::{PoolGeom, SlotMap};
 use mujoco_rs::prelude::*;
-use rng::Rng;
 pub use sim_hal::bridge::Truth;
 
 /// Keeps MuJoCo from writing `MUJOCO_LOG.TXT` into the working directory: its warnings still go to

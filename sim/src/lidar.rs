@@ -15,8 +15,8 @@ use mujoco_rs::prelude::*;
 
 use sensor_io::livox::{encode_cartesian_high, PacketMeta, MID360_POINTS_PER_PACKET, MID360_POINT_PERIOD_NS};
 
-use crate::rng::Rng;
 use crate::SimError;
+use labkit::rng::Rng;
 
 /// Torso origin in the pelvis frame on the G1 (used when the model has no `torso_link` body).
 pub const G1_TORSO_IN_PELVIS: [f64; 3] = [-0.0039635, 0.0, 0.044];

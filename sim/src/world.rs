@@ -22,7 +22,7 @@ use hal::{wrap_angle, TerrainClass, TerrainToken};
 use serde::{Deserialize, Serialize};
 
 use crate::quat_mul;
-use crate::rng::Rng;
+use labkit::rng::Rng;
 
 /// Largest scenario (world) file read, bytes.
 pub const MAX_WORLD_BYTES: u64 = 1 << 20;

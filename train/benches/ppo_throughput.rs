@@ -110,7 +110,7 @@ fn main() -> anyhow::Result<()> {
     let lstm = DeploySpec::load(&lstm_path)?;
     let mlp = DeploySpec::load(&mlp_path)?;
     let decimation = Timing::from_spec(&lstm)?.decimation;
-    let threads = g1_sim::progress::default_jobs();
+    let threads = labkit::progress::default_jobs();
 
     // 1. Bare mj_step, one loop per thread at once (the ceiling of the machine).
     let bare = |n: usize| -> anyhow::Result<f64> {

@@ -4,8 +4,8 @@ use std::path::Path;
 
 use anyhow::{bail, ensure, Context};
 use candle_core::{Device, Tensor};
-use g1_sim::rng::Rng;
 use hal::{TerrainClass, TerrainToken};
+use labkit::rng::Rng;
 use safetensors::{Dtype, SafeTensors};
 use sensor_io::bev::{BEV_CELLS, BEV_CHANNELS};
 

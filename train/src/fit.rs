@@ -8,10 +8,10 @@
 //! h, d and yaw are supervised on stairs samples only (flat has no geometry; its θ is the robot's
 //! heading, which a robot-centred grid cannot show). The yaw term's weight is 0.5: the vector
 //! has two components, so 0.5 puts yaw on the same footing as one of h or d.
+use crate::dataset::EvalStats;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
-use g1_sim::dataset::EvalStats;
-use g1_sim::rng::Rng;
+use labkit::rng::Rng;
 
 use crate::data::{batch, Dataset};
 use crate::model::TerrainCnn;

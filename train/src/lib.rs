@@ -9,6 +9,7 @@
 // The trainer never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 pub mod data;
+pub mod dataset;
 pub mod eval;
 pub mod export;
 pub mod fit;

@@ -17,7 +17,7 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
     let model = TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev)).unwrap();
     train::fit::seeded_init(&vm, 7, &dev).unwrap();
     // Non-trivial BatchNorm: scale, shift and running statistics away from 1 / 0.
-    let mut rng = g1_sim::rng::Rng(99);
+    let mut rng = labkit::rng::Rng(99);
     {
         let data = vm.data().lock().unwrap();
         let mut names: Vec<&String> = data.keys().filter(|n| n.starts_with("bn")).collect();

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use candle_core::Device;
-use g1_sim::dataset::{export, DatasetConfig, ExportConfig, WorldSet};
 use train::data::{split_by_world, Dataset};
+use train::dataset::{export, DatasetConfig, ExportConfig, WorldSet};
 use train::fit::{fit, FitConfig};
 
 fn temp(name: &str) -> PathBuf {
@@ -30,7 +30,7 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
             jobs: 2,
             // The memory's render path (the firmware's default may be single-frame).
             dataset: DatasetConfig {
-                memory: g1_sim::dataset::MemoryConfig::DEFAULT,
+                memory: train::dataset::MemoryConfig::DEFAULT,
                 ..DatasetConfig::default()
             },
         },

@@ -5,7 +5,7 @@
 //! loss, entropy bonus, gradient-norm clipping and the adaptive-KL learning rate.
 use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
-use g1_sim::rng::Rng;
+use labkit::rng::Rng;
 
 use super::policy::ActorCritic;
 use super::symmetry::{Mirror, SignedPermutation};

@@ -19,10 +19,10 @@ use firmware::nn::Network;
 use firmware::policy_io::PolicyIo;
 use firmware::spec::{DeploySpec, ObsKind};
 use firmware::supervisor::MotionLimits;
-use g1_sim::rng::Rng;
 use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use hal::{LowCommand, LowState, TerrainClass, TerrainToken, MOTOR_MODE_ENABLED, NUM_MOTORS};
+use labkit::rng::Rng;
 use mujoco_rs::mujoco_c::_mjtObjBase;
 
 use super::reward::{self, Terms, WEIGHTS};

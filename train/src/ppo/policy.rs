@@ -278,7 +278,7 @@ impl ActorCritic {
     pub fn with_arch(arch: ActorArch, critic_dim: usize, init_std: f64, seed: u64) -> Result<Self> {
         // candle's CPU device cannot be seeded: draw the initial weights from our own generator.
         let dev = Device::Cpu;
-        let mut rng = g1_sim::rng::Rng(seed ^ 0x1417_AC70);
+        let mut rng = labkit::rng::Rng(seed ^ 0x1417_AC70);
         let vars = VarMap::new();
         let mut uniform = |name: &str, shape: Vec<usize>, b: f64| -> Result<()> {
             let n = shape.iter().product();

@@ -6,8 +6,8 @@ use std::time::Instant;
 
 use anyhow::Context;
 use firmware::spec::DeploySpec;
-use g1_sim::rng::Rng;
 use g1_sim::ModelChoice;
+use labkit::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use super::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
@@ -165,7 +165,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let wall0 = state.wall_s;
     let mut last_ckpt = Instant::now();
     let mut checkpoints = 0usize;
-    let bar = g1_sim::progress::bar(cfg.iterations, cfg.quiet, "PPO");
+    let bar = labkit::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
     while state.iteration < cfg.iterations {
         let Some(step) = pipe.step(cfg, &mut slots, &ac, &mut learner, &mut state, dims)? else {
@@ -294,7 +294,7 @@ fn make_envs(
         max_init_level: cfg.max_init_level,
         only: cfg.only,
     };
-    let bar = g1_sim::progress::bar(cfg.envs, cfg.quiet, "creating environments");
+    let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);
     for i in 0..cfg.envs {
         let seed = cfg

@@ -1,6 +1,6 @@
 //! `g1-train eval-terrain`: Evaluate the CNN (run by the firmware's executor) and the geometric baseline side by side
 use anyhow::Context;
-use g1_sim::progress::{bar, default_jobs};
+use labkit::progress::{bar, default_jobs};
 use std::path::PathBuf;
 use train::export::{DESC_FILE, WEIGHTS_FILE};
 
@@ -20,10 +20,10 @@ pub struct Args {
     poses_per_world: usize,
     /// standing, walking or mixed.
     #[arg(long, default_value = "mixed")]
-    mode: g1_sim::dataset::ModeChoice,
+    mode: train::dataset::ModeChoice,
     /// BEV memory keyframes of the grids (0: single-frame); must match what the weights were
     /// trained with. Default: that of the firmware's built-in network.
-    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = g1_sim::dataset::MemoryConfig::BUILTIN.keyframes)]
+    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::dataset::MemoryConfig::BUILTIN.keyframes)]
     memory_keyframes: usize,
     /// Scale of the memory keyframes' simulated odometry drift (1: the renderer's model; 0:
     /// perfect odometry, the upper bound of what the memory gives).
@@ -61,7 +61,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         jobs,
         quiet,
     } = args;
-    use g1_sim::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
+    use train::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
     let base = if training_worlds {
         eprintln!(
             "note: --training-worlds: world seeds {seed}.. are the ones `g1-dataset export --seed {seed}` \
@@ -96,7 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut net = load_net(weights.as_deref())?;
     let cfg = DatasetConfig {
         mode,
-        memory: g1_sim::dataset::MemoryConfig::with_keyframes(memory_keyframes),
+        memory: train::dataset::MemoryConfig::with_keyframes(memory_keyframes),
         odometry_drift,
         ..DatasetConfig::default()
     };

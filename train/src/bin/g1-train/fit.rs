@@ -1,7 +1,7 @@
 //! `g1-train fit`: Train on g1-dataset exports; writes the firmware export (terrain_cnn.safetensors + .toml),
 use anyhow::Context;
 use candle_core::Device;
-use g1_sim::progress::bar;
+use labkit::progress::bar;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

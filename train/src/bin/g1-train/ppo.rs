@@ -1,5 +1,5 @@
 //! `g1-train ppo`: Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
-use g1_sim::progress::default_jobs;
+use labkit::progress::default_jobs;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

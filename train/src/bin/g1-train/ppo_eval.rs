@@ -1,6 +1,6 @@
 //! `g1-train ppo-eval`: Evaluate an actor in the training environment itself (its physics, worlds, starts, token and
 use anyhow::Context;
-use g1_sim::progress::default_jobs;
+use labkit::progress::default_jobs;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

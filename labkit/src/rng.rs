@@ -1,4 +1,4 @@
-//! The simulator's seeded random numbers.
+//! The lab's seeded random numbers (worlds, datasets, training).
 
 /// SplitMix64: small, seedable, identical on every platform (the simulator's only randomness).
 #[derive(Clone, Debug)]

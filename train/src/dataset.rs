@@ -67,10 +67,10 @@ use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 use sensor_io::livox::{FrameAssembler, PacketWriter};
 use serde::Serialize;
 
-use crate::lidar::{LidarConfig, LidarSim, Return};
-use crate::rng::Rng;
-use crate::world::{LabelledRiser, RandomRanges, World};
-use crate::{ModelChoice, SimConfig, SimError, Simulator};
+use g1_sim::lidar::{LidarConfig, LidarSim, Return};
+use g1_sim::world::{LabelledRiser, RandomRanges, World};
+use g1_sim::{ModelChoice, SimConfig, SimError, Simulator};
+use labkit::rng::Rng;
 
 /// Evaluation worlds are `World::random(EVAL_SEED_BASE + seed + i)`.
 pub const EVAL_SEED_BASE: u64 = 1_000_000;
@@ -461,7 +461,7 @@ impl WorldRenderer {
                 qpos[self.root + 6],
             ]
         };
-        let rpy = crate::quat_to_rpy(q);
+        let rpy = g1_sim::quat_to_rpy(q);
         let ground = self.world.ground_height(body.pos[0], body.pos[1]);
         let (an, hn) = (self.cfg.attitude_noise_rad, self.cfg.height_noise_m);
         let bev_roll = rpy[0] + an * rng.gaussian();

@@ -8,17 +8,17 @@
 //!   standing (one scan call) and walking (50 slices with `mj_forward` between them); and the
 //!   model build per world (`WorldRenderer::new`).
 //!
-//! Run: `cargo bench -p g1_sim --bench raycast` (figures on stdout; `G1_BENCH_FRAMES` sets the
+//! Run: `cargo bench -p train --bench raycast` (figures on stdout; `G1_BENCH_FRAMES` sets the
 //! frames per measurement, default 20).
 use std::hint::black_box;
 use std::time::Instant;
 
-use g1_sim::dataset::{DatasetConfig, ModeChoice, WorldRenderer};
 use g1_sim::lidar::{rpy_matrix, LidarConfig, LidarSim, Return};
 use g1_sim::model::deps_dir;
 use g1_sim::world::World;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use mujoco_rs::prelude::*;
+use train::dataset::{DatasetConfig, ModeChoice, WorldRenderer};
 
 const FRAME_NS: u64 = 100_000_000;
 
