@@ -25,7 +25,12 @@ use hal::{LowCommand, LowState, TerrainClass, TerrainToken, MOTOR_MODE_ENABLED, 
 use labkit::rng::Rng;
 use mujoco_rs::mujoco_c::_mjtObjBase;
 
+use super::curriculum;
+pub use super::curriculum::Column;
+pub use super::curriculum::{level_height, LEVELS, MAX_STEPS};
 use super::reward::{self, Terms, WEIGHTS};
+use super::termination;
+pub use super::termination::FALL_CAUSES;
 
 /// Physics step of training (the field's 5 ms with implicit integration).
 pub const PHYSICS_DT: f64 = 0.005;
@@ -70,8 +75,6 @@ impl Timing {
 /// Where the soft joint-speed penalty starts, as a share of each joint's limit (legged_gym's
 /// `soft_dof_vel_limit`).
 pub const SOFT_JOINT_SPEED: f32 = 0.9;
-/// Curriculum levels: step height `0.05 + 0.021·level` m, 0.05 … 0.26 m.
-pub const LEVELS: usize = 11;
 /// Privileged critic inputs beyond the actor's observation: body velocity (3), base height above
 /// the ground (1), true token (4), foot contacts (2), terrain heights along the heading (11), foot
 /// clearances (2).
@@ -122,48 +125,6 @@ pub fn terrain_capacity() -> (usize, usize) {
         .filter(|p| matches!(p, g1_sim::world::Primitive::Box { .. }))
         .count();
     (boxes, prims.len() - boxes)
-}
-
-/// Most steps a curriculum staircase has.
-pub const MAX_STEPS: usize = 8;
-
-pub fn level_height(level: usize) -> f64 {
-    0.05 + 0.021 * level as f64
-}
-
-/// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
-pub enum Column {
-    Flat,
-    Up,
-    Down,
-    OutdoorUp,
-    OutdoorDown,
-}
-
-impl Column {
-    /// Share of environments per column.
-    const MIX: [(Column, f64); 5] = [
-        (Column::Flat, 0.15),
-        (Column::Up, 0.3),
-        (Column::Down, 0.3),
-        (Column::OutdoorUp, 0.125),
-        (Column::OutdoorDown, 0.125),
-    ];
-
-    fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
-        if let Some(c) = only {
-            return c;
-        }
-        let mut u = rng.uniform();
-        for (c, p) in Self::MIX {
-            if u < p {
-                return c;
-            }
-            u -= p;
-        }
-        Column::Flat
-    }
 }
 
 /// What an environment randomises (all on by default; tests turn them off).
@@ -240,9 +201,6 @@ pub struct EpisodeEnd {
     /// Where the base started along the staircase axis, m.
     pub start_m: f64,
 }
-
-/// Why an episode ended early, in the order [`EpisodeEnd::cause`] indexes.
-pub const FALL_CAUSES: [&str; 4] = ["tilt", "joint_speed", "base_height", "base_angular_speed"];
 
 pub struct StairEnv {
     cfg: EnvConfig,
@@ -405,40 +363,6 @@ impl StairEnv {
         self.reset()
     }
 
-    /// Draws the next world from the curriculum.
-    fn draw_world(&mut self) -> World {
-        let r = &mut self.rng;
-        let (kind, outdoor) = match self.column {
-            Column::Flat => return World::preset("flat").expect("preset"),
-            Column::Up => (TerrainKind::StairsUp, false),
-            Column::Down => (TerrainKind::StairsDown, false),
-            Column::OutdoorUp => (TerrainKind::StairsUp, true),
-            Column::OutdoorDown => (TerrainKind::StairsDown, true),
-        };
-        let start_distance = r.range(0.6, 2.0);
-        let width = r.range(1.2, 2.5);
-        let spec = TerrainSpec {
-            kind,
-            step_height: (level_height(self.level) + r.range(-0.01, 0.01)).clamp(0.04, 0.27),
-            step_depth: r.range(0.22, 0.40),
-            steps: r.int(3, MAX_STEPS as u64) as usize,
-            width,
-            yaw_deg: r.range(-30.0, 30.0),
-            start_distance,
-            lateral_offset: r.range(-0.15, 0.15) * width,
-            landing_before: start_distance + r.range(1.0, 2.0),
-            landing_after: r.range(1.5, 3.0),
-            outdoor: outdoor.then(|| Outdoor {
-                height_jitter: 0.1,
-                depth_jitter: 0.1,
-                tread_slope_deg: r.range(0.0, 3.0),
-                nosing_radius: r.range(0.0, 0.03),
-                seed: r.next_u64(),
-            }),
-        };
-        World::build("train", spec).unwrap_or_else(|_| World::preset("flat").expect("preset"))
-    }
-
     /// Ends the current episode's bookkeeping (curriculum) and starts a new one.
     pub fn reset(&mut self) -> anyhow::Result<()> {
         if self.step > 0 {
@@ -458,19 +382,12 @@ impl StairEnv {
             if let Some(l) = self.held_level {
                 self.level = l;
             } else if self.column != Column::Flat {
-                let last = self.last_riser_s();
-                if success {
-                    self.level += 1;
-                    if self.level >= LEVELS {
-                        self.level = self.rng.int(0, LEVELS as u64 - 1) as usize;
-                    }
-                } else if self.progress < 0.5 * last {
-                    self.level = self.level.saturating_sub(1);
-                }
+                let walked_half = self.progress >= 0.5 * self.last_riser_s();
+                self.level = curriculum::next_level(self.level, success, walked_half, &mut self.rng);
             }
             self.column = Column::draw(&mut self.rng, self.cfg.only);
         }
-        self.world = self.draw_world();
+        self.world = curriculum::draw_world(self.column, self.level, &mut self.rng);
         self.sim.set_world(&self.world)?;
         let r = self.cfg.random;
         if r.dynamics {
@@ -876,18 +793,12 @@ impl StairEnv {
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
-        let causes = [
-            self.limits.tilted(-g[2]),
-            too_fast,
-            height < reward::MIN_BASE_HEIGHT,
-            self.limits.base_spinning(w.map(|x| x as f32)),
-        ];
-        let terminated = causes.iter().any(|&c| c);
-        if terminated {
+        let cause = termination::cause(&self.limits, -g[2], too_fast, height, w.map(|x| x as f32));
+        if let Some(c) = cause {
             r.termination = 1.0;
-            self.cause = causes.iter().position(|&c| c).unwrap_or(0);
+            self.cause = c;
         }
-        (r, terminated)
+        (r, cause.is_some())
     }
 
     /// Whether the episode's world is a staircase and the robot has reached its end landing.

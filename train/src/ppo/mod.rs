@@ -1,21 +1,28 @@
 //! The stair-climbing policy: PPO on vectorised in-process MuJoCo environments of the G1, with the
 //! firmware's own observation, action and network code (`g1-train ppo`).
 //!
-//! - [`env`]: one environment (simulator, world, curriculum, randomisation, privileged token).
+//! - [`env`]: one environment (reset, step: simulator, randomisation, privileged token).
 //! - [`reward`]: every reward term and weight.
+//! - [`curriculum`]: terrain columns, levels and the worlds drawn for them.
+//! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
+//! - [`rollout`]: environments stepping the actor with exploration noise.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
-//! - [`runner`]: the loop, worker threads, checkpoints, curves.
+//! - [`runner`]: the loop (a pipeline of rollout and update on worker threads), checkpoints, curves.
+//! - [`iter_log`]: one iteration's figures.
 //! - [`in_env`]: an actor evaluated in the training environment itself, one level at a time.
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
 pub mod algo;
+pub mod curriculum;
 pub mod env;
 pub mod in_env;
 pub mod iter_log;
 pub mod judge;
 pub mod policy;
 pub mod reward;
+pub mod rollout;
 pub mod runner;
 pub mod symmetry;
+pub mod termination;

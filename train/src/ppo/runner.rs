@@ -10,10 +10,11 @@ use g1_sim::ModelChoice;
 use labkit::rng::Rng;
 use serde::{Deserialize, Serialize};
 
-use super::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
+use super::algo::{compute_gae, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
 use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
 use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
+use super::rollout::{rollout, Slot};
 
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
 /// Folder of the actor at every checkpoint, named by env steps (`g1fw eval --weights`).
@@ -72,62 +73,6 @@ pub struct RunState {
     pub levels: Vec<usize>,
     /// Where the run started from (the recipe).
     pub started_from: String,
-}
-
-struct Slot {
-    env: StairEnv,
-    roll: EnvRollout,
-    rng: Rng,
-    ends: Vec<super::env::EpisodeEnd>,
-}
-
-/// Runs `steps` policy steps on every slot of `slots` (one worker's share).
-fn rollout(slots: &mut [Slot], log_std: &[f32], steps: usize, obs_dim: usize, critic_dim: usize) -> anyhow::Result<()> {
-    let a = log_std.len();
-    let mut mean = vec![0.0f32; a];
-    let mut act = vec![0.0f32; a];
-    for slot in slots {
-        let Slot { env, roll, rng, ends } = slot;
-        env.net.read_state(&mut roll.state0);
-        for s in 0..steps {
-            let obs = env.observe_and_act(&mut mean)?;
-            roll.obs[s * obs_dim..(s + 1) * obs_dim].copy_from_slice(obs);
-            let cobs = &mut roll.critic_obs[s * critic_dim..(s + 1) * critic_dim];
-            cobs[..obs_dim].copy_from_slice(obs);
-            env.critic_extra(&mut cobs[obs_dim..]);
-            for j in 0..a {
-                act[j] = mean[j] + (log_std[j] as f64).exp() as f32 * rng.gaussian() as f32;
-            }
-            roll.means[s * a..(s + 1) * a].copy_from_slice(&mean);
-            roll.actions[s * a..(s + 1) * a].copy_from_slice(&act);
-            roll.logp[s] = gaussian_logp(&act, &mean, log_std);
-            let out = env.step(&act)?;
-            roll.rewards[s] = out.reward;
-            roll.terminated[s] = out.terminated;
-            roll.truncated[s] = out.truncated;
-            roll.masks[s] = if s > 0 && (roll.terminated[s - 1] || roll.truncated[s - 1]) {
-                0.0
-            } else {
-                1.0
-            };
-            if out.truncated {
-                let f = &mut roll.final_critic_obs[s * critic_dim..(s + 1) * critic_dim];
-                let o = env.observe_peek();
-                f[..obs_dim].copy_from_slice(&o);
-                env.critic_extra(&mut f[obs_dim..]);
-            }
-            if out.terminated || out.truncated {
-                env.reset()?;
-                if let Some(e) = env.last_end {
-                    ends.push(e);
-                }
-            }
-        }
-        let o = env.observe_peek();
-        roll.next_critic_obs[..obs_dim].copy_from_slice(&o);
-        env.critic_extra(&mut roll.next_critic_obs[obs_dim..]);
-    }
-    Ok(())
 }
 
 /// The training loop: start (or resume), then iterations of a pipelined rollout and update, each

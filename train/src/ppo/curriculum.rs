@@ -1,0 +1,99 @@
+//! The terrain curriculum (IsaacLab's terrain levels): which column an environment walks next, how
+//! high its steps are, and when it moves up or down a level.
+use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
+use labkit::rng::Rng;
+
+/// Curriculum levels: step height `0.05 + 0.021·level` m, 0.05 … 0.26 m.
+pub const LEVELS: usize = 11;
+
+/// Most steps a curriculum staircase has.
+pub const MAX_STEPS: usize = 8;
+
+/// Step height of a level, m.
+pub fn level_height(level: usize) -> f64 {
+    0.05 + 0.021 * level as f64
+}
+
+/// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+pub enum Column {
+    Flat,
+    Up,
+    Down,
+    OutdoorUp,
+    OutdoorDown,
+}
+
+impl Column {
+    /// Share of environments per column.
+    const MIX: [(Column, f64); 5] = [
+        (Column::Flat, 0.15),
+        (Column::Up, 0.3),
+        (Column::Down, 0.3),
+        (Column::OutdoorUp, 0.125),
+        (Column::OutdoorDown, 0.125),
+    ];
+
+    pub fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
+        if let Some(c) = only {
+            return c;
+        }
+        let mut u = rng.uniform();
+        for (c, p) in Self::MIX {
+            if u < p {
+                return c;
+            }
+            u -= p;
+        }
+        Column::Flat
+    }
+}
+
+/// The level after an episode on stairs: up after a success (past the top, a random level, so the
+/// whole range stays in the mix), down when the robot did not get halfway to the last riser.
+pub fn next_level(level: usize, success: bool, walked_half: bool, rng: &mut Rng) -> usize {
+    if success {
+        if level + 1 >= LEVELS {
+            rng.int(0, LEVELS as u64 - 1) as usize
+        } else {
+            level + 1
+        }
+    } else if !walked_half {
+        level.saturating_sub(1)
+    } else {
+        level
+    }
+}
+
+/// Draws the next world of `column` at `level`.
+pub fn draw_world(column: Column, level: usize, r: &mut Rng) -> World {
+    let (kind, outdoor) = match column {
+        Column::Flat => return World::preset("flat").expect("preset"),
+        Column::Up => (TerrainKind::StairsUp, false),
+        Column::Down => (TerrainKind::StairsDown, false),
+        Column::OutdoorUp => (TerrainKind::StairsUp, true),
+        Column::OutdoorDown => (TerrainKind::StairsDown, true),
+    };
+    let start_distance = r.range(0.6, 2.0);
+    let width = r.range(1.2, 2.5);
+    let spec = TerrainSpec {
+        kind,
+        step_height: (level_height(level) + r.range(-0.01, 0.01)).clamp(0.04, 0.27),
+        step_depth: r.range(0.22, 0.40),
+        steps: r.int(3, MAX_STEPS as u64) as usize,
+        width,
+        yaw_deg: r.range(-30.0, 30.0),
+        start_distance,
+        lateral_offset: r.range(-0.15, 0.15) * width,
+        landing_before: start_distance + r.range(1.0, 2.0),
+        landing_after: r.range(1.5, 3.0),
+        outdoor: outdoor.then(|| Outdoor {
+            height_jitter: 0.1,
+            depth_jitter: 0.1,
+            tread_slope_deg: r.range(0.0, 3.0),
+            nosing_radius: r.range(0.0, 0.03),
+            seed: r.next_u64(),
+        }),
+    };
+    World::build("train", spec).unwrap_or_else(|_| World::preset("flat").expect("preset"))
+}
