@@ -85,3 +85,47 @@ fn a_run_judges_its_checkpoints_and_keeps_the_best() {
     assert_eq!(&png[1..4], b"PNG");
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// A judge that cannot run (here: no simulator binary) warns and training goes on to its end: hours
+/// of training must not die on an evaluation.
+#[test]
+fn a_judge_that_fails_does_not_end_training() {
+    if !have_12dof_model() {
+        return;
+    }
+    let out = std::env::temp_dir().join(format!("g1_ppo_judge_fails_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    let cfg = RunConfig {
+        spec: root().join("specs/stairs/g1_stairs_lstm.toml"),
+        model: g1_sim::ModelChoice::G1_12Dof,
+        out: out.clone(),
+        envs: 2,
+        threads: 1,
+        iterations: 2,
+        seed: 5,
+        init_actor: Some(peer),
+        actor_hidden: Vec::new(),
+        symmetry: false,
+        init_std: 0.3,
+        critic_warmup: 2,
+        episode_s: 1.0,
+        ppo: Default::default(),
+        random: Randomization::NONE,
+        max_init_level: 0,
+        vx: (0.4, 0.8),
+        only: Some(Column::Flat),
+        checkpoint_every_s: 0.0,
+        quiet: true,
+        max_wall_s: f64::INFINITY,
+        judge: JudgeConfig {
+            sim_bin: Some(out.join("no-such-g1-sim")),
+            ..small(1)
+        },
+    };
+    let history = train(&cfg).expect("training outlives a failing judge");
+    assert_eq!(history.last().map(|h| h.iteration), Some(2));
+    assert!(read_judgements(&out).is_empty(), "nothing was judged");
+    assert!(out.join("checkpoint.safetensors").is_file());
+    std::fs::remove_dir_all(&out).unwrap();
+}

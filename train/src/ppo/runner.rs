@@ -137,7 +137,14 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             let actor = save(&ac, &state, &history, &cfg.out, &weights_name)?;
             checkpoints += 1;
             if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
-                judge_checkpoint(cfg, &actor, &state, &history)?;
+                // A judge that cannot run (a missing g1-sim, a full disk) must not end hours of
+                // training: say so, and go on; the checkpoint is written.
+                if let Err(e) = judge_checkpoint(cfg, &actor, &state, &history) {
+                    tracing::warn!(
+                        "judging {} through g1fw failed, training goes on: {e:#}",
+                        actor.display()
+                    );
+                }
             }
             last_ckpt = Instant::now();
         }
