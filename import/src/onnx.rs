@@ -278,7 +278,26 @@ fn broadcast(c: &Tensor, n: Option<usize>, what: &str) -> Result<Vec<f32>, Strin
     }
 }
 
+/// The graph's parts the walk reads.
+struct Graph<'a> {
+    g: &'a proto::GraphProto,
+    consts: HashMap<String, Tensor>,
+    users: HashMap<&'a str, Vec<usize>>,
+    input_name: String,
+    output_name: String,
+    /// Graph inputs after the observation: the recurrent state, carried by the executor.
+    state_inputs: Vec<String>,
+    declared_input: Option<usize>,
+}
+
 fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
+    let graph = read_graph(model)?;
+    let walk = walk_chain(&graph)?;
+    assemble(model, graph, walk)
+}
+
+/// Constants, the observation input and its declared width, the output, and who uses each value.
+fn read_graph(model: &ModelProto) -> Result<Graph<'_>, ImportError> {
     let g = model
         .graph
         .as_ref()
@@ -340,15 +359,27 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
         }
     }
 
-    let mut built: Vec<Built> = Vec::new();
-    // Observation normaliser before the first layer: x' = a ⊙ x + b.
-    let mut pre: Option<(Vec<f32>, Vec<f32>)> = None;
-    let mut width: Option<usize> = declared_input;
-    let mut recurrent: Option<RecurrentIo> = None;
-    let mut trace = Vec::new();
+    Ok(Graph {
+        g,
+        consts,
+        users,
+        input_name,
+        output_name,
+        state_inputs,
+        declared_input,
+    })
+}
+
+/// Walks the chain from the observation input to the output, node by node.
+fn walk_chain(graph: &Graph) -> Result<Walk, ImportError> {
+    let (g, users, input_name, output_name) = (graph.g, &graph.users, &graph.input_name, &graph.output_name);
+    let mut walk = Walk {
+        width: graph.declared_input,
+        ..Walk::default()
+    };
     let mut cur = input_name.clone();
     let mut visited = vec![false; g.node.len()];
-    while cur != output_name {
+    while &cur != output_name {
         let us = users.get(cur.as_str()).cloned().unwrap_or_default();
         let idx = match us.as_slice() {
             [i] => *i,
@@ -372,307 +403,29 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
             return Err(ImportError::Graph(format!("the graph loops at node #{idx}")));
         }
         let node = &g.node[idx];
-        let op = node.op_type.clone().unwrap_or_default();
-        let name = node.name.clone().unwrap_or_default();
-        let bad = |why: String| ImportError::BadNode {
-            op: op.clone(),
-            node: name.clone(),
-            index: idx,
-            why,
+        let at = At {
+            node,
+            idx,
+            op: node.op_type.clone().unwrap_or_default(),
+            name: node.name.clone().unwrap_or_default(),
+            cur: &cur,
+            consts: &graph.consts,
         };
-        let konst = |k: usize| -> Result<&Tensor, ImportError> {
-            let n = node.input.get(k).filter(|s| !s.is_empty());
-            n.and_then(|n| consts.get(n))
-                .ok_or_else(|| bad(format!("input {k} must be a constant (an initializer)")))
-        };
-        let other_const = || -> Result<&Tensor, ImportError> {
-            let k = if node.input.first() == Some(&cur) { 1 } else { 0 };
-            konst(k)
-        };
+        let (op, name) = (at.op.as_str(), at.name.as_str());
         let mut next = node.output.first().cloned().unwrap_or_default();
-        match op.as_str() {
+        match op {
             "Identity" | "Squeeze" | "Unsqueeze" | "Reshape" | "Flatten" => {
-                trace.push(format!("#{idx} {op} '{name}': shape only, nothing to compute"));
+                walk.trace
+                    .push(format!("#{idx} {op} '{name}': shape only, nothing to compute"));
             }
-            "Sub" | "Add" | "Mul" | "Div" => {
-                let c = other_const()?;
-                if (op == "Sub" || op == "Div") && node.input.first() != Some(&cur) {
-                    return Err(bad(
-                        "the constant comes first (c − x, c / x): not an affine normaliser".into()
-                    ));
-                }
-                match built.last_mut() {
-                    None => {
-                        let v = broadcast(c, width, &op).map_err(bad)?;
-                        width = Some(v.len());
-                        let (a, b) = pre.get_or_insert_with(|| (vec![1.0; v.len()], vec![0.0; v.len()]));
-                        if a.len() != v.len() {
-                            return Err(bad(format!("{} values against a normaliser of {}", v.len(), a.len())));
-                        }
-                        for i in 0..v.len() {
-                            match op.as_str() {
-                                "Sub" => b[i] -= v[i],
-                                "Add" => b[i] += v[i],
-                                "Mul" => {
-                                    a[i] *= v[i];
-                                    b[i] *= v[i]
-                                }
-                                _ => {
-                                    a[i] /= v[i];
-                                    b[i] /= v[i]
-                                }
-                            }
-                        }
-                        trace.push(format!(
-                            "#{idx} {op} '{name}': observation normaliser, folded into the first layer"
-                        ));
-                    }
-                    Some(Built::Linear(l)) => {
-                        let v = broadcast(c, Some(l.out), &op).map_err(bad)?;
-                        for (o, &c) in v.iter().enumerate() {
-                            match op.as_str() {
-                                "Add" => l.b[o] += c,
-                                "Sub" => l.b[o] -= c,
-                                "Mul" | "Div" => {
-                                    let f = if op == "Mul" { c } else { 1.0 / c };
-                                    l.b[o] *= f;
-                                    for w in &mut l.w[o * l.inp..(o + 1) * l.inp] {
-                                        *w *= f;
-                                    }
-                                }
-                                _ => unreachable!(),
-                            }
-                        }
-                        trace.push(format!("#{idx} {op} '{name}': folded into the linear layer before it"));
-                    }
-                    Some(_) => {
-                        return Err(bad(
-                            "an element-wise constant after an activation or LSTM cannot be folded into a linear layer"
-                                .into(),
-                        ))
-                    }
-                }
-            }
-            "Gemm" | "MatMul" => {
-                let w = konst(1)?;
-                if w.dims.len() != 2 {
-                    return Err(bad(format!("weight of shape {:?}, expected 2-D", w.dims)));
-                }
-                if op == "Gemm" && attr_i(node, "transA", 0) != 0 {
-                    return Err(bad(
-                        "transA = 1 (the observation transposed) is not a policy layer".into()
-                    ));
-                }
-                let trans_b = op == "Gemm" && attr_i(node, "transB", 0) != 0;
-                let (inp, out) = if trans_b {
-                    (w.dims[1], w.dims[0])
-                } else {
-                    (w.dims[0], w.dims[1])
-                };
-                let alpha = if op == "Gemm" { attr_f(node, "alpha", 1.0) } else { 1.0 };
-                let beta = if op == "Gemm" { attr_f(node, "beta", 1.0) } else { 1.0 };
-                let mut l = Linear {
-                    out,
-                    inp,
-                    w: vec![0.0; out * inp],
-                    b: vec![0.0; out],
-                };
-                for o in 0..out {
-                    for i in 0..inp {
-                        let v = if trans_b {
-                            w.data[o * inp + i]
-                        } else {
-                            w.data[i * out + o]
-                        };
-                        l.w[o * inp + i] = alpha * v;
-                    }
-                }
-                if op == "Gemm" && node.input.len() > 2 && !node.input[2].is_empty() {
-                    let c = konst(2)?;
-                    let v = broadcast(c, Some(out), "Gemm bias").map_err(bad)?;
-                    for (b, c) in l.b.iter_mut().zip(&v) {
-                        *b = beta * c;
-                    }
-                }
-                if let Some(wd) = width {
-                    if wd != inp {
-                        return Err(bad(format!("takes {inp} inputs but receives {wd}")));
-                    }
-                }
-                fold_pre(&mut pre, inp, &mut l.w, &mut l.b, out).map_err(bad)?;
-                width = Some(out);
-                trace.push(format!("#{idx} {op} '{name}': linear {inp} → {out}"));
-                built.push(Built::Linear(l));
-            }
-            "Elu" | "Relu" | "Tanh" => {
-                if pre.is_some() && built.is_empty() {
-                    return Err(bad(
-                        "an activation directly on the normalised observation is not supported".into(),
-                    ));
-                }
-                let layer = match op.as_str() {
-                    "Elu" => {
-                        // The executor refuses a non-finite alpha; name the node here.
-                        let alpha = attr_f(node, "alpha", 1.0);
-                        if !alpha.is_finite() {
-                            return Err(bad(format!("alpha {alpha} is not finite")));
-                        }
-                        LayerDesc::Elu { alpha }
-                    }
-                    "Relu" => LayerDesc::Relu,
-                    _ => LayerDesc::Tanh,
-                };
-                trace.push(format!("#{idx} {op} '{name}': activation"));
-                built.push(Built::Act(layer));
-            }
-            "LSTM" => {
-                let hidden = usize::try_from(attr_i(node, "hidden_size", 0)).unwrap_or(0);
-                if hidden == 0 {
-                    return Err(bad("no hidden_size".into()));
-                }
-                // 8 · hidden values (both biases) must fit an activation; checked before any
-                // arithmetic on it.
-                if hidden > firmware::nn::MAX_ACTIVATION / 8 {
-                    return Err(bad(format!(
-                        "hidden_size {hidden} is more than the {} an LSTM here may have",
-                        firmware::nn::MAX_ACTIVATION / 8
-                    )));
-                }
-                if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {
-                    return Err(bad(format!("direction '{d}': only forward LSTMs run step by step")));
-                }
-                if attr_i(node, "layout", 0) != 0 {
-                    return Err(bad("layout = 1 (batch-major) is not supported".into()));
-                }
-                if attr_i(node, "input_forget", 0) != 0 {
-                    return Err(bad(
-                        "input_forget = 1 (coupled input and forget gates) is not supported: the firmware's LSTM has independent gates".into(),
-                    ));
-                }
-                if node.input.get(7).is_some_and(|s| !s.is_empty()) {
-                    return Err(bad(
-                        "peephole weights (input P) are not supported: the firmware's LSTM has no peepholes, and without them it would compute other outputs".into(),
-                    ));
-                }
-                let custom = ["clip", "activations", "activation_alpha", "activation_beta"];
-                if let Some(a) = node
-                    .attribute
-                    .iter()
-                    .filter_map(|a| a.name.as_deref())
-                    .find(|n| custom.contains(n))
-                {
-                    return Err(bad(format!(
-                        "attribute '{a}' is not supported: the firmware's LSTM uses the default sigmoid and tanh, without cell clipping"
-                    )));
-                }
-                let (w, r) = (konst(1)?, konst(2)?);
-                if w.dims.len() != 3 || w.dims[0] != 1 || w.dims[1] != 4 * hidden {
-                    return Err(bad(format!(
-                        "W has shape {:?}, expected [1, {}, in]",
-                        w.dims,
-                        4 * hidden
-                    )));
-                }
-                if r.dims != [1, 4 * hidden, hidden] {
-                    return Err(bad(format!(
-                        "R has shape {:?}, expected [1, {}, {hidden}]",
-                        r.dims,
-                        4 * hidden
-                    )));
-                }
-                let inp = w.dims[2];
-                if let Some(wd) = width {
-                    if wd != inp {
-                        return Err(bad(format!("takes {inp} inputs but receives {wd}")));
-                    }
-                }
-                let bias: Vec<f32> = match node.input.get(3).filter(|s| !s.is_empty()) {
-                    Some(_) => {
-                        let b = konst(3)?;
-                        if b.data.len() != 8 * hidden {
-                            return Err(bad(format!("B has {} values, expected {}", b.data.len(), 8 * hidden)));
-                        }
-                        b.data.clone()
-                    }
-                    None => vec![0.0; 8 * hidden],
-                };
-                if node
-                    .input
-                    .get(4)
-                    .is_some_and(|s| !s.is_empty() && !consts.contains_key(s))
-                {
-                    return Err(bad(
-                        "sequence_lens from a graph input: step-by-step execution has none".into()
-                    ));
-                }
-                // ONNX gate blocks i, o, f, c → PyTorch i, f, g, o.
-                let reorder = |src: &[f32], cols: usize| -> Vec<f32> {
-                    let mut out = Vec::with_capacity(src.len());
-                    for blk in [0usize, 2, 3, 1] {
-                        out.extend_from_slice(&src[blk * hidden * cols..(blk + 1) * hidden * cols]);
-                    }
-                    out
-                };
-                let mut w_ih = reorder(&w.data, inp);
-                let w_hh = reorder(&r.data, hidden);
-                let mut b_ih = reorder(&bias[..4 * hidden], 1);
-                let b_hh = reorder(&bias[4 * hidden..], 1);
-                fold_pre(&mut pre, inp, &mut w_ih, &mut b_ih, 4 * hidden).map_err(bad)?;
-                let mut rec = RecurrentIo {
-                    hidden,
-                    ..Default::default()
-                };
-                let state = |k: usize, slot: &mut Option<String>| -> Result<Option<Vec<f32>>, ImportError> {
-                    match node.input.get(k).filter(|s| !s.is_empty()) {
-                        None => Ok(None),
-                        Some(s) if state_inputs.contains(s) => {
-                            *slot = Some(s.clone());
-                            Ok(None)
-                        }
-                        Some(s) => match consts.get(s) {
-                            Some(t) if t.data.len() == hidden => Ok(Some(t.data.clone())),
-                            Some(t) => Err(bad(format!("initial state '{s}' has {} values, not {hidden}", t.data.len()))),
-                            None => Err(bad(format!(
-                                "initial state '{s}' is computed in the graph (a multi-layer state sliced from one input?): not supported"
-                            ))),
-                        },
-                    }
-                };
-                let h0 = state(5, &mut rec.h_in)?;
-                let c0 = state(6, &mut rec.c_in)?;
-                if recurrent.is_some() {
-                    return Err(bad("a second LSTM: only one recurrent layer is supported".into()));
-                }
-                recurrent = Some(rec);
-                // Y (all steps) or Y_h (the last): the same vector for one step.
-                next = match (node.output.first(), node.output.get(1)) {
-                    (Some(y), _)
-                        if !y.is_empty() && users.contains_key(y.as_str()) || Some(y) == Some(&output_name) =>
-                    {
-                        y.clone()
-                    }
-                    (_, Some(yh)) if !yh.is_empty() => yh.clone(),
-                    _ => return Err(bad("neither Y nor Y_h is used".into())),
-                };
-                width = Some(hidden);
-                trace.push(format!(
-                    "#{idx} LSTM '{name}': lstm {inp} → {hidden} (gates reordered i,o,f,c → i,f,g,o)"
-                ));
-                built.push(Built::Lstm {
-                    hidden,
-                    inp,
-                    w_ih,
-                    w_hh,
-                    b_ih,
-                    b_hh,
-                    h0,
-                    c0,
-                });
-            }
+            "Sub" | "Add" | "Mul" | "Div" => walk.elementwise(&at)?,
+            "Gemm" | "MatMul" => walk.linear(&at)?,
+            "Elu" | "Relu" | "Tanh" => walk.activation(&at)?,
+            "LSTM" => next = walk.lstm(&at, graph)?,
             _ => {
                 return Err(ImportError::UnsupportedOp {
-                    op,
-                    node: name,
+                    op: op.to_string(),
+                    node: name.to_string(),
                     index: idx,
                 })
             }
@@ -682,6 +435,23 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
         }
         cur = next;
     }
+    Ok(walk)
+}
+
+/// The network description and its tensors from what the walk built.
+fn assemble(model: &ModelProto, graph: Graph, walk: Walk) -> Result<ImportedNetwork, ImportError> {
+    let Walk {
+        built,
+        width,
+        recurrent,
+        trace,
+        ..
+    } = walk;
+    let Graph {
+        input_name,
+        output_name,
+        ..
+    } = graph;
     if built.is_empty() {
         return Err(ImportError::Graph(
             "the graph computes nothing (no linear or LSTM layer)".into(),
@@ -810,6 +580,385 @@ fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
             .collect(),
         trace,
     })
+}
+
+/// What the walk along the chain from the observation to the action has built so far.
+#[derive(Default)]
+struct Walk {
+    built: Vec<Built>,
+    /// Observation normaliser before the first layer: x' = a ⊙ x + b.
+    pre: Option<(Vec<f32>, Vec<f32>)>,
+    width: Option<usize>,
+    recurrent: Option<RecurrentIo>,
+    trace: Vec<String>,
+}
+
+/// One node on the chain, with the value that flows into it.
+struct At<'a> {
+    node: &'a proto::NodeProto,
+    idx: usize,
+    op: String,
+    name: String,
+    cur: &'a str,
+    consts: &'a HashMap<String, Tensor>,
+}
+
+impl At<'_> {
+    fn bad(&self, why: String) -> ImportError {
+        ImportError::BadNode {
+            op: self.op.clone(),
+            node: self.name.clone(),
+            index: self.idx,
+            why,
+        }
+    }
+
+    /// Input `k`, which must be a constant (an initializer).
+    fn konst(&self, k: usize) -> Result<&Tensor, ImportError> {
+        let n = self.node.input.get(k).filter(|s| !s.is_empty());
+        n.and_then(|n| self.consts.get(n))
+            .ok_or_else(|| self.bad(format!("input {k} must be a constant (an initializer)")))
+    }
+
+    /// The constant operand of a binary element-wise node.
+    fn other_const(&self) -> Result<&Tensor, ImportError> {
+        let k = if self.node.input.first().map(String::as_str) == Some(self.cur) {
+            1
+        } else {
+            0
+        };
+        self.konst(k)
+    }
+}
+
+impl Walk {
+    /// A constant `Sub`/`Add`/`Mul`/`Div`: into the observation normaliser before the first layer, or
+    /// into the linear layer before it.
+    fn elementwise(&mut self, at: &At) -> Result<(), ImportError> {
+        let (node, idx, op, name) = (at.node, at.idx, at.op.as_str(), at.name.as_str());
+        let bad = |why: String| at.bad(why);
+        let Walk {
+            built,
+            pre,
+            width,
+            trace,
+            ..
+        } = self;
+        let c = at.other_const()?;
+        if (op == "Sub" || op == "Div") && node.input.first().map(String::as_str) != Some(at.cur) {
+            return Err(bad(
+                "the constant comes first (c − x, c / x): not an affine normaliser".into()
+            ));
+        }
+        match built.last_mut() {
+            None => {
+                let v = broadcast(c, *width, op).map_err(bad)?;
+                *width = Some(v.len());
+                let (a, b) = pre.get_or_insert_with(|| (vec![1.0; v.len()], vec![0.0; v.len()]));
+                if a.len() != v.len() {
+                    return Err(bad(format!("{} values against a normaliser of {}", v.len(), a.len())));
+                }
+                for i in 0..v.len() {
+                    match op {
+                        "Sub" => b[i] -= v[i],
+                        "Add" => b[i] += v[i],
+                        "Mul" => {
+                            a[i] *= v[i];
+                            b[i] *= v[i]
+                        }
+                        _ => {
+                            a[i] /= v[i];
+                            b[i] /= v[i]
+                        }
+                    }
+                }
+                trace.push(format!(
+                    "#{idx} {op} '{name}': observation normaliser, folded into the first layer"
+                ));
+            }
+            Some(Built::Linear(l)) => {
+                let v = broadcast(c, Some(l.out), op).map_err(bad)?;
+                for (o, &c) in v.iter().enumerate() {
+                    match op {
+                        "Add" => l.b[o] += c,
+                        "Sub" => l.b[o] -= c,
+                        "Mul" | "Div" => {
+                            let f = if op == "Mul" { c } else { 1.0 / c };
+                            l.b[o] *= f;
+                            for w in &mut l.w[o * l.inp..(o + 1) * l.inp] {
+                                *w *= f;
+                            }
+                        }
+                        _ => unreachable!(),
+                    }
+                }
+                trace.push(format!("#{idx} {op} '{name}': folded into the linear layer before it"));
+            }
+            Some(_) => {
+                return Err(bad(
+                    "an element-wise constant after an activation or LSTM cannot be folded into a linear layer".into(),
+                ))
+            }
+        }
+        Ok(())
+    }
+
+    /// `Gemm` or `MatMul` (+ bias): a linear layer, the pending normaliser folded in.
+    fn linear(&mut self, at: &At) -> Result<(), ImportError> {
+        let (node, idx, op, name) = (at.node, at.idx, at.op.as_str(), at.name.as_str());
+        let bad = |why: String| at.bad(why);
+        let Walk {
+            built,
+            pre,
+            width,
+            trace,
+            ..
+        } = self;
+        let w = at.konst(1)?;
+        if w.dims.len() != 2 {
+            return Err(bad(format!("weight of shape {:?}, expected 2-D", w.dims)));
+        }
+        if op == "Gemm" && attr_i(node, "transA", 0) != 0 {
+            return Err(bad(
+                "transA = 1 (the observation transposed) is not a policy layer".into()
+            ));
+        }
+        let trans_b = op == "Gemm" && attr_i(node, "transB", 0) != 0;
+        let (inp, out) = if trans_b {
+            (w.dims[1], w.dims[0])
+        } else {
+            (w.dims[0], w.dims[1])
+        };
+        let alpha = if op == "Gemm" { attr_f(node, "alpha", 1.0) } else { 1.0 };
+        let beta = if op == "Gemm" { attr_f(node, "beta", 1.0) } else { 1.0 };
+        let mut l = Linear {
+            out,
+            inp,
+            w: vec![0.0; out * inp],
+            b: vec![0.0; out],
+        };
+        for o in 0..out {
+            for i in 0..inp {
+                let v = if trans_b {
+                    w.data[o * inp + i]
+                } else {
+                    w.data[i * out + o]
+                };
+                l.w[o * inp + i] = alpha * v;
+            }
+        }
+        if op == "Gemm" && node.input.len() > 2 && !node.input[2].is_empty() {
+            let c = at.konst(2)?;
+            let v = broadcast(c, Some(out), "Gemm bias").map_err(bad)?;
+            for (b, c) in l.b.iter_mut().zip(&v) {
+                *b = beta * c;
+            }
+        }
+        if let Some(wd) = *width {
+            if wd != inp {
+                return Err(bad(format!("takes {inp} inputs but receives {wd}")));
+            }
+        }
+        fold_pre(pre, inp, &mut l.w, &mut l.b, out).map_err(bad)?;
+        *width = Some(out);
+        trace.push(format!("#{idx} {op} '{name}': linear {inp} → {out}"));
+        built.push(Built::Linear(l));
+        Ok(())
+    }
+
+    /// `Elu`, `Relu` or `Tanh`.
+    fn activation(&mut self, at: &At) -> Result<(), ImportError> {
+        let (node, idx, op, name) = (at.node, at.idx, at.op.as_str(), at.name.as_str());
+        let bad = |why: String| at.bad(why);
+        let Walk { built, pre, trace, .. } = self;
+        if pre.is_some() && built.is_empty() {
+            return Err(bad(
+                "an activation directly on the normalised observation is not supported".into(),
+            ));
+        }
+        let layer = match op {
+            "Elu" => {
+                // The executor refuses a non-finite alpha; name the node here.
+                let alpha = attr_f(node, "alpha", 1.0);
+                if !alpha.is_finite() {
+                    return Err(bad(format!("alpha {alpha} is not finite")));
+                }
+                LayerDesc::Elu { alpha }
+            }
+            "Relu" => LayerDesc::Relu,
+            _ => LayerDesc::Tanh,
+        };
+        trace.push(format!("#{idx} {op} '{name}': activation"));
+        built.push(Built::Act(layer));
+        Ok(())
+    }
+
+    /// One forward `LSTM`, gates reordered from ONNX's i, o, f, c to PyTorch's i, f, g, o; returns
+    /// the value the chain goes on with (Y or Y_h).
+    fn lstm(&mut self, at: &At, graph: &Graph) -> Result<String, ImportError> {
+        let (node, idx, name) = (at.node, at.idx, at.name.as_str());
+        let bad = |why: String| at.bad(why);
+        let Walk {
+            built,
+            pre,
+            width,
+            recurrent,
+            trace,
+            ..
+        } = self;
+        let (consts, users, output_name, state_inputs) =
+            (at.consts, &graph.users, &graph.output_name, &graph.state_inputs);
+        let hidden = lstm_hidden_size(at)?;
+        let (w, r) = (at.konst(1)?, at.konst(2)?);
+        if w.dims.len() != 3 || w.dims[0] != 1 || w.dims[1] != 4 * hidden {
+            return Err(bad(format!(
+                "W has shape {:?}, expected [1, {}, in]",
+                w.dims,
+                4 * hidden
+            )));
+        }
+        if r.dims != [1, 4 * hidden, hidden] {
+            return Err(bad(format!(
+                "R has shape {:?}, expected [1, {}, {hidden}]",
+                r.dims,
+                4 * hidden
+            )));
+        }
+        let inp = w.dims[2];
+        if let Some(wd) = *width {
+            if wd != inp {
+                return Err(bad(format!("takes {inp} inputs but receives {wd}")));
+            }
+        }
+        let bias: Vec<f32> = match node.input.get(3).filter(|s| !s.is_empty()) {
+            Some(_) => {
+                let b = at.konst(3)?;
+                if b.data.len() != 8 * hidden {
+                    return Err(bad(format!("B has {} values, expected {}", b.data.len(), 8 * hidden)));
+                }
+                b.data.clone()
+            }
+            None => vec![0.0; 8 * hidden],
+        };
+        if node
+            .input
+            .get(4)
+            .is_some_and(|s| !s.is_empty() && !consts.contains_key(s))
+        {
+            return Err(bad(
+                "sequence_lens from a graph input: step-by-step execution has none".into()
+            ));
+        }
+        // ONNX gate blocks i, o, f, c → PyTorch i, f, g, o.
+        let reorder = |src: &[f32], cols: usize| -> Vec<f32> {
+            let mut out = Vec::with_capacity(src.len());
+            for blk in [0usize, 2, 3, 1] {
+                out.extend_from_slice(&src[blk * hidden * cols..(blk + 1) * hidden * cols]);
+            }
+            out
+        };
+        let mut w_ih = reorder(&w.data, inp);
+        let w_hh = reorder(&r.data, hidden);
+        let mut b_ih = reorder(&bias[..4 * hidden], 1);
+        let b_hh = reorder(&bias[4 * hidden..], 1);
+        fold_pre(pre, inp, &mut w_ih, &mut b_ih, 4 * hidden).map_err(bad)?;
+        let mut rec = RecurrentIo {
+            hidden,
+            ..Default::default()
+        };
+        let state = |k: usize, slot: &mut Option<String>| -> Result<Option<Vec<f32>>, ImportError> {
+            match node.input.get(k).filter(|s| !s.is_empty()) {
+                None => Ok(None),
+                Some(s) if state_inputs.contains(s) => {
+                    *slot = Some(s.clone());
+                    Ok(None)
+                }
+                Some(s) => match consts.get(s) {
+                    Some(t) if t.data.len() == hidden => Ok(Some(t.data.clone())),
+                    Some(t) => Err(bad(format!("initial state '{s}' has {} values, not {hidden}", t.data.len()))),
+                    None => Err(bad(format!(
+                        "initial state '{s}' is computed in the graph (a multi-layer state sliced from one input?): not supported"
+                    ))),
+                },
+            }
+        };
+        let h0 = state(5, &mut rec.h_in)?;
+        let c0 = state(6, &mut rec.c_in)?;
+        if recurrent.is_some() {
+            return Err(bad("a second LSTM: only one recurrent layer is supported".into()));
+        }
+        *recurrent = Some(rec);
+        // Y (all steps) or Y_h (the last): the same vector for one step.
+        let next = match (node.output.first(), node.output.get(1)) {
+            (Some(y), _) if !y.is_empty() && users.contains_key(y.as_str()) || Some(y) == Some(output_name) => {
+                y.clone()
+            }
+            (_, Some(yh)) if !yh.is_empty() => yh.clone(),
+            _ => return Err(bad("neither Y nor Y_h is used".into())),
+        };
+        *width = Some(hidden);
+        trace.push(format!(
+            "#{idx} LSTM '{name}': lstm {inp} → {hidden} (gates reordered i,o,f,c → i,f,g,o)"
+        ));
+        built.push(Built::Lstm {
+            hidden,
+            inp,
+            w_ih,
+            w_hh,
+            b_ih,
+            b_hh,
+            h0,
+            c0,
+        });
+        Ok(next)
+    }
+}
+
+/// The LSTM's hidden size, after refusing what the firmware's LSTM does not compute (another
+/// direction or layout, coupled gates, peepholes, custom activations or clipping).
+fn lstm_hidden_size(at: &At) -> Result<usize, ImportError> {
+    let node = at.node;
+    let bad = |why: String| at.bad(why);
+    let hidden = usize::try_from(attr_i(node, "hidden_size", 0)).unwrap_or(0);
+    if hidden == 0 {
+        return Err(bad("no hidden_size".into()));
+    }
+    // 8 · hidden values (both biases) must fit an activation; checked before any
+    // arithmetic on it.
+    if hidden > firmware::nn::MAX_ACTIVATION / 8 {
+        return Err(bad(format!(
+            "hidden_size {hidden} is more than the {} an LSTM here may have",
+            firmware::nn::MAX_ACTIVATION / 8
+        )));
+    }
+    if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {
+        return Err(bad(format!("direction '{d}': only forward LSTMs run step by step")));
+    }
+    if attr_i(node, "layout", 0) != 0 {
+        return Err(bad("layout = 1 (batch-major) is not supported".into()));
+    }
+    if attr_i(node, "input_forget", 0) != 0 {
+        return Err(bad(
+            "input_forget = 1 (coupled input and forget gates) is not supported: the firmware's LSTM has independent gates".into(),
+        ));
+    }
+    if node.input.get(7).is_some_and(|s| !s.is_empty()) {
+        return Err(bad(
+            "peephole weights (input P) are not supported: the firmware's LSTM has no peepholes, and without them it would compute other outputs".into(),
+        ));
+    }
+    let custom = ["clip", "activations", "activation_alpha", "activation_beta"];
+    if let Some(a) = node
+        .attribute
+        .iter()
+        .filter_map(|a| a.name.as_deref())
+        .find(|n| custom.contains(n))
+    {
+        return Err(bad(format!(
+            "attribute '{a}' is not supported: the firmware's LSTM uses the default sigmoid and tanh, without cell clipping"
+        )));
+    }
+    Ok(hidden)
 }
 
 /// Folds the pending normaliser `x' = a ⊙ x + b` into a layer `y = W x' + c`:
