@@ -199,53 +199,8 @@ fn too_deep(text: &str) -> Option<String> {
 
 /// Reads `deploy` and `onnx` and builds the spec.
 pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<RlLabImport, DeployError> {
-    let text = firmware::read_text_capped(deploy, MAX_DEPLOY_YAML_BYTES).map_err(|e| DeployError::Io {
-        path: deploy.display().to_string(),
-        source: e,
-    })?;
-    if let Some(why) = too_deep(&text) {
-        return Err(DeployError::Yaml {
-            path: deploy.display().to_string(),
-            why,
-        });
-    }
-    let y: Value = serde_yaml_ng::from_str(&text).map_err(|e| DeployError::Yaml {
-        path: deploy.display().to_string(),
-        why: e.to_string(),
-    })?;
-    if !y.is_mapping() {
-        return Err(DeployError::Yaml {
-            path: deploy.display().to_string(),
-            why: "the top level is not a mapping of deploy fields".into(),
-        });
-    }
-    // Joint map: policy index → SDK slot, each slot once.
-    let map_v = get(&y, &["joint_ids_map"]).ok_or_else(|| field("joint_ids_map", "missing"))?;
-    let map: Vec<usize> = list(map_v, "joint_ids_map")?
-        .into_iter()
-        .enumerate()
-        .map(|(i, s)| {
-            if s.fract() != 0.0 || s < 0.0 || s >= G1_SLOTS as f64 {
-                Err(field(
-                    &format!("joint_ids_map[{i}]"),
-                    format!("{s} is not a G1 motor slot 0-28"),
-                ))
-            } else {
-                Ok(s as usize)
-            }
-        })
-        .collect::<Result<_, _>>()?;
-    for (i, s) in map.iter().enumerate() {
-        if let Some(j) = map[..i].iter().position(|t| t == s) {
-            return Err(field(
-                "joint_ids_map",
-                format!(
-                    "slot {s} ({}) is mapped twice, at policy indices {j} and {i}",
-                    hal::G1_MOTOR_NAMES[*s]
-                ),
-            ));
-        }
-    }
+    let y = read_deploy_yaml(deploy)?;
+    let map = joint_map(&y)?;
     let n = map.len();
     if n == 0 {
         return Err(field("joint_ids_map", "empty"));
@@ -335,8 +290,116 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
         Ok([l[0] as f32, l[1] as f32])
     };
     let (vx, vy, wz) = (range("lin_vel_x")?, range("lin_vel_y")?, range("ang_vel_z")?);
+    let terms = observation_terms(&y, n)?;
+    let network = import_file(onnx)?;
+    let held: Vec<(usize, f32, f32)> = (0..G1_SLOTS)
+        .filter(|sl| !map.contains(sl))
+        .map(|sl| (sl, stiffness[sl] as f32, damping[sl] as f32))
+        .collect();
+    let draft = Draft {
+        source: format!("{} and {}", deploy.display(), onnx.display()),
+        name: deploy
+            .parent()
+            .and_then(|p| p.file_name())
+            .map_or("imported".into(), |f| f.to_string_lossy().into_owned()),
+        map,
+        kp,
+        kd,
+        default_pose,
+        action_scale,
+        action_clip,
+        ranges: [vx, vy, wz],
+        terms,
+        step_dt,
+        policy_hz,
+        held,
+        notes: Vec::new(),
+    };
+    finish(draft, network, opts)
+}
+
+/// Everything a deploy spec needs, whichever export it came from.
+pub struct Draft {
+    pub source: String,
+    pub name: String,
+    pub map: Vec<usize>,
+    pub kp: Vec<f32>,
+    pub kd: Vec<f32>,
+    pub default_pose: Vec<f32>,
+    pub action_scale: Vec<f32>,
+    pub action_clip: Option<f32>,
+    /// vx, vy, wz: [low, high].
+    pub ranges: [[f32; 2]; 3],
+    pub terms: Vec<Term>,
+    pub step_dt: f64,
+    pub policy_hz: u32,
+    /// Motor slots the policy does not drive: (slot, kp, kd), held at 0.
+    pub held: Vec<(usize, f32, f32)>,
+    /// Said in the table (defaults the export did not carry).
+    pub notes: Vec<String>,
+}
+
+/// deploy.yaml, size-capped and depth-checked, as a YAML mapping.
+fn read_deploy_yaml(deploy: &Path) -> Result<Value, DeployError> {
+    let text = firmware::read_text_capped(deploy, MAX_DEPLOY_YAML_BYTES).map_err(|e| DeployError::Io {
+        path: deploy.display().to_string(),
+        source: e,
+    })?;
+    if let Some(why) = too_deep(&text) {
+        return Err(DeployError::Yaml {
+            path: deploy.display().to_string(),
+            why,
+        });
+    }
+    let y: Value = serde_yaml_ng::from_str(&text).map_err(|e| DeployError::Yaml {
+        path: deploy.display().to_string(),
+        why: e.to_string(),
+    })?;
+    if !y.is_mapping() {
+        return Err(DeployError::Yaml {
+            path: deploy.display().to_string(),
+            why: "the top level is not a mapping of deploy fields".into(),
+        });
+    }
+    Ok(y)
+}
+
+/// `joint_ids_map`: policy index → SDK slot, each slot once.
+fn joint_map(y: &Value) -> Result<Vec<usize>, DeployError> {
+    // Joint map: policy index → SDK slot, each slot once.
+    let map_v = get(y, &["joint_ids_map"]).ok_or_else(|| field("joint_ids_map", "missing"))?;
+    let map: Vec<usize> = list(map_v, "joint_ids_map")?
+        .into_iter()
+        .enumerate()
+        .map(|(i, s)| {
+            if s.fract() != 0.0 || s < 0.0 || s >= G1_SLOTS as f64 {
+                Err(field(
+                    &format!("joint_ids_map[{i}]"),
+                    format!("{s} is not a G1 motor slot 0-28"),
+                ))
+            } else {
+                Ok(s as usize)
+            }
+        })
+        .collect::<Result<_, _>>()?;
+    for (i, s) in map.iter().enumerate() {
+        if let Some(j) = map[..i].iter().position(|t| t == s) {
+            return Err(field(
+                "joint_ids_map",
+                format!(
+                    "slot {s} ({}) is mapped twice, at policy indices {j} and {i}",
+                    hal::G1_MOTOR_NAMES[*s]
+                ),
+            ));
+        }
+    }
+    Ok(map)
+}
+
+/// The observation terms, in the file's order, for `n` policy joints.
+fn observation_terms(y: &Value, n: usize) -> Result<Vec<Term>, DeployError> {
     // Observation terms, in the file's order.
-    let obs = get(&y, &["observations"])
+    let obs = get(y, &["observations"])
         .and_then(|v| v.as_mapping())
         .ok_or_else(|| field("observations", "missing or not a mapping of terms"))?;
     let mut terms = Vec::new();
@@ -392,52 +455,7 @@ pub fn import_rl_lab(deploy: &Path, onnx: &Path, opts: &RlLabOptions) -> Result<
             period_s,
         });
     }
-    let network = import_file(onnx)?;
-    let held: Vec<(usize, f32, f32)> = (0..G1_SLOTS)
-        .filter(|sl| !map.contains(sl))
-        .map(|sl| (sl, stiffness[sl] as f32, damping[sl] as f32))
-        .collect();
-    let draft = Draft {
-        source: format!("{} and {}", deploy.display(), onnx.display()),
-        name: deploy
-            .parent()
-            .and_then(|p| p.file_name())
-            .map_or("imported".into(), |f| f.to_string_lossy().into_owned()),
-        map,
-        kp,
-        kd,
-        default_pose,
-        action_scale,
-        action_clip,
-        ranges: [vx, vy, wz],
-        terms,
-        step_dt,
-        policy_hz,
-        held,
-        notes: Vec::new(),
-    };
-    finish(draft, network, opts)
-}
-
-/// Everything a deploy spec needs, whichever export it came from.
-pub struct Draft {
-    pub source: String,
-    pub name: String,
-    pub map: Vec<usize>,
-    pub kp: Vec<f32>,
-    pub kd: Vec<f32>,
-    pub default_pose: Vec<f32>,
-    pub action_scale: Vec<f32>,
-    pub action_clip: Option<f32>,
-    /// vx, vy, wz: [low, high].
-    pub ranges: [[f32; 2]; 3],
-    pub terms: Vec<Term>,
-    pub step_dt: f64,
-    pub policy_hz: u32,
-    /// Motor slots the policy does not drive: (slot, kp, kd), held at 0.
-    pub held: Vec<(usize, f32, f32)>,
-    /// Said in the table (defaults the export did not carry).
-    pub notes: Vec<String>,
+    Ok(terms)
 }
 
 /// Checks the draft against the network and writes the spec and the table.
@@ -557,54 +575,8 @@ pub fn finish(d: Draft, network: ImportedNetwork, opts: &RlLabOptions) -> Result
     }
 
     // The table a person checks before trying it on a robot.
-    let mut table = String::new();
-    let _ = writeln!(
-        table,
-        "observation ({obs_dim} values = the network's input; clip before scale, as IsaacLab):"
-    );
-    let _ = writeln!(
-        table,
-        "  {:<28} {:<18} {:>4} {:>4}  {:<26} clip",
-        "term", "spec kind", "dims", "hist", "scale"
-    );
-    for t in &terms {
-        let _ = writeln!(
-            table,
-            "  {:<28} {:<18} {:>4} {:>4}  {:<26} {}",
-            t.name,
-            t.kind,
-            t.dim,
-            t.history,
-            if t.scale.iter().all(|&v| v == t.scale[0]) {
-                format!("{}", t.scale[0])
-            } else {
-                format!("{:?}", t.scale)
-            },
-            t.clip.map_or("none".into(), |c| format!("[{}, {}]", c[0], c[1]))
-        );
-    }
-    let _ = writeln!(
-        table,
-        "joints (policy order; kp/kd taken from deploy.yaml's SDK-order lists at the slot):"
-    );
-    let _ = writeln!(
-        table,
-        "  {:>3}  {:<28} {:>4} {:>8} {:>7} {:>8} {:>6}",
-        "#", "joint", "slot", "kp", "kd", "default", "scale"
-    );
-    for i in 0..n {
-        let _ = writeln!(
-            table,
-            "  {:>3}  {:<28} {:>4} {:>8} {:>7} {:>8} {:>6}",
-            i,
-            hal::G1_MOTOR_NAMES[map[i]],
-            map[i],
-            kp[i],
-            kd[i],
-            default_pose[i],
-            action_scale[i]
-        );
-    }
+    let mut table = observation_table(&terms, obs_dim);
+    joint_table(&mut table, &map, &kp, &kd, &default_pose, &action_scale);
     let _ = writeln!(
         table,
         "commands: vx [{}, {}], vy [{}, {}], wz [{}, {}]; policy {policy_hz} Hz in a {} Hz loop; {} held motor(s)",
@@ -631,6 +603,63 @@ pub fn finish(d: Draft, network: ImportedNetwork, opts: &RlLabOptions) -> Result
         default_pose,
         terms,
     })
+}
+
+/// The observation half of the review table: each term's kind, size, history, scale and clip.
+fn observation_table(terms: &[Term], obs_dim: usize) -> String {
+    let mut table = String::new();
+    let _ = writeln!(
+        table,
+        "observation ({obs_dim} values = the network's input; clip before scale, as IsaacLab):"
+    );
+    let _ = writeln!(
+        table,
+        "  {:<28} {:<18} {:>4} {:>4}  {:<26} clip",
+        "term", "spec kind", "dims", "hist", "scale"
+    );
+    for t in terms {
+        let _ = writeln!(
+            table,
+            "  {:<28} {:<18} {:>4} {:>4}  {:<26} {}",
+            t.name,
+            t.kind,
+            t.dim,
+            t.history,
+            if t.scale.iter().all(|&v| v == t.scale[0]) {
+                format!("{}", t.scale[0])
+            } else {
+                format!("{:?}", t.scale)
+            },
+            t.clip.map_or("none".into(), |c| format!("[{}, {}]", c[0], c[1]))
+        );
+    }
+    table
+}
+
+/// The joint half of the review table: slot, gains, default pose and action scale per policy joint.
+fn joint_table(table: &mut String, map: &[usize], kp: &[f32], kd: &[f32], default_pose: &[f32], action_scale: &[f32]) {
+    let _ = writeln!(
+        table,
+        "joints (policy order; kp/kd taken from deploy.yaml's SDK-order lists at the slot):"
+    );
+    let _ = writeln!(
+        table,
+        "  {:>3}  {:<28} {:>4} {:>8} {:>7} {:>8} {:>6}",
+        "#", "joint", "slot", "kp", "kd", "default", "scale"
+    );
+    for i in 0..map.len() {
+        let _ = writeln!(
+            table,
+            "  {:>3}  {:<28} {:>4} {:>8} {:>7} {:>8} {:>6}",
+            i,
+            hal::G1_MOTOR_NAMES[map[i]],
+            map[i],
+            kp[i],
+            kd[i],
+            default_pose[i],
+            action_scale[i]
+        );
+    }
 }
 
 /// mjlab / BeyondMimic-style term names (`observation_names` metadata) → the spec's kinds.
