@@ -77,7 +77,13 @@ fn keep_freed_tensors_in_the_heap() {
 fn main() -> anyhow::Result<()> {
     keep_freed_tensors_in_the_heap();
     g1_sim::no_mujoco_log_file();
-    match Cli::parse().cmd {
+    let cli = Cli::parse();
+    // The README's commands are checked against the parser in CI (tests/tests/readme.rs).
+    if std::env::var_os("G1_CHECK_ARGS").is_some() {
+        eprintln!("G1_CHECK_ARGS is set: the arguments parse; nothing was run");
+        return Ok(());
+    }
+    match cli.cmd {
         Cmd::Fit(args) => fit::run(args),
         Cmd::Export(args) => export::run(args),
         Cmd::EvalTerrain(args) => eval_terrain::run(args),
