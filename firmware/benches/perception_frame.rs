@@ -3,8 +3,8 @@
 //!
 //! Plain bench binary (`harness = false`): `cargo bench -p firmware --bench perception_frame`.
 //!
-//! - The network: `firmware/weights/terrain_cnn.toml` (a `NetworkDesc` at top level) and
-//!   `firmware/weights/terrain_cnn.safetensors` when both exist; otherwise the paper's shape
+//! - The network: `control/weights/terrain_cnn.toml` (a `NetworkDesc` at top level) and
+//!   `control/weights/terrain_cnn.safetensors` when both exist; otherwise the paper's shape
 //!   (6x60x60 -> conv 24/48/128, k3 s2 p1, ReLU -> fc 8192->128 -> ReLU -> head 128->7) with
 //!   random weights, said loudly on stderr. Timing does not depend on the weight values.
 //! - (a) `Network::step` alone on a realistic BEV; the portable kernels as well where the CPU

@@ -28,22 +28,6 @@ use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
 use crate::spec::DeploySpec;
 use hal::{LowLevel, TimeBase};
 
-impl FrameSource for DdsHal {
-    /// The `LowState_` sample as it was on the wire (CDR); the log's metadata says so
-    /// (`frame_encoding = cdr`) and replay decodes it with the same codec.
-    fn received_frame(&self) -> Option<&[u8]> {
-        self.received_sample()
-    }
-}
-
-impl<B: CanBuses> FrameSource for CanHal<B> {
-    /// The assembled state as unitree_hg bytes: the log records them and replay decodes them with
-    /// the same codec as a bridge run's.
-    fn received_frame(&self) -> Option<&[u8]> {
-        self.fresh().then(|| &self.state_bytes()[..])
-    }
-}
-
 #[derive(Clone, Debug)]
 pub struct RunOptions {
     pub schedule: CommandSchedule,

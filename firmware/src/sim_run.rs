@@ -16,20 +16,8 @@ use crate::operator::{CommandSchedule, HeadingSource, OperatorInput, OperatorSou
 use crate::perception::TerrainSource;
 use crate::replay::key;
 pub use crate::run_report::{spec_meta, SafetyReport, TripReport};
-use crate::runtime::{run_loop, FrameSource, LatencySummary, LoopEnd, Runtime, TickView};
+use crate::runtime::{run_loop, LatencySummary, LoopEnd, Runtime, TickView};
 use crate::spec::DeploySpec;
-
-impl FrameSource for BridgeHal {
-    fn received_frame(&self) -> Option<&[u8]> {
-        self.frame_received().then(|| self.state_frame())
-    }
-    fn truth(&self) -> Option<&Truth> {
-        Some(BridgeHal::truth(self))
-    }
-    fn read_lidar(&mut self, out: &mut crate::perception::LidarFrame) -> bool {
-        hal::Lidar::read_frame(self, out).unwrap_or(false)
-    }
-}
 
 /// Everything `g1fw sim` needs besides the spec.
 #[derive(Clone, Debug)]

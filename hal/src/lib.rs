@@ -100,3 +100,20 @@ impl TickTime {
         self.time_ns as f64 * 1e-9
     }
 }
+
+/// What a HAL offers besides the traits, for logging and evaluation: the frame as it arrived, an
+/// observer's ground truth, the newest lidar frame.
+pub trait FrameSource {
+    /// Wire bytes of the LowState frame that arrived on the newest tick (valid or not), if any.
+    fn received_frame(&self) -> Option<&[u8]>;
+    /// Simulator ground truth of the newest tick (evaluation only, never control).
+    fn truth(&self) -> Option<&GroundTruth> {
+        None
+    }
+    /// Puts the newest complete lidar frame into `out`; false when there is none new (or no lidar).
+    /// Asked only on perception ticks (the runtime's `load_lidar`); a frame it delivers is what that
+    /// tick's perception step consumes, and what the log records as `/lidar/frame` for replay.
+    fn read_lidar(&mut self, _out: &mut PointFrame<LIDAR_FRAME_CAP>) -> bool {
+        false
+    }
+}

@@ -183,7 +183,7 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
     file("g1fw/shared/peer_policy/unitree_g1_lstm/LICENSE");
     file("g1fw/shared/assets/unitree_g1_12dof/g1_12dof.xml");
     file("g1fw/shared/assets/unitree_g1_12dof/LICENSE");
-    let weights = std::fs::read(root.join("firmware/weights/terrain_cnn.safetensors")).unwrap();
+    let weights = std::fs::read(root.join("control/weights/terrain_cnn.safetensors")).unwrap();
     assert!(file("g1fw/weights/terrain_cnn.safetensors") == weights);
     file("g1fw/weights/terrain_cnn.toml");
     file("g1fw/README.md");

@@ -8,7 +8,7 @@ use safetensors::SafeTensors;
 use train::data::GRID;
 use train::model::TerrainCnn;
 
-const FIXTURE: &[u8] = include_bytes!("../../firmware/weights/terrain_cnn_parity.safetensors");
+const FIXTURE: &[u8] = include_bytes!("../../control/weights/terrain_cnn_parity.safetensors");
 
 #[test]
 fn candle_and_the_firmware_executor_agree_to_1e_4() {

@@ -334,7 +334,7 @@ fn collect(root: &Path, bin: &Path) -> Result<Files> {
     }
 
     // The terrain CNN; its parity fixture is test data and stays behind.
-    let wdir = root_c.join("firmware/weights");
+    let wdir = root_c.join("control/weights");
     let mut weights: Vec<PathBuf> = std::fs::read_dir(&wdir)
         .with_context(|| format!("reading {}", wdir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))

@@ -344,3 +344,11 @@ impl<B: CanBuses> LowLevel for CanHal<B> {
         Ok(())
     }
 }
+
+impl<B: CanBuses> hal::FrameSource for CanHal<B> {
+    /// The assembled state as unitree_hg bytes: the log records them and replay decodes them with
+    /// the same codec as a bridge run's.
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.fresh().then(|| &self.state_bytes()[..])
+    }
+}

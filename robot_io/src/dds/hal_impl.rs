@@ -395,3 +395,11 @@ impl LowLevel for DdsHal {
         self.link.send(&self.cmd_cdr)
     }
 }
+
+impl hal::FrameSource for DdsHal {
+    /// The `LowState_` sample as it was on the wire (CDR); the log's metadata says so
+    /// (`frame_encoding = cdr`) and replay decodes it with the same codec.
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.received_sample()
+    }
+}

@@ -489,3 +489,15 @@ impl hal::Lidar<LIDAR_FRAME_CAP> for BridgeHal {
         }
     }
 }
+
+impl hal::FrameSource for BridgeHal {
+    fn received_frame(&self) -> Option<&[u8]> {
+        self.frame_received().then(|| self.state_frame())
+    }
+    fn truth(&self) -> Option<&hal::GroundTruth> {
+        Some(BridgeHal::truth(self))
+    }
+    fn read_lidar(&mut self, out: &mut PointFrame<LIDAR_FRAME_CAP>) -> bool {
+        hal::Lidar::read_frame(self, out).unwrap_or(false)
+    }
+}

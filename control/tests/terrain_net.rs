@@ -1,6 +1,6 @@
 //! The terrain CNN built into the firmware: it matches what `g1-train` computed for the same grids
 //! (parity fixture written at export), loads only sane networks, and fails safe on bad input.
-use firmware::terrain_net::{TerrainNet, TerrainNetError, EMBEDDED_DESC, EMBEDDED_WEIGHTS};
+use control::terrain_net::{TerrainNet, TerrainNetError, EMBEDDED_DESC, EMBEDDED_WEIGHTS};
 use safetensors::SafeTensors;
 use sensor_io::bev::BevGrid;
 

@@ -2,9 +2,9 @@
 //! joint map) and the errors a broken spec gives.
 use std::path::{Path, PathBuf};
 
-use firmware::controller::{Controller, Mode};
-use firmware::obs::{ObsInputs, ObservationBuilder};
-use firmware::spec::DeploySpec;
+use control::controller::{Controller, Mode};
+use control::obs::{ObsInputs, ObservationBuilder};
+use control::spec::DeploySpec;
 use hal::{LowCommand, LowState, TickTime};
 
 fn specs_dir() -> PathBuf {
@@ -48,9 +48,9 @@ fn push_frame(b: &mut ObservationBuilder, k: usize, out: &mut [f32]) {
 #[test]
 fn terrain_token_term_is_the_papers_z() {
     let mut spec = rl_lab_spec();
-    spec.observation.terms.push(firmware::spec::ObsTerm {
-        kind: firmware::spec::ObsKind::TerrainToken,
-        scale: firmware::spec::Scale::Scalar(1.0),
+    spec.observation.terms.push(control::spec::ObsTerm {
+        kind: control::spec::ObsKind::TerrainToken,
+        scale: control::spec::Scale::Scalar(1.0),
         clip: None,
         clip_before_scale: None,
         history: 1,
@@ -84,7 +84,7 @@ fn term_major_history_is_oldest_first_per_term_and_primed_by_the_first_frame() {
     let mut spec = rl_lab_spec();
     for t in &mut spec.observation.terms {
         t.clip = None;
-        t.scale = firmware::spec::Scale::Scalar(1.0);
+        t.scale = control::spec::Scale::Scalar(1.0);
     }
     let mut b = ObservationBuilder::new(&spec);
     let mut out = vec![0.0; 480];
@@ -231,7 +231,7 @@ fn wrong_network_dimension_is_a_clear_error() {
             "[phase]\nperiod_s = 0.8\nfirst_step_time_s = 0.02\n\n[observation]",
         );
     let spec = DeploySpec::from_toml(&text, &specs_dir().join("test/x.toml")).unwrap();
-    let e = firmware::nn::with_causes(&Controller::new(spec).err().expect("dimension mismatch"));
+    let e = control::nn::with_causes(&Controller::new(spec).err().expect("dimension mismatch"));
     assert!(e.contains("482"), "{e}");
 }
 
@@ -240,10 +240,10 @@ fn wrong_network_dimension_is_a_clear_error() {
 #[test]
 fn clip_before_scale_is_isaaclabs_order() {
     let mut spec = rl_lab_spec();
-    spec.observation.history_layout = firmware::spec::HistoryLayout::TermMajor;
-    spec.observation.terms = vec![firmware::spec::ObsTerm {
-        kind: firmware::spec::ObsKind::BaseAngVel,
-        scale: firmware::spec::Scale::Scalar(0.5),
+    spec.observation.history_layout = control::spec::HistoryLayout::TermMajor;
+    spec.observation.terms = vec![control::spec::ObsTerm {
+        kind: control::spec::ObsKind::BaseAngVel,
+        scale: control::spec::Scale::Scalar(0.5),
         clip: None,
         clip_before_scale: Some([-1.0, 2.0]),
         history: 1,

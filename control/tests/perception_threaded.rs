@@ -6,12 +6,12 @@
 #![allow(clippy::disallowed_methods)]
 use std::path::Path;
 
-use firmware::controller::Controller;
-use firmware::operator::CommandSchedule;
-use firmware::perception::LidarFrame;
-use firmware::perception_worker::PerceptionExec;
-use firmware::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
-use firmware::spec::DeploySpec;
+use control::controller::Controller;
+use control::operator::CommandSchedule;
+use control::perception::LidarFrame;
+use control::perception_worker::PerceptionExec;
+use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
+use control::spec::DeploySpec;
 use hal::{LidarPoint, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 /// A standing robot and, on every perception tick, a lidar frame of ground with a step ahead.

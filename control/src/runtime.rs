@@ -26,7 +26,7 @@ use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 use crate::controller::{Controller, Mode};
 use crate::operator::{OperatorInput, OperatorSource};
-use crate::perception::{LidarFrame, Perception, PerceptionSummary, TerrainSource};
+use crate::perception::{Perception, PerceptionSummary, TerrainSource};
 use crate::perception_worker::{PerceptionExec, PerceptionWorker};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
 use estimator::StateEstimator;
@@ -671,21 +671,7 @@ impl TimingStats {
     }
 }
 
-/// What a HAL offers besides the traits, for logging and evaluation.
-pub trait FrameSource {
-    /// Wire bytes of the LowState frame that arrived on the newest tick (valid or not), if any.
-    fn received_frame(&self) -> Option<&[u8]>;
-    /// Simulator ground truth of the newest tick (evaluation only, never control).
-    fn truth(&self) -> Option<&hal::GroundTruth> {
-        None
-    }
-    /// Puts the newest complete lidar frame into `out`; false when there is none new (or no lidar).
-    /// Asked only on perception ticks ([`Runtime::load_lidar`]); a frame it delivers is what that
-    /// tick's perception step consumes, and what the log records as `/lidar/frame` for replay.
-    fn read_lidar(&mut self, _out: &mut LidarFrame) -> bool {
-        false
-    }
-}
+pub use hal::FrameSource;
 
 /// Everything about one tick, for loggers, evaluators and the replay comparator.
 pub struct TickView<'a> {

@@ -7,11 +7,11 @@ mod common;
 use common::{healthy, tick};
 use std::path::Path;
 
-use firmware::controller::{Controller, DampingReason, Mode};
-use firmware::operator::OperatorInput;
-use firmware::runtime::{Runtime, TickSummary};
-use firmware::spec::DeploySpec;
-use firmware::supervisor::FrameStatus;
+use control::controller::{Controller, DampingReason, Mode};
+use control::operator::OperatorInput;
+use control::runtime::{Runtime, TickSummary};
+use control::spec::DeploySpec;
+use control::supervisor::FrameStatus;
 use hal::{ErrorKind, LowCommand, LowState};
 
 fn spec() -> DeploySpec {
@@ -131,7 +131,7 @@ fn joint_speed_base_rate_and_temperature_limits_trip() {
 }
 
 /// The test spec with `safety` (TOML) appended; it has no `[safety]` table of its own.
-fn spec_with_safety(safety: &str) -> Result<DeploySpec, firmware::spec::SpecError> {
+fn spec_with_safety(safety: &str) -> Result<DeploySpec, control::spec::SpecError> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml");
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(!text.contains("[safety]"));
@@ -144,7 +144,7 @@ fn a_spec_may_tighten_joint_speed_limits_but_not_loosen_them() {
         "[safety]\njoint_speed_limit_rad_s = 12.0\n[safety.joint_speed_limits_rad_s]\nleft_knee = 8.0\n",
     )
     .unwrap();
-    let lim = firmware::supervisor::MotionLimits::from_spec(&strict);
+    let lim = control::supervisor::MotionLimits::from_spec(&strict);
     assert_eq!(lim.joint_speed_rad_s[3], 8.0, "left knee: its own entry");
     assert_eq!(
         lim.joint_speed_rad_s[9], 12.0,
@@ -256,7 +256,7 @@ fn nan_policy_output_trips_and_targets_are_clamped_to_joint_ranges() {
     assert_eq!(trip, None);
     let c = rt.controller();
     for (s, q) in c.target_q().iter().enumerate().take(29) {
-        let (lo, hi) = firmware::robot::G1_JOINT_RANGE[s].unwrap();
+        let (lo, hi) = control::robot::G1_JOINT_RANGE[s].unwrap();
         assert!(*q >= lo && *q <= hi, "slot {s}: {q} outside [{lo}, {hi}]");
     }
     eprintln!("clamped targets: {}", c.clamped_targets());

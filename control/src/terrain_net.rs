@@ -15,7 +15,7 @@ use crate::nn::{Network, NetworkDesc, NnError};
 /// Largest network description read (the deploy spec's own cap).
 const MAX_DESC_BYTES: u64 = 1 << 20;
 
-/// The committed, trained network (see `firmware/weights/README.md` for how it was made).
+/// The committed, trained network (see `control/weights/README.md` for how it was made).
 pub const EMBEDDED_WEIGHTS: &[u8] = include_bytes!("../weights/terrain_cnn.safetensors");
 pub const EMBEDDED_DESC: &str = include_str!("../weights/terrain_cnn.toml");
 

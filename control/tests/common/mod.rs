@@ -1,4 +1,4 @@
-//! Helpers shared by firmware's integration tests.
+//! Helpers shared by the control core's integration tests.
 #![allow(dead_code)]
 use hal::{LowState, TickTime};
 

@@ -11,7 +11,7 @@
 //! The peer policy (Unitree G1 LSTM), as written in a deploy spec:
 //!
 //! ```
-//! use firmware::nn::{LayerDesc, NetworkDesc};
+//! use control::nn::{LayerDesc, NetworkDesc};
 //!
 //! #[derive(serde::Deserialize)]
 //! struct Policy {
@@ -35,8 +35,8 @@
 //! assert_eq!(spec.policy.network.layers[2], LayerDesc::Elu { alpha: 1.0 });
 //!
 //! // Then, once at startup:
-//! fn run(desc: &NetworkDesc) -> Result<(), firmware::nn::NnError> {
-//!     let mut net = firmware::nn::Network::load(desc, "policy.safetensors".as_ref())?;
+//! fn run(desc: &NetworkDesc) -> Result<(), control::nn::NnError> {
+//!     let mut net = control::nn::Network::load(desc, "policy.safetensors".as_ref())?;
 //!     let (obs, mut action) = (vec![0.0f32; net.input_dim()], vec![0.0f32; net.output_dim()]);
 //!     net.step(&obs, &mut action)?; // every control tick; state carries over
 //!     Ok(())
@@ -49,7 +49,7 @@
 //! `nn.Flatten()` + `nn.Linear`:
 //!
 //! ```
-//! let desc: firmware::nn::NetworkDesc = toml::from_str(r#"
+//! let desc: control::nn::NetworkDesc = toml::from_str(r#"
 //! input = 21600
 //! input_shape = [6, 60, 60]
 //! layers = [

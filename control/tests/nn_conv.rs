@@ -1,7 +1,7 @@
-//! `conv2d` in `firmware::nn`: conv chains against a naive reference (bit for bit), the terrain
+//! `conv2d` in `control::nn`: conv chains against a naive reference (bit for bit), the terrain
 //! CNN's shapes, load errors that say what to fix, and the description's TOML form.
 
-use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError};
+use control::nn::{LayerDesc, Network, NetworkDesc, NnError};
 use hal::XorShift64 as Rng;
 use safetensors::tensor::{Dtype, TensorView};
 

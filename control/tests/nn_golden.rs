@@ -1,9 +1,9 @@
-//! Tests of `firmware::nn`: golden output of the peer policy (needs `../shared`), small cases
+//! Tests of `control::nn`: golden output of the peer policy (needs `../shared`), small cases
 //! against an f64 reference on random weights, load errors, reset and a determinism fingerprint.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
 
-use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError};
+use control::nn::{LayerDesc, Network, NetworkDesc, NnError};
 use hal::XorShift64 as Rng;
 use safetensors::tensor::{Dtype, TensorView};
 use safetensors::SafeTensors;
@@ -51,7 +51,7 @@ struct PolicySection {
 /// The peer policy description, read from the committed deploy spec (the one g1fw runs).
 fn peer_desc() -> NetworkDesc {
     let spec = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../specs/peer/unitree_g1_lstm.toml");
-    firmware::spec::DeploySpec::load(&spec)
+    control::spec::DeploySpec::load(&spec)
         .expect("peer spec loads")
         .policy
         .network

@@ -3,7 +3,7 @@
 //! set in turn to NaN, +1e30 and −1e30: a spec that still loads with such a value is a gap.
 use std::path::Path;
 
-use firmware::spec::DeploySpec;
+use control::spec::DeploySpec;
 
 fn leaves(v: &toml::Value, path: String, out: &mut Vec<String>) {
     match v {

@@ -2,8 +2,8 @@
 //! the limit, before anything of that size is allocated or read.
 use std::path::{Path, PathBuf};
 
-use firmware::nn::{LayerDesc, Network, NetworkDesc, NnError, MAX_ACTIVATION, MAX_WEIGHTS_BYTES};
-use firmware::spec::{DeploySpec, SpecError, MAX_OBSERVATION_DIM, MAX_OBS_HISTORY, MAX_SPEC_BYTES};
+use control::nn::{LayerDesc, Network, NetworkDesc, NnError, MAX_ACTIVATION, MAX_WEIGHTS_BYTES};
+use control::spec::{DeploySpec, SpecError, MAX_OBSERVATION_DIM, MAX_OBS_HISTORY, MAX_SPEC_BYTES};
 
 fn spec_text() -> String {
     std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml")).unwrap()
@@ -82,7 +82,7 @@ fn weight_files_over_the_limit_are_not_read() {
     assert!(s.contains(&MAX_WEIGHTS_BYTES.to_string()), "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
     if Path::new("/dev/zero").exists() {
-        let e = firmware::read_capped(Path::new("/dev/zero"), 1 << 20).unwrap_err();
+        let e = control::read_capped(Path::new("/dev/zero"), 1 << 20).unwrap_err();
         // A device is refused as such before a byte is read.
         assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput, "{e}");
     }
@@ -147,13 +147,13 @@ fn fifos_devices_and_directories_are_refused_as_inputs_without_blocking() {
             .map(|_| ())
             .map_err(|e| format!("{e}: {:?}", std::error::Error::source(&e)));
         let chain = |e: &dyn std::error::Error| format!("{e}: {}", e.source().map_or(String::new(), |s| s.to_string()));
-        let schedule = firmware::operator::CommandSchedule::load(&f)
+        let schedule = control::operator::CommandSchedule::load(&f)
             .map(|_| ())
             .map_err(|e| chain(&e));
-        let zero = firmware::operator::CommandSchedule::load(Path::new("/dev/zero"))
+        let zero = control::operator::CommandSchedule::load(Path::new("/dev/zero"))
             .map(|_| ())
             .map_err(|e| chain(&e));
-        let weights = firmware::read_capped(&f, MAX_WEIGHTS_BYTES)
+        let weights = control::read_capped(&f, MAX_WEIGHTS_BYTES)
             .map(|_| ())
             .map_err(|e| e.to_string());
         tx.send((spec, schedule, zero, weights)).unwrap();

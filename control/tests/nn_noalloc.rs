@@ -2,7 +2,7 @@
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
 
-use firmware::nn::{LayerDesc, Network, NetworkDesc};
+use control::nn::{LayerDesc, Network, NetworkDesc};
 use safetensors::tensor::{Dtype, TensorView};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

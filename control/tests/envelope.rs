@@ -1,4 +1,4 @@
-//! The command envelope (`firmware::envelope`) through the runtime: whatever the spec, the states
+//! The command envelope (`control::envelope`) through the runtime: whatever the spec, the states
 //! and the faults, every outgoing LowCmd is inside it; a command that is not (a field whose own
 //! validation was forgotten) latches damping and names the field and its source.
 // Test inputs come from std's math on the host; this never runs on the robot.
@@ -7,13 +7,13 @@ mod common;
 use common::{healthy, tick};
 use std::path::Path;
 
-use firmware::controller::{Controller, DampingReason, Mode};
-use firmware::envelope::{g1_motor_effort_limit, CommandField, CommandSource, KD_MAX, KP_MAX};
-use firmware::operator::OperatorInput;
-use firmware::robot::G1_JOINT_RANGE;
-use firmware::runtime::Runtime;
-use firmware::spec::{DeploySpec, Scale};
-use firmware::supervisor::FrameStatus;
+use control::controller::{Controller, DampingReason, Mode};
+use control::envelope::{g1_motor_effort_limit, CommandField, CommandSource, KD_MAX, KP_MAX};
+use control::operator::OperatorInput;
+use control::robot::G1_JOINT_RANGE;
+use control::runtime::Runtime;
+use control::spec::{DeploySpec, Scale};
+use control::supervisor::FrameStatus;
 use hal::{ErrorKind, LowCommand, LowState, XorShift64, MOTOR_MODE_ENABLED, NUM_MOTORS};
 use proptest::prelude::*;
 
@@ -21,7 +21,7 @@ fn spec() -> DeploySpec {
     DeploySpec::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml")).unwrap()
 }
 
-/// The envelope, written out independently of `firmware::envelope`: `Err` names the first breach.
+/// The envelope, written out independently of `control::envelope`: `Err` names the first breach.
 fn inside(cmd: &LowCommand, margin: f32) -> Result<(), String> {
     for (s, m) in cmd.motors.iter().enumerate() {
         let name = hal::G1_MOTOR_NAMES[s];
@@ -173,7 +173,7 @@ fn a_held_target_outside_the_joint_range_is_clamped_without_a_trip() {
     // it, the envelope clamps it regardless).
     let mut s = spec();
     if s.held.is_empty() {
-        s.held.push(firmware::spec::HeldGroup {
+        s.held.push(control::spec::HeldGroup {
             joints: vec!["waist_roll".into()],
             q: Scale::Scalar(6.0),
             kp: Scale::Scalar(200.0),
