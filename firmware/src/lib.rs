@@ -1,9 +1,8 @@
 //! The G1 control firmware as a library: `g1fw` is a thin CLI over it, and tests drive it directly.
 //! The control core (spec, observations, network, controller, supervisor, envelope, perception, the
-//! tick) is the `control` crate, re-exported here under the same module names; this crate adds:
+//! tick) is the `control` crate and the run's record (`log`, `replay`) the `runlog` crate, both
+//! re-exported here under the same module names; this crate adds:
 //!
-//! - [`log`]: MCAP logging through a fixed pool and a writer thread; reading logs back.
-//! - [`replay`]: `g1fw replay`, recorded inputs through the same runtime, outputs compared bit for bit.
 //! - [`robot_run`]: `g1fw run`, the loop on the real G1 (DDS) or a CAN bench, damping at every end.
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 // The control core (what runs every tick) is its own crate; its modules keep their paths here.
@@ -11,17 +10,17 @@ pub use control::{
     alloc_probe, controller, envelope, lidar_source, nn, obs, operator, perception, perception_worker, policy_io,
     robot, rt, runtime, spec, supervisor, terrain_net,
 };
+// So is the run's record (MCAP logs, their reader, bit-exact replay).
+pub use runlog::{log, replay};
 #[cfg(feature = "lab")]
 pub mod bev_render;
 #[cfg(feature = "lab")]
 pub mod eval;
-pub mod log;
 pub mod log_tools;
 #[cfg(feature = "lab")]
 pub mod plot;
 #[cfg(feature = "lab")]
 pub mod profile_plot;
-pub mod replay;
 pub mod robot_run;
 pub mod run_report;
 #[cfg(feature = "lab")]

@@ -16,22 +16,22 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use crate::nn::sha256_hex;
 use anyhow::{bail, Context, Result};
+use control::nn::sha256_hex;
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::cdr::{low_state_from_cdr, CdrError};
 use sensor_io::unitree_hg::{
     decode_low_cmd, decode_low_state, encode_low_cmd_body, DecodeError, UnsealedStamper, LOW_CMD_LEN, LOW_STATE_LEN,
 };
 
-use crate::controller::Controller;
 use crate::log::channels as ch;
 use crate::log::reader::{Damage, LogFile};
-use crate::operator::{OperatorInput, OperatorSource};
-use crate::perception::{LidarFrame, PerceptionSummary, TerrainSource};
-use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
-use crate::spec::{DeploySpec, ObsKind};
-use crate::supervisor::FrameStatus;
+use control::controller::Controller;
+use control::operator::{OperatorInput, OperatorSource};
+use control::perception::{LidarFrame, PerceptionSummary, TerrainSource};
+use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
+use control::spec::{DeploySpec, ObsKind};
+use control::supervisor::FrameStatus;
 
 /// Metadata keys of the run record (see [`crate::log::writer::RunMeta`]).
 pub mod key {
@@ -115,8 +115,8 @@ pub struct ReplayReport {
     /// Ticks per wall-second of the re-execution alone (after the log is loaded), as sim-s/wall-s.
     pub run_sim_seconds_per_wall_second: f64,
     /// Fast group and whole-tick compute during the replay.
-    pub fast_group_us: crate::runtime::LatencySummary,
-    pub tick_compute_us: crate::runtime::LatencySummary,
+    pub fast_group_us: control::runtime::LatencySummary,
+    pub tick_compute_us: control::runtime::LatencySummary,
 }
 
 /// One recorded tick.
@@ -584,7 +584,7 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
     let pinned_spec_sha = meta_get(&meta, key::SPEC_SHA256)?;
     let (spec_text, spec_path) = match &opts.spec {
         Some(p) => {
-            let text = crate::read_text_capped(p, crate::spec::MAX_SPEC_BYTES as u64)
+            let text = control::read_text_capped(p, control::spec::MAX_SPEC_BYTES as u64)
                 .with_context(|| format!("reading spec {}", p.display()))?;
             (text, p.clone())
         }
@@ -682,8 +682,8 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
     }
     match meta.get(key::PERCEPTION_EXEC).map(String::as_str) {
         None | Some("inline") => {}
-        Some(label) => match crate::perception_worker::PerceptionExec::parse(label, true) {
-            Ok(crate::perception_worker::PerceptionExec::Threaded { consume_after, .. }) => {
+        Some(label) => match control::perception_worker::PerceptionExec::parse(label, true) {
+            Ok(control::perception_worker::PerceptionExec::Threaded { consume_after, .. }) => {
                 let late: Vec<u64> = rec.terrain.iter().filter(|(_, r)| r.late).map(|(t, _)| *t).collect();
                 rt.set_perception_replay(consume_after, late);
             }

@@ -19,9 +19,9 @@ use hal::LowCommand;
 use serde::Serialize;
 
 use super::channels::{self as ch, encode_lidar_frame, encode_low_cmd_frame, encode_low_state_frame};
-use crate::controller::Mode;
-use crate::perception::{LidarFrame, PerceptionSummary};
-use crate::runtime::{HalFailure, TickSummary, TickView};
+use control::controller::Mode;
+use control::perception::{LidarFrame, PerceptionSummary};
+use control::runtime::{HalFailure, TickSummary, TickView};
 use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CELL_M, BEV_CHANNELS, BEV_HALF_EXTENT_M, CHANNEL_NAMES};
 
 /// Largest observation / action the log record holds.
@@ -436,7 +436,7 @@ struct McapSink {
     seq: u32,
     buf: Vec<u8>,
     cmd_bytes: [u8; sensor_io::unitree_hg::LOW_CMD_LEN],
-    last_operator: Option<crate::operator::OperatorInput>,
+    last_operator: Option<control::operator::OperatorInput>,
     last_mode: Option<Mode>,
     stats: LogStats,
 }
@@ -813,8 +813,8 @@ impl McapSink {
                 step_depth_m: s.token.step_depth_m,
                 yaw_deg: s.token.yaw_rad.to_degrees(),
                 source: match s.source {
-                    crate::spec::TerrainEstimatorKind::Cnn => "cnn",
-                    crate::spec::TerrainEstimatorKind::Geometric => "geometric",
+                    control::spec::TerrainEstimatorKind::Cnn => "cnn",
+                    control::spec::TerrainEstimatorKind::Geometric => "geometric",
                 },
                 held: s.held,
                 late: s.late,

@@ -103,7 +103,7 @@ impl LogFile {
                 limit: MAX_LOG_BYTES,
             });
         }
-        Self::from_bytes(path, crate::read_capped(path, MAX_LOG_BYTES).map_err(io)?)
+        Self::from_bytes(path, control::read_capped(path, MAX_LOG_BYTES).map_err(io)?)
     }
 
     /// A log already in memory (`path` names it in messages).
