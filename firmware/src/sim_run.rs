@@ -438,52 +438,8 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
 
-    let mut child = None;
-    let want = Wants {
-        truth: true,
-        lidar: opts.world.is_some(),
-    };
-    let mut hal = match &opts.connect {
-        Some(path) => BridgeHal::connect_unix(path, want, Duration::from_secs(10), || Ok(()))?,
-        None => {
-            let launch = SimLaunch {
-                bin: opts.sim_bin.clone(),
-                seed: opts.seed,
-                physics_dt: opts.physics_dt,
-                faults: opts.faults.clone(),
-                imu_noise: opts.imu_noise.clone(),
-                world: opts.world.clone(),
-                integrator: opts.integrator.clone(),
-                ..SimLaunch::new(&opts.model, control_dt)
-            };
-            let (c, hal) = launch.start("g1fw", want, Duration::from_secs(30))?;
-            child = Some(c);
-            hal
-        }
-    };
+    let (mut hal, mut child) = start_simulator(opts, control_dt, &controller)?;
     let welcome = *hal.welcome();
-    if (welcome.control_dt_ns as f64 * 1e-9 - control_dt).abs() > 1e-9 {
-        bail!(
-            "the simulator ticks every {} ns but the deploy spec asks for control_hz {}",
-            welcome.control_dt_ns,
-            1.0 / control_dt
-        );
-    }
-    let missing: Vec<&str> = controller
-        .spec()
-        .policy
-        .joint_ids_map
-        .iter()
-        .filter(|&&s| welcome.motor_slots_present & (1 << s) == 0)
-        .map(|&s| hal::G1_MOTOR_NAMES[s])
-        .collect();
-    if !missing.is_empty() {
-        bail!(
-            "the model '{}' lacks joints the policy drives: {}",
-            opts.model,
-            missing.join(", ")
-        );
-    }
     let heading_target = opts.heading.map(|h| match h {
         Heading::Fixed(y) => y,
         Heading::StairAxis => hal.truth().stairs.map_or(0.0, |p| p.axis_yaw_rad),
@@ -499,12 +455,14 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
 
     let total_ticks = (opts.duration_s / control_dt).round() as u64;
     let progress = opts.progress.then(|| progress_bar(opts.duration_s));
-    let mut hasher = Sha256::new();
-    let mut agg = Aggregate::new(&opts.schedule, total_ticks as usize);
-    let mut est_eval = EstimatorEval::new(controller.spec().kinematics.clone(), control_dt);
-    let mut terrain_eval = TerrainEval::default();
-    let mut stairs_eval = StairsEval::default();
-    let mut policy_ticks = 0u64;
+    let mut ev = Evaluation {
+        hasher: Sha256::new(),
+        agg: Aggregate::new(&opts.schedule, total_ticks as usize),
+        est: EstimatorEval::new(controller.spec().kinematics.clone(), control_dt),
+        terrain: TerrainEval::default(),
+        stairs: StairsEval::default(),
+        policy_ticks: 0,
+    };
     let mut runtime = Runtime::new(controller);
     runtime.set_terrain_source(terrain_source);
     runtime
@@ -531,26 +489,11 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             }
         }
         // Everything below is evaluation: it runs while the simulator steps.
-        if let Some(raw) = v.raw_state {
-            hasher.update(raw);
-        }
-        if v.command_sent {
-            let mut b = [0u8; sensor_io::unitree_hg::LOW_CMD_LEN];
-            sensor_io::unitree_hg::encode_low_cmd(v.command, &mut b);
-            hasher.update(b);
-        }
+        ev.add(v, control_dt, opts.duration_s);
         let k = v.summary.tick.index;
         ticks = k;
-        if let Some(truth) = v.truth {
-            agg.add(truth, k as f64 * control_dt, opts.duration_s, v);
-            est_eval.add(truth, v);
-            terrain_eval.add(truth, v);
-            if let Some(p) = &truth.stairs {
-                stairs_eval.add(p, k as f64 * control_dt);
-            }
-        }
-        policy_ticks += (v.summary.mode == Mode::Policy) as u64;
-        if let (Some(hold), Some(since)) = (opts.stop_after_landing_s, stairs_eval.on_landing_since) {
+        let agg = &ev.agg;
+        if let (Some(hold), Some(since)) = (opts.stop_after_landing_s, ev.stairs.on_landing_since) {
             landed |= k as f64 * control_dt - since >= hold && agg.fell_at.is_none() && v.runtime.trip().is_none();
         }
         observe(v);
@@ -583,47 +526,18 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
         None => (None, None),
     };
-    let end_text = match &end {
-        LoopEnd::Stopped { ticks } if log_failed => format!(
-            "stopped at tick {ticks}: the log could not be written ({})",
-            log_error.as_deref().unwrap_or("unknown error")
-        ),
-        LoopEnd::Completed { .. } => "completed".to_string(),
-        LoopEnd::Stopped { ticks } if interrupted => {
-            format!("interrupted by a signal at tick {ticks}; the log is closed and the simulator stopped")
-        }
-        LoopEnd::Stopped { .. } if landed => format!(
-            "stopped: on the end landing for {:.1} s (success)",
-            opts.stop_after_landing_s.unwrap_or(0.0)
-        ),
-        LoopEnd::Stopped { .. } => "fell".to_string(),
-        LoopEnd::Panicked {
-            tick,
-            message,
-            damping_sent,
-        } => bail!(
-            "internal error: the control loop panicked at tick {tick} ({message}); damping {}{}",
-            if *damping_sent { "sent" } else { "could not be sent" },
-            log_note(&opts.log)
-        ),
-        LoopEnd::HalError { tick, kind, message } => {
-            let what = match kind {
-                hal::ErrorKind::Disconnected => {
-                    format!("{gone} at tick {tick}: {message}; motors commanded to damping")
-                }
-                _ => format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping"),
-            };
-            if !opts.faults.is_empty() {
-                // An injected disconnect ends the run by design; report it rather than fail.
-                what
-            } else {
-                bail!("{what}{}", log_note(&opts.log));
-            }
-        }
-    };
+    let end_text = describe_end(&end, opts, log_failed, interrupted, landed, log_error.as_deref(), &gone)?;
 
     let time_s = ticks as f64 * control_dt;
     let trip = TripReport::of(&runtime, control_dt);
+    let Evaluation {
+        hasher,
+        agg,
+        est: est_eval,
+        terrain: terrain_eval,
+        stairs: stairs_eval,
+        policy_ticks,
+    } = ev;
     let clean = agg.fell_at.is_none() && trip.is_none() && !matches!(end, LoopEnd::HalError { .. });
     Ok(Report {
         log_error,
@@ -668,6 +582,146 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             fast_group_us: runtime.timing_stats().fast(),
             tick_compute_us: runtime.timing_stats().tick(),
         },
+    })
+}
+
+/// What `g1fw sim` measures while the simulator steps: a hash of the state and command trace, and
+/// the ground-truth evaluations of the report.
+struct Evaluation {
+    hasher: Sha256,
+    agg: Aggregate,
+    est: EstimatorEval,
+    terrain: TerrainEval,
+    stairs: StairsEval,
+    policy_ticks: u64,
+}
+
+impl Evaluation {
+    fn add(&mut self, v: &TickView, control_dt: f64, duration_s: f64) {
+        if let Some(raw) = v.raw_state {
+            self.hasher.update(raw);
+        }
+        if v.command_sent {
+            let mut b = [0u8; sensor_io::unitree_hg::LOW_CMD_LEN];
+            sensor_io::unitree_hg::encode_low_cmd(v.command, &mut b);
+            self.hasher.update(b);
+        }
+        let t = v.summary.tick.index as f64 * control_dt;
+        if let Some(truth) = v.truth {
+            self.agg.add(truth, t, duration_s, v);
+            self.est.add(truth, v);
+            self.terrain.add(truth, v);
+            if let Some(p) = &truth.stairs {
+                self.stairs.add(p, t);
+            }
+        }
+        self.policy_ticks += (v.summary.mode == Mode::Policy) as u64;
+    }
+}
+
+/// Starts `g1-sim` (or connects to a running one) and checks that it ticks at the spec's rate and
+/// has every joint the policy drives.
+fn start_simulator(
+    opts: &SimOptions,
+    control_dt: f64,
+    controller: &Controller,
+) -> Result<(BridgeHal, Option<SimProcess>)> {
+    let mut child = None;
+    let want = Wants {
+        truth: true,
+        lidar: opts.world.is_some(),
+    };
+    let hal = match &opts.connect {
+        Some(path) => BridgeHal::connect_unix(path, want, Duration::from_secs(10), || Ok(()))?,
+        None => {
+            let launch = SimLaunch {
+                bin: opts.sim_bin.clone(),
+                seed: opts.seed,
+                physics_dt: opts.physics_dt,
+                faults: opts.faults.clone(),
+                imu_noise: opts.imu_noise.clone(),
+                world: opts.world.clone(),
+                integrator: opts.integrator.clone(),
+                ..SimLaunch::new(&opts.model, control_dt)
+            };
+            let (c, hal) = launch.start("g1fw", want, Duration::from_secs(30))?;
+            child = Some(c);
+            hal
+        }
+    };
+    let welcome = *hal.welcome();
+    if (welcome.control_dt_ns as f64 * 1e-9 - control_dt).abs() > 1e-9 {
+        bail!(
+            "the simulator ticks every {} ns but the deploy spec asks for control_hz {}",
+            welcome.control_dt_ns,
+            1.0 / control_dt
+        );
+    }
+    let missing: Vec<&str> = controller
+        .spec()
+        .policy
+        .joint_ids_map
+        .iter()
+        .filter(|&&s| welcome.motor_slots_present & (1 << s) == 0)
+        .map(|&s| hal::G1_MOTOR_NAMES[s])
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "the model '{}' lacks joints the policy drives: {}",
+            opts.model,
+            missing.join(", ")
+        );
+    }
+    Ok((hal, child))
+}
+
+/// What ended the run, in words; an internal error or an unexpected HAL failure is an error.
+fn describe_end(
+    end: &LoopEnd,
+    opts: &SimOptions,
+    log_failed: bool,
+    interrupted: bool,
+    landed: bool,
+    log_error: Option<&str>,
+    gone: &str,
+) -> Result<String> {
+    Ok(match end {
+        LoopEnd::Stopped { ticks } if log_failed => format!(
+            "stopped at tick {ticks}: the log could not be written ({})",
+            log_error.unwrap_or("unknown error")
+        ),
+        LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { ticks } if interrupted => {
+            format!("interrupted by a signal at tick {ticks}; the log is closed and the simulator stopped")
+        }
+        LoopEnd::Stopped { .. } if landed => format!(
+            "stopped: on the end landing for {:.1} s (success)",
+            opts.stop_after_landing_s.unwrap_or(0.0)
+        ),
+        LoopEnd::Stopped { .. } => "fell".to_string(),
+        LoopEnd::Panicked {
+            tick,
+            message,
+            damping_sent,
+        } => bail!(
+            "internal error: the control loop panicked at tick {tick} ({message}); damping {}{}",
+            if *damping_sent { "sent" } else { "could not be sent" },
+            log_note(&opts.log)
+        ),
+        LoopEnd::HalError { tick, kind, message } => {
+            let what = match kind {
+                hal::ErrorKind::Disconnected => {
+                    format!("{gone} at tick {tick}: {message}; motors commanded to damping")
+                }
+                _ => format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping"),
+            };
+            if !opts.faults.is_empty() {
+                // An injected disconnect ends the run by design; report it rather than fail.
+                what
+            } else {
+                bail!("{what}{}", log_note(&opts.log));
+            }
+        }
     })
 }
 
