@@ -18,7 +18,7 @@ use g1_sim::model::deps_dir;
 use g1_sim::world::World;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use mujoco_rs::prelude::*;
-use train::dataset::{DatasetConfig, ModeChoice, WorldRenderer};
+use train::cnn::dataset::{DatasetConfig, ModeChoice, WorldRenderer};
 
 const FRAME_NS: u64 = 100_000_000;
 

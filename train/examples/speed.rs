@@ -4,7 +4,7 @@ use std::time::Instant;
 fn main() -> anyhow::Result<()> {
     let dev = Device::Cpu;
     let vm = VarMap::new();
-    let model = train::model::TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev))?;
+    let model = train::cnn::model::TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev))?;
     let x = Tensor::randn(0f32, 1.0, (64, 6, 60, 60), &dev)?;
     for _ in 0..2 {
         let _ = model.forward_t(&x, true)?;

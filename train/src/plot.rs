@@ -4,8 +4,8 @@ use std::path::Path;
 use anyhow::Context;
 use plotters::prelude::*;
 
-use crate::eval::Bin;
-use crate::fit::EpochLog;
+use crate::cnn::eval::Bin;
+use crate::cnn::fit::EpochLog;
 
 const CNN: RGBColor = RGBColor(31, 119, 180);
 const BASE: RGBColor = RGBColor(255, 127, 14);
@@ -129,13 +129,18 @@ fn error_bins_png(path: &Path, bins: &[Bin], title: &str, xl: &str, scale: f64, 
     let areas = root.split_evenly((2, 2));
     let used: Vec<&Bin> = bins.iter().filter(|b| b.samples > 0).collect();
     let mid = |b: &Bin| scale * 0.5 * (b.lo + b.hi) as f64;
-    let pick = |f: fn(&crate::eval::BinErr) -> f64| -> [Vec<(f64, f64)>; 2] {
+    let pick = |f: fn(&crate::cnn::eval::BinErr) -> f64| -> [Vec<(f64, f64)>; 2] {
         [
             used.iter().map(|b| (mid(b), f(&b.cnn))).collect(),
             used.iter().map(|b| (mid(b), f(&b.baseline))).collect(),
         ]
     };
-    type Panel<'a> = (&'a str, fn(&crate::eval::BinErr) -> f64, Option<(f64, &'a str)>, bool);
+    type Panel<'a> = (
+        &'a str,
+        fn(&crate::cnn::eval::BinErr) -> f64,
+        Option<(f64, &'a str)>,
+        bool,
+    );
     let panels: [Panel; 4] = [
         (
             "MAE step height (cm)",

@@ -5,8 +5,8 @@ use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
 use firmware::nn::Network;
 use safetensors::SafeTensors;
-use train::data::GRID;
-use train::model::TerrainCnn;
+use train::cnn::data::GRID;
+use train::cnn::model::TerrainCnn;
 
 const FIXTURE: &[u8] = include_bytes!("../../control/weights/terrain_cnn_parity.safetensors");
 
@@ -15,7 +15,7 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
     let dev = Device::Cpu;
     let vm = VarMap::new();
     let model = TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev)).unwrap();
-    train::fit::seeded_init(&vm, 7, &dev).unwrap();
+    train::cnn::fit::seeded_init(&vm, 7, &dev).unwrap();
     // Non-trivial BatchNorm: scale, shift and running statistics away from 1 / 0.
     let mut rng = labkit::rng::Rng(99);
     {
@@ -45,7 +45,7 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
     let x = Tensor::from_vec(grids.clone(), (n, 6, 60, 60), &dev).unwrap();
     let want = model.forward_t(&x, false).unwrap().to_vec2::<f32>().unwrap();
 
-    let exported = train::export::fold(&vm).unwrap();
+    let exported = train::cnn::export::fold(&vm).unwrap();
     let bytes = exported.safetensors_bytes(&Default::default()).unwrap();
     let desc: firmware::nn::NetworkDesc = toml::from_str(&exported.desc_toml().unwrap()).unwrap();
     let mut net = Network::from_safetensors_bytes(&desc, &bytes).unwrap();

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use candle_core::Device;
-use train::data::{split_by_world, Dataset};
-use train::dataset::{export, DatasetConfig, ExportConfig, WorldSet};
-use train::fit::{fit, FitConfig};
+use train::cnn::data::{split_by_world, Dataset};
+use train::cnn::dataset::{export, DatasetConfig, ExportConfig, WorldSet};
+use train::cnn::fit::{fit, FitConfig};
 
 fn temp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("g1-train-{name}-{}", std::process::id()));
@@ -30,7 +30,7 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
             jobs: 2,
             // The memory's render path (the firmware's default may be single-frame).
             dataset: DatasetConfig {
-                memory: train::dataset::MemoryConfig::DEFAULT,
+                memory: train::cnn::dataset::MemoryConfig::DEFAULT,
                 ..DatasetConfig::default()
             },
         },
@@ -83,13 +83,13 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     assert!(!out.join("checkpoint.safetensors.partial").exists());
 
     // Fold and write; the firmware's loader accepts it and computes a token.
-    let sha = train::export::fold(&vm)
+    let sha = train::cnn::export::fold(&vm)
         .unwrap()
         .write(&out, &Default::default())
         .unwrap();
     let mut net = firmware::terrain_net::TerrainNet::load(
-        &out.join(train::export::DESC_FILE),
-        &out.join(train::export::WEIGHTS_FILE),
+        &out.join(train::cnn::export::DESC_FILE),
+        &out.join(train::cnn::export::WEIGHTS_FILE),
     )
     .unwrap();
     assert_eq!(net.weights_sha256(), sha);

@@ -9,7 +9,7 @@ use g1_sim::world::{RandomRanges, World};
 use safetensors::tensor::Dtype;
 use safetensors::SafeTensors;
 use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CHANNELS, BEV_LEN, CH_DENSITY};
-use train::dataset::{
+use train::cnn::dataset::{
     evaluate_geometric, export, render_worlds, sample_pose, DatasetConfig, ExportConfig, ModeChoice, WorldRenderer,
     WorldSet, EVAL_SEED_BASE,
 };
@@ -242,7 +242,7 @@ fn empty_or_wrapping_requests_are_errors() {
 fn memory_samples_fill_the_blind_disc_and_drift_moves_them() {
     common::require_deps();
     let seed = 7u64;
-    let render = |memory: train::dataset::MemoryConfig, drift: f64, pose: u64| {
+    let render = |memory: train::cnn::dataset::MemoryConfig, drift: f64, pose: u64| {
         let cfg = DatasetConfig {
             memory,
             odometry_drift: drift,
@@ -256,8 +256,8 @@ fn memory_samples_fill_the_blind_disc_and_drift_moves_them() {
             .filter(|&i| g.data[CH_DENSITY * BEV_CELLS * BEV_CELLS + i] > 0.0)
             .count()
     };
-    let on = train::dataset::MemoryConfig::DEFAULT;
-    let off = train::dataset::MemoryConfig::OFF;
+    let on = train::cnn::dataset::MemoryConfig::DEFAULT;
+    let off = train::cnn::dataset::MemoryConfig::OFF;
     // The first pose (of a few) whose approach holds keyframes.
     let pose = (0..8u64)
         .find(|&p| render(on, 1.0, p).meta.keyframes > 0)

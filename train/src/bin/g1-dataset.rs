@@ -1,5 +1,5 @@
 //! `g1-dataset`: labelled BEV datasets for the terrain estimator, and the geometric estimator's
-//! errors on held-out worlds. See `train::dataset` for the pose distribution and the rendering.
+//! errors on held-out worlds. See `train::cnn::dataset` for the pose distribution and the rendering.
 // The simulator never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 use std::path::PathBuf;
@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use labkit::progress::{bar, default_jobs};
-use train::dataset::{
+use train::cnn::dataset::{
     evaluate_geometric, export, DatasetConfig, ExportConfig, ModeChoice, WorldSet, EVAL_SEED_BASE, TENSOR_DOC,
 };
 
@@ -97,7 +97,7 @@ struct Common {
     no_pose_noise: bool,
     /// BEV memory keyframes (the firmware's `[perception] bev_memory_keyframes`; 0: single-frame
     /// grids). Default: what the firmware's built-in network was trained with.
-    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::dataset::MemoryConfig::BUILTIN.keyframes)]
+    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::cnn::dataset::MemoryConfig::BUILTIN.keyframes)]
     memory_keyframes: usize,
     /// Hide the progress bar.
     #[arg(long)]
@@ -109,7 +109,7 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
         mode,
         ..DatasetConfig::default()
     };
-    d.memory = train::dataset::MemoryConfig::with_keyframes(c.memory_keyframes);
+    d.memory = train::cnn::dataset::MemoryConfig::with_keyframes(c.memory_keyframes);
     if c.no_pose_noise {
         d.attitude_noise_rad = 0.0;
         d.height_noise_m = 0.0;

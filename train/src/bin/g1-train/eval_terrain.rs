@@ -2,7 +2,7 @@
 use anyhow::Context;
 use labkit::progress::{bar, default_jobs};
 use std::path::PathBuf;
-use train::export::{DESC_FILE, WEIGHTS_FILE};
+use train::cnn::export::{DESC_FILE, WEIGHTS_FILE};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -20,10 +20,10 @@ pub struct Args {
     poses_per_world: usize,
     /// standing, walking or mixed.
     #[arg(long, default_value = "mixed")]
-    mode: train::dataset::ModeChoice,
+    mode: train::cnn::dataset::ModeChoice,
     /// BEV memory keyframes of the grids (0: single-frame); must match what the weights were
     /// trained with. Default: that of the firmware's built-in network.
-    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::dataset::MemoryConfig::BUILTIN.keyframes)]
+    #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::cnn::dataset::MemoryConfig::BUILTIN.keyframes)]
     memory_keyframes: usize,
     /// Scale of the memory keyframes' simulated odometry drift (1: the renderer's model; 0:
     /// perfect odometry, the upper bound of what the memory gives).
@@ -61,7 +61,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         jobs,
         quiet,
     } = args;
-    use train::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
+    use train::cnn::dataset::{DatasetConfig, WorldSet, EVAL_SEED_BASE};
     let base = if training_worlds {
         eprintln!(
             "note: --training-worlds: world seeds {seed}.. are the ones `g1-dataset export --seed {seed}` \
@@ -96,12 +96,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut net = load_net(weights.as_deref())?;
     let cfg = DatasetConfig {
         mode,
-        memory: train::dataset::MemoryConfig::with_keyframes(memory_keyframes),
+        memory: train::cnn::dataset::MemoryConfig::with_keyframes(memory_keyframes),
         odometry_drift,
         ..DatasetConfig::default()
     };
     let pb = bar(set.len() * poses_per_world, quiet, "samples");
-    let r = train::eval::evaluate(&set, poses_per_world, cfg, jobs, &mut net, &|| pb.inc(1))?;
+    let r = train::cnn::eval::evaluate(&set, poses_per_world, cfg, jobs, &mut net, &|| pb.inc(1))?;
     pb.finish_and_clear();
     print!("{r}");
     let title = format!(
@@ -123,7 +123,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         println!("plot: {}", riser_plot.display());
     }
     if let Some(path) = report {
-        train::eval::write_report(&path, &r)?;
+        train::cnn::eval::write_report(&path, &r)?;
         println!("report: {}", path.display());
     }
     Ok(())

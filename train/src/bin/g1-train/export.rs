@@ -3,8 +3,8 @@ use anyhow::Context;
 use candle_core::Device;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
-use train::data::{split_by_world, Dataset};
-use train::export::{fold, DESC_FILE, WEIGHTS_FILE};
+use train::cnn::data::{split_by_world, Dataset};
+use train::cnn::export::{fold, DESC_FILE, WEIGHTS_FILE};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -22,7 +22,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Args { checkpoint, out, data } = args;
     let mut vm = candle_nn::VarMap::new();
-    let model = train::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
+    let model = train::cnn::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
         &vm,
         candle_core::DType::F32,
         &Device::Cpu,
@@ -36,8 +36,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(d) = data {
         let ds = Dataset::load_dir(&d)?;
         let (_, val) = split_by_world(&ds, 0.1);
-        let path = out.join(train::export::PARITY_FILE);
-        train::export::parity_fixture_from(&model, &ds, &val, &Device::Cpu, &path, &sha)?;
+        let path = out.join(train::cnn::export::PARITY_FILE);
+        train::cnn::export::parity_fixture_from(&model, &ds, &val, &Device::Cpu, &path, &sha)?;
         println!("wrote {}", path.display());
     }
     Ok(())

@@ -5,9 +5,9 @@ use labkit::progress::bar;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use train::data::{split_by_world, Dataset};
-use train::export::{fold, DESC_FILE, WEIGHTS_FILE};
-use train::fit::{fit, FitConfig, LAMBDA_CLS, LAMBDA_D, LAMBDA_H, LAMBDA_YAW};
+use train::cnn::data::{split_by_world, Dataset};
+use train::cnn::export::{fold, DESC_FILE, WEIGHTS_FILE};
+use train::cnn::fit::{fit, FitConfig, LAMBDA_CLS, LAMBDA_D, LAMBDA_H, LAMBDA_YAW};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -143,7 +143,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     let sha = fold(&varmap)?.write(&out, &meta)?;
     let pool = if val.is_empty() { &tr } else { &val };
-    train::export::parity_fixture_from(&model, &ds, pool, &dev, &out.join(train::export::PARITY_FILE), &sha)?;
+    train::cnn::export::parity_fixture_from(
+        &model,
+        &ds,
+        pool,
+        &dev,
+        &out.join(train::cnn::export::PARITY_FILE),
+        &sha,
+    )?;
     train::plot::training_png(&out.join("training.png"), &history)?;
     let hist = serde_json::json!({ "config": cfg, "train_seconds": secs, "epochs": history });
     std::fs::write(out.join("history.json"), serde_json::to_string_pretty(&hist)? + "\n")?;

@@ -2,7 +2,7 @@
 //! the robot) next to the geometric baseline, on the same grids.
 use std::path::Path;
 
-use crate::dataset::{render_worlds, token_array, DatasetConfig, EvalStats, WorldSet};
+use crate::cnn::dataset::{render_worlds, token_array, DatasetConfig, EvalStats, WorldSet};
 use estimator::terrain::{GeometricTerrainConfig, GeometricTerrainEstimator};
 use firmware::terrain_net::TerrainNet;
 use hal::TerrainToken;
@@ -178,7 +178,7 @@ pub fn evaluate(
             pose: [s.meta.pelvis[0], s.meta.pelvis[1], s.meta.pose.yaw],
             riser: s.meta.riser.map(|r| (r.index, r.count, r.mid_x_m)),
             outdoor: s.meta.outdoor,
-            walking: s.meta.pose.mode == crate::dataset::Mode::Walking,
+            walking: s.meta.pose.mode == crate::cnn::dataset::Mode::Walking,
             keyframes: s.meta.keyframes,
         });
         progress();

@@ -8,13 +8,13 @@
 //! h, d and yaw are supervised on stairs samples only (flat has no geometry; its θ is the robot's
 //! heading, which a robot-centred grid cannot show). The yaw term's weight is 0.5: the vector
 //! has two components, so 0.5 puts yaw on the same footing as one of h or d.
-use crate::dataset::EvalStats;
+use crate::cnn::dataset::EvalStats;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
 use labkit::rng::Rng;
 
-use crate::data::{batch, Dataset};
-use crate::model::TerrainCnn;
+use crate::cnn::data::{batch, Dataset};
+use crate::cnn::model::TerrainCnn;
 
 pub const LAMBDA_CLS: f64 = 0.6;
 pub const LAMBDA_H: f64 = 1.0;

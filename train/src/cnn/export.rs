@@ -13,8 +13,8 @@ use candle_nn::VarMap;
 use firmware::nn::{sha256_hex, LayerDesc, NetworkDesc};
 use safetensors::tensor::{Dtype, TensorView};
 
-use crate::data::GRID;
-use crate::model::{BN_EPS, CONV_BLOCKS, PADDING, STRIDE};
+use crate::cnn::data::GRID;
+use crate::cnn::model::{BN_EPS, CONV_BLOCKS, PADDING, STRIDE};
 use sensor_io::bev::{BEV_CELLS, BEV_CHANNELS};
 
 /// File names inside an export directory.
@@ -194,8 +194,8 @@ pub fn write_parity_fixture(
 /// Picks two grids of each class from `pool` (indices into `ds`), runs `model` (eval mode) on them
 /// and writes the parity fixture to `path`.
 pub fn parity_fixture_from(
-    model: &crate::model::TerrainCnn,
-    ds: &crate::data::Dataset,
+    model: &crate::cnn::model::TerrainCnn,
+    ds: &crate::cnn::data::Dataset,
     pool: &[usize],
     dev: &candle_core::Device,
     path: &Path,
@@ -206,7 +206,7 @@ pub fn parity_fixture_from(
         pick.extend(pool.iter().copied().filter(|&i| ds.class[i] == class).take(2));
     }
     ensure!(!pick.is_empty(), "parity fixture: no samples to pick from");
-    let outs = crate::fit::predict(model, ds, &pick, dev)?;
+    let outs = crate::cnn::fit::predict(model, ds, &pick, dev)?;
     let grids: Vec<f32> = pick.iter().flat_map(|&i| ds.grid(i).iter().copied()).collect();
     write_parity_fixture(path, &grids, &outs, weights_sha256)
 }
