@@ -214,6 +214,24 @@ impl Netns {
     }
 }
 
+impl Netns {
+    /// `g1fw run --dds lo,1 --spec SPEC ARGS… --report REPORT --log LOG` inside the namespace, from the
+    /// repository root (specs name their files relative to it), to its end.
+    pub fn g1fw_run_dds(&self, spec: &Path, args: &[&str], report: &Path, log: &Path) -> std::process::Output {
+        self.command(&built_bin("g1fw"))
+            .current_dir(repo_root())
+            .args(["run", "--dds", "lo,1", "--spec"])
+            .arg(spec)
+            .args(args)
+            .arg("--report")
+            .arg(report)
+            .arg("--log")
+            .arg(log)
+            .output()
+            .expect("g1fw runs")
+    }
+}
+
 impl Drop for Netns {
     fn drop(&mut self) {
         let _ = Command::new("ip").args(["netns", "del", &self.0]).status();

@@ -119,17 +119,14 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
             if let Some((seq, len)) = got {
                 seen = seq;
                 last_command = Some(Instant::now());
-                let decoded = low_cmd_from_cdr(&raw[..len.min(raw.len())], &mut c_cmd)
-                    .map_err(|e| e.to_string())
-                    .and_then(|()| decode_low_cmd(&c_cmd, &mut cmd).map_err(|e| e.to_string()));
-                match decoded {
-                    Ok(()) => sim.apply_command(&cmd)?,
-                    Err(e) => {
-                        if summary.rejected_commands == 0 && !opts.quiet {
-                            eprintln!("g1-sim: rejected rt/lowcmd sample: {e}");
-                        }
-                        summary.rejected_commands += 1;
-                    }
+                if decode_command(
+                    &raw[..len.min(raw.len())],
+                    &mut c_cmd,
+                    &mut cmd,
+                    &mut summary,
+                    opts.quiet,
+                ) {
+                    sim.apply_command(&cmd)?;
                 }
                 free_start.get_or_insert_with(Instant::now);
             } else if free_start.is_some() {
@@ -140,14 +137,7 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                 publish(sim, &link)?;
                 continue;
             };
-            sim.step_control_tick();
-            summary.ticks += 1;
-            send_lidar(sim, lidar.as_ref(), &mut summary);
-            let z = sim.truth().base_pos[2];
-            summary.base_z_min_m = summary.base_z_min_m.min(z);
-            if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
-                summary.fell_at_s = Some(sim.time());
-            }
+            control_tick(sim, lidar.as_ref(), &mut summary);
             publish(sim, &link)?;
             free_tick += 1;
             let deadline = t0 + period * free_tick;
@@ -169,28 +159,20 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
             Some((seq, len)) => {
                 seen = seq;
                 last_command = Some(Instant::now());
-                let decoded = low_cmd_from_cdr(&raw[..len.min(raw.len())], &mut c_cmd)
-                    .map_err(|e| e.to_string())
-                    .and_then(|()| decode_low_cmd(&c_cmd, &mut cmd).map_err(|e| e.to_string()));
-                if let Err(e) = decoded {
+                if !decode_command(
+                    &raw[..len.min(raw.len())],
+                    &mut c_cmd,
+                    &mut cmd,
+                    &mut summary,
+                    opts.quiet,
+                ) {
                     // A robot ignores a command it cannot read; the controller's next one counts.
-                    if summary.rejected_commands == 0 && !opts.quiet {
-                        eprintln!("g1-sim: rejected rt/lowcmd sample: {e}");
-                    }
-                    summary.rejected_commands += 1;
                     summary.resent_states += 1;
                     publish(sim, &link)?;
                     continue;
                 }
                 sim.apply_command(&cmd)?;
-                sim.step_control_tick();
-                summary.ticks += 1;
-                send_lidar(sim, lidar.as_ref(), &mut summary);
-                let z = sim.truth().base_pos[2];
-                summary.base_z_min_m = summary.base_z_min_m.min(z);
-                if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
-                    summary.fell_at_s = Some(sim.time());
-                }
+                control_tick(sim, lidar.as_ref(), &mut summary);
                 publish(sim, &link)?;
             }
             None => {
@@ -212,6 +194,40 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
     summary.base_travel_m = [end[0] - start[0], end[1] - start[1]];
     summary.fell = summary.base_z_min_m < FELL_BELOW_M;
     Ok(summary)
+}
+
+/// Decodes an `rt/lowcmd` sample into `cmd`. A sample that does not decode (size, encoding, CRC,
+/// non-finite values) is counted and, the first time, named; the robot ignores it.
+fn decode_command(
+    raw: &[u8],
+    c_cmd: &mut [u8; LOW_CMD_LEN],
+    cmd: &mut LowCommand,
+    summary: &mut DdsSummary,
+    quiet: bool,
+) -> bool {
+    let decoded = low_cmd_from_cdr(raw, c_cmd)
+        .map_err(|e| e.to_string())
+        .and_then(|()| decode_low_cmd(c_cmd, cmd).map_err(|e| e.to_string()));
+    if let Err(e) = decoded {
+        if summary.rejected_commands == 0 && !quiet {
+            eprintln!("g1-sim: rejected rt/lowcmd sample: {e}");
+        }
+        summary.rejected_commands += 1;
+        return false;
+    }
+    true
+}
+
+/// One control tick of the robot: physics, the lidar's datagrams, the fall check.
+fn control_tick(sim: &mut Simulator, lidar: Option<&std::net::UdpSocket>, summary: &mut DdsSummary) {
+    sim.step_control_tick();
+    summary.ticks += 1;
+    send_lidar(sim, lidar, summary);
+    let z = sim.truth().base_pos[2];
+    summary.base_z_min_m = summary.base_z_min_m.min(z);
+    if z < FELL_BELOW_M && summary.fell_at_s.is_none() {
+        summary.fell_at_s = Some(sim.time());
+    }
 }
 
 /// The tick's Livox datagrams to `--lidar-udp-to`, if set.

@@ -5,8 +5,7 @@
 use std::process::Stdio;
 
 use integration_tests::{
-    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns,
-    Reaped,
+    built_bin, peer_spec_path, read_json, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns, Reaped,
 };
 
 /// Both run in wall-clock time: one scenario at a time.
@@ -51,21 +50,19 @@ fn run(tag: &str, sim_args: &[&str], duration: f64) -> Option<Outcome> {
     ));
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
-    let out = ns
-        .command(&built_bin("g1fw"))
-        .current_dir(repo_root())
-        .args(["run", "--dds", "lo,1", "--spec"])
-        .arg(peer_spec_path())
-        // Both programs pace themselves by the wall clock on a shared 2-core VM, where even a lone
-        // SCHED_FIFO loop sleeping 2 ms periods wakes up to 8-17 ms late (docs/robot.md, "Clock
-        // timing"): the 20 ms state timeout would then trip on the VM's stalls, not on the code.
-        .args(["--set", "safety.state_timeout_s=0.1"])
-        .args(["--cmd", "0.5,0,0", "--duration", &duration.to_string(), "--report"])
-        .arg(&report)
-        .arg("--log")
-        .arg(&log)
-        .output()
-        .expect("g1fw runs");
+    // Both programs pace themselves by the wall clock on a shared 2-core VM, where even a lone
+    // SCHED_FIFO loop sleeping 2 ms periods wakes up to 8-17 ms late (docs/robot.md, "Clock
+    // timing"): the 20 ms state timeout would then trip on the VM's stalls, not on the code.
+    let duration = duration.to_string();
+    let args = [
+        "--set",
+        "safety.state_timeout_s=0.1",
+        "--cmd",
+        "0.5,0,0",
+        "--duration",
+        &duration,
+    ];
+    let out = ns.g1fw_run_dds(&peer_spec_path(), &args, &report, &log);
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(report.exists(), "no report: {stderr}");
     Some(Outcome {

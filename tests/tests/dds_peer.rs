@@ -153,22 +153,21 @@ fn scenario(tag: &str, faults: &[&str], duration: f64, expect_run: bool) -> Opti
     ));
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
-    let fw = ns
-        .command(&built_bin("g1fw"))
-        .current_dir(repo_root())
-        .args(["run", "--dds", "lo,1", "--spec"])
-        .arg(peer_spec_path())
+    let duration = duration.to_string();
+    let args = [
         // g1-sim --dds and the peer step when a command comes (lock-step): tick on their states,
         // as the deterministic tests do; the clock-paced loop is tests/dds_clock.rs's.
-        .args(["--tick-on", "state"])
-        .args(["--cmd", "0.5,0,0", "--duration", &duration.to_string(), "--report"])
-        .arg(&report)
-        .arg("--log")
-        .arg(&log)
+        "--tick-on",
+        "state",
+        "--cmd",
+        "0.5,0,0",
+        "--duration",
+        &duration,
         // A silent link ticks every 4 ms: the supervisor's 20 ms state timeout still sees it.
-        .args(["--dds-tick-timeout-ms", "4"])
-        .output()
-        .expect("g1fw runs");
+        "--dds-tick-timeout-ms",
+        "4",
+    ];
+    let fw = ns.g1fw_run_dds(&peer_spec_path(), &args, &report, &log);
     let fw_stderr = String::from_utf8_lossy(&fw.stderr).to_string();
     let fw_json = if report.exists() {
         read_json(&report)
@@ -382,28 +381,23 @@ fn the_stair_policy_runs_over_dds_with_the_mid360_over_udp() {
     ));
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
-    let fw = ns
-        .command(&built_bin("g1fw"))
-        .current_dir(repo_root())
-        .args(["run", "--dds", "lo,1", "--spec", "specs/stairs/g1_stairs_lstm.toml"])
-        .args(["--tick-on", "state"])
-        .args([
-            "--lidar-udp",
-            "127.0.0.1:56301",
-            "--lidar-from",
-            "any",
-            // The speed the stair policy is judged at (docs/stair_results.md): at 0.4 m/s the
-            // committed actor stalls at the first 5 cm riser and trips on knee speed after 4.3 s,
-            // with or without DDS (`g1fw sim` does the same).
-            "--cmd",
-            "0.5,0,0",
-        ])
-        .args(["--duration", "6", "--report"])
-        .arg(&report)
-        .arg("--log")
-        .arg(&log)
-        .output()
-        .expect("g1fw runs");
+    let args = [
+        "--tick-on",
+        "state",
+        "--lidar-udp",
+        "127.0.0.1:56301",
+        "--lidar-from",
+        "any",
+        // The speed the stair policy is judged at (docs/stair_results.md): at 0.4 m/s the
+        // committed actor stalls at the first 5 cm riser and trips on knee speed after 4.3 s,
+        // with or without DDS (`g1fw sim` does the same).
+        "--cmd",
+        "0.5,0,0",
+        "--duration",
+        "6",
+    ];
+    let spec = repo_root().join("specs/stairs/g1_stairs_lstm.toml");
+    let fw = ns.g1fw_run_dds(&spec, &args, &report, &log);
     assert!(fw.status.success(), "g1fw: {}", String::from_utf8_lossy(&fw.stderr));
     let r = read_json(&report);
     let sim = sim.wait_json("g1-sim --dds");

@@ -64,18 +64,10 @@ fn run(tag: &str, extra: &[&str], duration: f64) -> Option<Outcome> {
     ));
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
-    let out = ns
-        .command(&built_bin("g1fw"))
-        .current_dir(repo_root())
-        .args(["run", "--dds", "lo,1", "--spec"])
-        .arg(peer_spec_path())
-        .args(["--cmd", "0.8,0,0", "--duration", &duration.to_string(), "--report"])
-        .arg(&report)
-        .arg("--log")
-        .arg(&log)
-        .args(extra)
-        .output()
-        .expect("g1fw runs");
+    let duration = duration.to_string();
+    let mut args = vec!["--cmd", "0.8,0,0", "--duration", &duration];
+    args.extend_from_slice(extra);
+    let out = ns.g1fw_run_dds(&peer_spec_path(), &args, &report, &log);
     let stderr = String::from_utf8_lossy(&out.stderr).to_string();
     assert!(report.exists(), "g1fw wrote no report: {stderr}");
     Some(Outcome {
