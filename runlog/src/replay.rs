@@ -575,13 +575,18 @@ pub fn replay(log_path: &Path, opts: &ReplayOptions) -> Result<ReplayReport> {
     })
 }
 
-fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOptions) -> Result<ReplayReport> {
-    let meta = log.run_metadata()?;
-    let mut notes = Vec::new();
-
+/// The controller the log was recorded with: the spec pinned in the log (or `--spec`, which must hash
+/// the same), the weights it names (or `--weights`), the start-up and terrain source of the run. A
+/// mismatch allowed by `--allow-mismatch` becomes a note.
+fn controller_from_log(
+    meta: &std::collections::BTreeMap<String, String>,
+    log_path: &Path,
+    opts: &ReplayOptions,
+    notes: &mut Vec<String>,
+) -> Result<(Controller, Option<TerrainSource>)> {
     // The spec: the text pinned in the log, located where the log says (relative weights paths
     // resolve against it), or an explicit override that must hash the same.
-    let pinned_spec_sha = meta_get(&meta, key::SPEC_SHA256)?;
+    let pinned_spec_sha = meta_get(meta, key::SPEC_SHA256)?;
     let (spec_text, spec_path) = match &opts.spec {
         Some(p) => {
             let text = control::read_text_capped(p, control::spec::MAX_SPEC_BYTES as u64)
@@ -589,8 +594,8 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
             (text, p.clone())
         }
         None => {
-            let recorded = meta_get(&meta, key::SPEC_PATH)?;
-            let text = meta_get(&meta, key::SPEC_TOML)?.to_string();
+            let recorded = meta_get(meta, key::SPEC_PATH)?;
+            let text = meta_get(meta, key::SPEC_TOML)?.to_string();
             let path = locate_spec(recorded, log_path).with_context(|| {
                 format!(
                     "the log was recorded with spec '{recorded}', which is not found relative to the current \
@@ -628,7 +633,9 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
     };
     if terrain_source == Some(TerrainSource::Truth) {
         bail!(
-            "{} was recorded with --terrain-source truth (the evaluation ablation that feeds the              simulator's ground-truth token to the policy); replay has no simulator, so it cannot              re-run it. Record with --terrain-source cnn|geometric|none to get a replayable log",
+            "{} was recorded with --terrain-source truth (the evaluation ablation that feeds the \
+             simulator's ground-truth token to the policy); replay has no simulator, so it cannot \
+             re-run it. Record with --terrain-source cnn|geometric|none to get a replayable log",
             log_path.display()
         );
     }
@@ -641,7 +648,7 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
     } else {
         Controller::new(spec)?
     };
-    let pinned_w = meta_get(&meta, key::WEIGHTS_SHA256)?;
+    let pinned_w = meta_get(meta, key::WEIGHTS_SHA256)?;
     if controller.weights_sha256() != pinned_w {
         let msg = format!(
             "weights {} have sha256 {}, but the log pins {pinned_w}",
@@ -653,6 +660,14 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
         }
         notes.push(msg);
     }
+    Ok((controller, terrain_source))
+}
+
+fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOptions) -> Result<ReplayReport> {
+    let meta = log.run_metadata()?;
+    let mut notes = Vec::new();
+
+    let (controller, terrain_source) = controller_from_log(&meta, log_path, opts, &mut notes)?;
 
     let rec = load(log)?;
     let observes_terrain = controller

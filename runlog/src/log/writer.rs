@@ -630,7 +630,29 @@ impl McapSink {
                 sole_height: e.sole_height,
             },
         )?;
-        // Safety state at 50 Hz and on every change of mode; events on trips and resets.
+        self.record_safety(r)?;
+        let tm = s.timing;
+        self.put_json(
+            ch::TIMING,
+            t,
+            &TimingMsg {
+                tick: k,
+                fast_ns: tm.fast_ns,
+                perception_ns: tm.perception_ns,
+                policy_ns: tm.policy_ns,
+                overruns: s.overruns,
+            },
+        )?;
+        if let Some(tr) = &r.truth {
+            self.record_truth(tr, k, t)?;
+        }
+        Ok(())
+    }
+
+    /// `/safety/state` at 50 Hz and on every change of mode; `/safety/event` on trips and resets.
+    fn record_safety(&mut self, r: &Record) -> Result<(), LogError> {
+        let s = &r.summary;
+        let (k, t) = (s.tick.index, s.tick.time_ns);
         if k.is_multiple_of(10) || self.last_mode != Some(s.mode) || r.dropped_before > 0 {
             self.last_mode = Some(s.mode);
             let c = s.counters;
@@ -686,43 +708,34 @@ impl McapSink {
                 },
             )?;
         }
-        let tm = s.timing;
+        Ok(())
+    }
+
+    /// The simulator's ground truth of the tick (`/sim/truth`).
+    fn record_truth(&mut self, tr: &GroundTruth, k: u64, t: u64) -> Result<(), LogError> {
         self.put_json(
-            ch::TIMING,
+            ch::TRUTH,
             t,
-            &TimingMsg {
+            &TruthMsg {
                 tick: k,
-                fast_ns: tm.fast_ns,
-                perception_ns: tm.perception_ns,
-                policy_ns: tm.policy_ns,
-                overruns: s.overruns,
+                base_pos: Xyz64::from(tr.base_pos),
+                base_quat: Quat {
+                    w: tr.base_quat[0],
+                    x: tr.base_quat[1],
+                    y: tr.base_quat[2],
+                    z: tr.base_quat[3],
+                },
+                lin_vel_body: Xyz64::from(tr.base_lin_vel_body),
+                ang_vel_body: Xyz64::from(tr.base_ang_vel_body),
+                foot_contact: tr.foot_contact,
+                stairs: tr.stairs.map(|p| StairsMsg {
+                    axis_s: p.axis_s,
+                    risers: p.risers,
+                    risers_passed: p.risers_passed,
+                    on_end_landing: p.on_end_landing,
+                }),
             },
         )?;
-        if let Some(tr) = &r.truth {
-            self.put_json(
-                ch::TRUTH,
-                t,
-                &TruthMsg {
-                    tick: k,
-                    base_pos: Xyz64::from(tr.base_pos),
-                    base_quat: Quat {
-                        w: tr.base_quat[0],
-                        x: tr.base_quat[1],
-                        y: tr.base_quat[2],
-                        z: tr.base_quat[3],
-                    },
-                    lin_vel_body: Xyz64::from(tr.base_lin_vel_body),
-                    ang_vel_body: Xyz64::from(tr.base_ang_vel_body),
-                    foot_contact: tr.foot_contact,
-                    stairs: tr.stairs.map(|p| StairsMsg {
-                        axis_s: p.axis_s,
-                        risers: p.risers,
-                        risers_passed: p.risers_passed,
-                        on_end_landing: p.on_end_landing,
-                    }),
-                },
-            )?;
-        }
         Ok(())
     }
 
