@@ -423,29 +423,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
         None => (None, None),
     };
-    let end_text = match &end {
-        LoopEnd::Completed { .. } => "completed".to_string(),
-        LoopEnd::Stopped { ticks } if log_failed => format!(
-            "stopped at tick {ticks}: the log could not be written ({}); motors commanded to damping",
-            log_error.as_deref().unwrap_or("unknown error")
-        ),
-        LoopEnd::Stopped { ticks } if variant_refusal.is_some() => format!(
-            "stopped at tick {ticks}: {}; motors commanded to damping",
-            variant_refusal.as_deref().unwrap_or_default()
-        ),
-        LoopEnd::Stopped { .. } => "stopped by signal".to_string(),
-        LoopEnd::HalError { tick, kind, message } => {
-            format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
-        }
-        LoopEnd::Panicked {
-            tick,
-            message,
-            damping_sent,
-        } => format!(
-            "panicked at tick {tick} (a bug: {message}); damping {} on every enabled motor",
-            if *damping_sent { "sent" } else { "could not be sent" }
-        ),
-    };
+    let end_text = describe_end(&end, log_failed, log_error.as_deref(), variant_refusal.as_deref());
 
     let lidar = hal.lidar.as_ref().map(|l| {
         let (c, s) = (l.counters(), l.assembler_stats());
@@ -490,6 +468,33 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         wall_s: wall.elapsed().as_secs_f64(),
     };
     Ok((report, hal.hal))
+}
+
+/// How the run ended, in words for the report (the motors are damped after every end).
+fn describe_end(end: &LoopEnd, log_failed: bool, log_error: Option<&str>, variant_refusal: Option<&str>) -> String {
+    match end {
+        LoopEnd::Completed { .. } => "completed".to_string(),
+        LoopEnd::Stopped { ticks } if log_failed => format!(
+            "stopped at tick {ticks}: the log could not be written ({}); motors commanded to damping",
+            log_error.unwrap_or("unknown error")
+        ),
+        LoopEnd::Stopped { ticks } if variant_refusal.is_some() => format!(
+            "stopped at tick {ticks}: {}; motors commanded to damping",
+            variant_refusal.unwrap_or_default()
+        ),
+        LoopEnd::Stopped { .. } => "stopped by signal".to_string(),
+        LoopEnd::HalError { tick, kind, message } => {
+            format!("HAL failure at tick {tick} ({kind:?}): {message}; motors commanded to damping")
+        }
+        LoopEnd::Panicked {
+            tick,
+            message,
+            damping_sent,
+        } => format!(
+            "panicked at tick {tick} (a bug: {message}); damping {} on every enabled motor",
+            if *damping_sent { "sent" } else { "could not be sent" }
+        ),
+    }
 }
 
 #[cfg(test)]
