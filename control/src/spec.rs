@@ -589,14 +589,17 @@ impl DeploySpec {
     }
 
     pub fn load(path: &Path) -> Result<Self, SpecError> {
+        Self::from_toml(&Self::read_text(path)?, path)
+    }
+
+    /// The spec file's text: size-capped, UTF-8.
+    fn read_text(path: &Path) -> Result<String, SpecError> {
         let read = |source| SpecError::Read {
             path: path.into(),
             source,
         };
         let bytes = crate::read_capped(path, MAX_SPEC_BYTES as u64).map_err(read)?;
-        let text =
-            String::from_utf8(bytes).map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))?;
-        Self::from_toml(&text, path)
+        String::from_utf8(bytes).map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, e)))
     }
 
     /// As [`DeploySpec::load`], with `KEY=VALUE` overrides (`g1fw run --set`) applied first: a dotted
@@ -606,11 +609,7 @@ impl DeploySpec {
         if sets.is_empty() {
             return Self::load(path);
         }
-        let bytes = crate::read_capped(path, MAX_SPEC_BYTES as u64).map_err(|source| SpecError::Read {
-            path: path.into(),
-            source,
-        })?;
-        let text = String::from_utf8_lossy(&bytes);
+        let text = Self::read_text(path)?;
         let bad = |message: String| SpecError::Parse {
             path: path.into(),
             message,

@@ -21,6 +21,35 @@ fn small(every: usize) -> JudgeConfig {
     }
 }
 
+/// A short run on flat ground, warm-started from the peer walker, judged by `judge`.
+fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
+    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
+    RunConfig {
+        spec: root().join("specs/stairs/g1_stairs_lstm.toml"),
+        model: g1_sim::ModelChoice::G1_12Dof,
+        out: out.to_path_buf(),
+        envs: 4,
+        threads: 2,
+        iterations: 2,
+        seed: 3,
+        init_actor: Some(peer),
+        actor_hidden: Vec::new(),
+        symmetry: false,
+        init_std: 0.3,
+        critic_warmup: 2,
+        episode_s: 2.0,
+        ppo: Default::default(),
+        random: Randomization::NONE,
+        max_init_level: 0,
+        vx: (0.4, 0.8),
+        only: Some(Column::Flat),
+        checkpoint_every_s: f64::INFINITY,
+        quiet: true,
+        max_wall_s: f64::INFINITY,
+        judge,
+    }
+}
+
 #[test]
 fn the_committed_stair_policy_is_judged_through_g1fw() {
     if !have_12dof_model() {
@@ -49,31 +78,7 @@ fn a_run_judges_its_checkpoints_and_keeps_the_best() {
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_judge_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
-    let cfg = RunConfig {
-        spec: root().join("specs/stairs/g1_stairs_lstm.toml"),
-        model: g1_sim::ModelChoice::G1_12Dof,
-        out: out.clone(),
-        envs: 4,
-        threads: 2,
-        iterations: 2,
-        seed: 3,
-        init_actor: Some(peer),
-        actor_hidden: Vec::new(),
-        symmetry: false,
-        init_std: 0.3,
-        critic_warmup: 2,
-        episode_s: 2.0,
-        ppo: Default::default(),
-        random: Randomization::NONE,
-        max_init_level: 0,
-        vx: (0.4, 0.8),
-        only: Some(Column::Flat),
-        checkpoint_every_s: f64::INFINITY,
-        quiet: true,
-        max_wall_s: f64::INFINITY,
-        judge: small(1),
-    };
+    let cfg = flat_run(&out, small(1));
     train(&cfg).expect("training runs");
     let judged = read_judgements(&out);
     assert_eq!(judged.len(), 1, "one checkpoint (the last), judged");
@@ -95,33 +100,19 @@ fn a_judge_that_fails_does_not_end_training() {
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_judge_fails_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
     let cfg = RunConfig {
-        spec: root().join("specs/stairs/g1_stairs_lstm.toml"),
-        model: g1_sim::ModelChoice::G1_12Dof,
-        out: out.clone(),
         envs: 2,
         threads: 1,
-        iterations: 2,
         seed: 5,
-        init_actor: Some(peer),
-        actor_hidden: Vec::new(),
-        symmetry: false,
-        init_std: 0.3,
-        critic_warmup: 2,
         episode_s: 1.0,
-        ppo: Default::default(),
-        random: Randomization::NONE,
-        max_init_level: 0,
-        vx: (0.4, 0.8),
-        only: Some(Column::Flat),
         checkpoint_every_s: 0.0,
-        quiet: true,
-        max_wall_s: f64::INFINITY,
-        judge: JudgeConfig {
-            sim_bin: Some(out.join("no-such-g1-sim")),
-            ..small(1)
-        },
+        ..flat_run(
+            &out,
+            JudgeConfig {
+                sim_bin: Some(out.join("no-such-g1-sim")),
+                ..small(1)
+            },
+        )
     };
     let history = train(&cfg).expect("training outlives a failing judge");
     assert_eq!(history.last().map(|h| h.iteration), Some(2));

@@ -961,7 +961,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
             }),
         },
     };
-    let report = match (layout, a.dds) {
+    let mut report = match (layout, a.dds) {
         (Some(layout), _) => {
             tracing::info!(
                 interfaces = layout.interfaces.join(","),
@@ -987,7 +987,6 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
             bail!("name the robot's transport: --dds IFACE[,DOMAIN] (the G1) or --can-config FILE (a CAN bench)")
         }
     };
-    let mut report = report;
     report.warnings.splice(0..0, overridden);
     let json = serde_json::to_string_pretty(&report)?;
     println!("{json}");
