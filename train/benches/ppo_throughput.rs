@@ -6,9 +6,12 @@
 //! 2. one training environment on one thread: observation (firmware `PolicyIo`), actor (firmware
 //!    executor), 4 physics steps, rewards, resets — env steps/s and its ratio to (1) / 4; for the
 //!    LSTM spec and the MLP spec;
-//! 3. `g1-train ppo`'s loop with every core, 128 environments: the warm-started LSTM, and a fresh
-//!    MLP with symmetry augmentation — env steps/s against the ceiling, rollout and update time per
-//!    iteration, and the learner's share of wall time.
+//! 3. `g1-train ppo`'s loop with every core, 128 environments: the warm-started LSTM with the
+//!    runs' update (32 steps, 4 epochs × 2 minibatches), its recurrence differentiated by the fused
+//!    op and by candle's ops step by step (the alternative it replaced), then with rsl_rl's update,
+//!    and a fresh MLP with symmetry augmentation — env steps/s against the ceiling, rollout and
+//!    update time per iteration, the share of the iteration the learner is busy (on the critical
+//!    path when near 100 %) and its share of the machine's CPU time (one thread of all).
 //!
 //! Needs `../shared` (the 12-dof model and the peer walker for the warm start).
 #![allow(clippy::disallowed_methods)]
@@ -69,7 +72,7 @@ fn whole_loop(
         out: out.clone(),
         envs,
         threads,
-        iterations: 5,
+        iterations: 12,
         seed: 0,
         init_actor,
         actor_hidden,
@@ -100,6 +103,8 @@ fn whole_loop(
 }
 
 fn main() -> anyhow::Result<()> {
+    // As `g1-train ppo` runs.
+    train::ppo::runner::learner_on_one_thread();
     let root = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/.."));
     let peer = g1_sim::model::shared_dir().join("peer_policy/unitree_g1_lstm/policy.safetensors");
     if !peer.exists() {
@@ -154,12 +159,25 @@ fn main() -> anyhow::Result<()> {
     // field's update (5 epochs × 4 minibatches, [256, 128, 128]) and with the recipe this machine
     // affords (2 × 2, [128, 64, 64]).
     let field = train::ppo::algo::PpoConfig::default();
+    let runs = train::ppo::algo::PpoConfig {
+        steps: 32,
+        epochs: 4,
+        minibatches: 2,
+        ..field
+    };
+    let step_by_step = train::ppo::algo::PpoConfig {
+        recurrence: train::ppo::policy::Recurrence::StepByStep,
+        ..runs
+    };
     let lean = train::ppo::algo::PpoConfig {
         epochs: 2,
         minibatches: 2,
         ..field
     };
-    let lstm_loop = whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, field, threads, 128)?;
+    let lstm = |ppo| whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, ppo, threads, 128);
+    let lstm_runs = lstm(runs)?;
+    let lstm_steps = lstm(step_by_step)?;
+    let lstm_field = lstm(field)?;
     let big_loop = whole_loop(&mlp_path, None, vec![256, 128, 128], true, field, threads, 128)?;
     let mlp_loop = whole_loop(&mlp_path, None, MLP_HIDDEN.to_vec(), true, lean, threads, 128)?;
 
@@ -176,16 +194,24 @@ fn main() -> anyhow::Result<()> {
         mlp_env / bare_one
     );
     for (name, (rate, share, roll, upd)) in [
-        ("LSTM-64 warm start, 5 × 4 epochs × minibatches        ", lstm_loop),
+        ("LSTM-64, 32 steps, 4 × 2, fused recurrence (the runs)", lstm_runs),
+        ("LSTM-64, 32 steps, 4 × 2, candle step by step        ", lstm_steps),
+        ("LSTM-64, 24 steps, 5 × 4 (rsl_rl's update), fused     ", lstm_field),
         ("MLP [256, 128, 128] + symmetry, 5 × 4                 ", big_loop),
-        ("MLP [128, 64, 64] + symmetry, 2 × 2 (the recipe)      ", mlp_loop),
+        ("MLP [128, 64, 64] + symmetry, 2 × 2                   ", mlp_loop),
     ] {
         println!(
-            "  g1-train ppo, {name} {rate:6.0} env steps/s = {:.2} × the ceiling; per iteration rollout {roll:.2} s, update {upd:.2} s; learner {:.0} % of wall time",
+            "  g1-train ppo, {name} {rate:6.0} env steps/s = {:.2} × the ceiling; per iteration rollout {roll:.3} s, update {upd:.3} s; learner busy {:.0} % of the iteration, {:.0} % of the CPU",
             rate / bare_all,
-            100.0 * share
+            100.0 * share,
+            100.0 * share / threads as f64
         );
     }
+    println!(
+        "  fused / step-by-step recurrence: update {:.2}×, env steps/s {:.2}×",
+        lstm_runs.3 / lstm_steps.3,
+        lstm_runs.0 / lstm_steps.0
+    );
     Ok(())
 }
 

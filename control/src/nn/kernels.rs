@@ -26,6 +26,7 @@ pub(crate) const BLOCK: usize = 32;
 /// With AVX2 (detected at run time on x86-64) the same loop runs on 256-bit vectors, two panels
 /// at a time (eight independent accumulator registers hide the add latency); every row's sum is
 /// still the same sequence of operations, so the results are bit-identical.
+#[derive(Clone)]
 pub(crate) struct PackedMatrix {
     rows: usize,
     cols: usize,
@@ -241,6 +242,7 @@ fn pick_tile(wo: usize, tiles: &[usize]) -> usize {
 
 /// Weights of groups of `NP` panels: group `i`, tap `t` holds `NP` panels of [`CONV_LANES`]
 /// output channels, starting at panel `first + i NP`.
+#[derive(Clone)]
 struct PanelGroups<const NP: usize> {
     first: usize,
     /// `[n_groups * taps]`, group-major.
@@ -289,6 +291,7 @@ impl<const NP: usize> PanelGroups<NP> {
 /// `(ci, ky, kx)` order, padding taps included (they add `w * 0`), exactly like a naive loop, for
 /// any tile width, loop variant and instruction set. Lanes past `cout` in the last panel and
 /// pixels past the row end in the last tile are computed on padding and never written out.
+#[derive(Clone)]
 pub(crate) struct PackedConv {
     g: ConvGeom,
     /// Padded input height and width.
@@ -655,7 +658,7 @@ pub(crate) fn exp(x: f32) -> f32 {
 
 /// Logistic sigmoid `1 / (1 + exp(-x))`.
 #[inline(always)]
-pub(crate) fn sigmoid(x: f32) -> f32 {
+pub fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + exp(-x))
 }
 
@@ -663,7 +666,7 @@ pub(crate) fn sigmoid(x: f32) -> f32 {
 /// `1 - 2 / (exp(2|x|) + 1)` (Cephes `tanhf`). Both branches are computed and selected, so it
 /// vectorizes; the sign is restored with `copysign`.
 #[inline(always)]
-pub(crate) fn tanh(x: f32) -> f32 {
+pub fn tanh(x: f32) -> f32 {
     let a = x.abs();
     let s = a * a;
     let small = ((((-0.0057049887 * s + 0.020639088) * s - 0.053739715) * s + 0.13331442) * s - 0.3333328) * s * a + a;
@@ -675,7 +678,7 @@ pub(crate) fn tanh(x: f32) -> f32 {
 
 /// ELU: `x` for `x > 0`, else `alpha * (exp(x) - 1)`.
 #[inline(always)]
-pub(crate) fn elu(x: f32, alpha: f32) -> f32 {
+pub fn elu(x: f32, alpha: f32) -> f32 {
     let neg = alpha * (exp(x) - 1.0);
     if x > 0.0 {
         x

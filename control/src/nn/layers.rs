@@ -7,6 +7,7 @@ use super::kernels::{elu, sigmoid, tanh, ConvGeom, Isa, PackedConv, PackedMatrix
 use safetensors::{Dtype, SafeTensors};
 
 /// A loaded layer. Element-wise layers carry no weights; their shape is the previous shape.
+#[derive(Clone)]
 pub(crate) enum Layer {
     Linear(PackedMatrix),
     Elu {
@@ -24,6 +25,7 @@ pub(crate) enum Layer {
 /// Stateful single-layer LSTM. `W_ih` and `W_hh` are packed side by side into one
 /// `[4H, in + H]` matrix applied to `xh = [x, h]`, with `bias_ih + bias_hh` pre-summed, so a
 /// step is one matrix-vector product. `h` lives in the tail of `xh`, so no copy is needed.
+#[derive(Clone)]
 pub(crate) struct Lstm {
     input: usize,
     hidden: usize,

@@ -67,6 +67,12 @@ mod kernels;
 mod layers;
 
 pub use desc::{LayerDesc, NetworkDesc};
+
+/// The executor's activation functions, for code that must compute exactly what it computes (the
+/// trainer's LSTM replay).
+pub mod activation {
+    pub use super::kernels::{elu, sigmoid, tanh};
+}
 pub use error::{with_causes, NnError};
 
 use layers::{Layer, TensorSource};
@@ -90,7 +96,9 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
     format!("{:x}", Sha256::digest(bytes))
 }
 
-/// A loaded network: packed weights, recurrent state and activation buffers.
+/// A loaded network: packed weights, recurrent state and activation buffers. A clone is an
+/// independent copy (its own state and buffers), cheaper than loading the weights again.
+#[derive(Clone)]
 pub struct Network {
     layers: Vec<Layer>,
     /// Per layer: the buffers it reads and writes, or `None` for a pass-through layer that is

@@ -23,6 +23,8 @@ pub struct PpoConfig {
     pub max_grad_norm: f64,
     pub desired_kl: f64,
     pub lr: f64,
+    /// How an LSTM actor's recurrence is differentiated (the fused op; the bench compares).
+    pub recurrence: super::policy::Recurrence,
 }
 
 impl Default for PpoConfig {
@@ -40,6 +42,7 @@ impl Default for PpoConfig {
             max_grad_norm: 1.0,
             desired_kl: 0.01,
             lr: 1e-4,
+            recurrence: super::policy::Recurrence::Fused,
         }
     }
 }

@@ -580,13 +580,17 @@ impl StairEnv {
         self.io.observation().to_vec()
     }
 
-    /// New actor weights; the LSTM state carries over.
-    pub fn set_weights(&mut self, weights: &[u8]) -> anyhow::Result<()> {
+    /// The actor's layers, as the spec lists them.
+    pub fn network_desc(&self) -> &firmware::nn::NetworkDesc {
+        &self.cfg.spec.policy.network
+    }
+
+    /// A new actor (loaded once by the caller, cloned here); the LSTM state carries over.
+    pub fn set_actor(&mut self, net: &Network) {
         let mut state = vec![0.0; self.net.state_len()];
         self.net.read_state(&mut state);
-        self.net = Network::from_safetensors_bytes(&self.cfg.spec.policy.network, weights)?;
+        self.net = net.clone();
         self.net.write_state(&state);
-        Ok(())
     }
 
     /// The mirror image (left ↔ right, y → −y; see [`super::symmetry`]) of [`StairEnv::critic_extra`]'s

@@ -7,6 +7,7 @@
 //! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
+//! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`rollout`]: environments stepping the actor with exploration noise.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
@@ -20,6 +21,7 @@ pub mod env;
 pub mod in_env;
 pub mod iter_log;
 pub mod judge;
+pub mod lstm_op;
 pub mod policy;
 pub mod reward;
 pub mod rollout;

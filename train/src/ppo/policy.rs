@@ -251,6 +251,8 @@ impl ActorArch {
 
 pub struct ActorCritic {
     pub vars: VarMap,
+    /// How the LSTM's recurrence is differentiated (the fused op unless a test or bench asks).
+    pub recurrence: Recurrence,
     pub arch: ActorArch,
     pub obs_dim: usize,
     pub critic_dim: usize,
@@ -265,6 +267,41 @@ fn elu(x: &Tensor, alpha: f64) -> Result<Tensor> {
     // elu(x) = relu(x) + alpha (exp(min(x, 0)) - 1); built from ops candle differentiates.
     let neg = x.neg()?.relu()?.neg()?;
     x.relu()? + ((neg.exp()? - 1.0)? * alpha)?
+}
+
+/// How [`ActorCritic::actor_sequence`] runs an LSTM's recurrence.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Recurrence {
+    /// One op over the whole sequence with a hand-written backward ([`super::lstm_op`]).
+    #[default]
+    Fused,
+    /// candle's own ops, step by step (the reference the fused op is tested and benched against).
+    StepByStep,
+}
+
+/// The LSTM recurrence from candle's ops, step by step: `xproj` `[T, B, 4H]` (input projection and
+/// both biases), `W_hh` `[4H, H]`, state `[B, H]`, `masks` `[T, B, 1]` → `h` `[T, B, H]`.
+fn lstm_step_by_step(xproj: &Tensor, w_hh: &Tensor, h0: &Tensor, c0: &Tensor, masks: &Tensor) -> Result<Tensor> {
+    let (t, _, g4) = xproj.dims3()?;
+    let hd = g4 / 4;
+    let w_hh_t = w_hh.t()?;
+    let (mut h, mut c) = (h0.clone(), c0.clone());
+    let mut outs = Vec::with_capacity(t);
+    for s in 0..t {
+        let m = masks.get(s)?;
+        h = h.broadcast_mul(&m)?;
+        c = c.broadcast_mul(&m)?;
+        let g = (xproj.get(s)? + h.matmul(&w_hh_t)?)?;
+        let sg = candle_nn::ops::sigmoid(&g)?;
+        let gi = sg.narrow(1, 0, hd)?;
+        let gf = sg.narrow(1, hd, hd)?;
+        let gg = g.narrow(1, 2 * hd, hd)?.tanh()?;
+        let go = sg.narrow(1, 3 * hd, hd)?;
+        c = ((gf * &c)? + (gi * gg)?)?;
+        h = (go * c.tanh()?)?;
+        outs.push(h.clone());
+    }
+    Tensor::stack(&outs, 0)
 }
 
 impl ActorCritic {
@@ -317,6 +354,7 @@ impl ActorCritic {
         vars.get(act_dim, "log_std", Init::Const(init_std.ln()), DType::F32, &dev)?;
         Ok(Self {
             vars,
+            recurrence: Recurrence::Fused,
             obs_dim: arch.input(),
             arch,
             critic_dim,
@@ -386,26 +424,19 @@ impl ActorCritic {
                     let w_hh = get(&self.vars, weight_hh);
                     let bias = (get(&self.vars, bias_ih) + get(&self.vars, bias_hh))?;
                     let xproj = x.matmul(&w_ih.t()?)?.broadcast_add(&bias)?.reshape((t, b, 4 * hd))?;
-                    let w_hh_t = w_hh.t()?;
-                    let (mut h, mut c) = (h0.clone(), c0.clone());
-                    let mut outs = Vec::with_capacity(t);
-                    for s in 0..t {
-                        let m = masks.get(s)?;
-                        h = h.broadcast_mul(&m)?;
-                        c = c.broadcast_mul(&m)?;
-                        let g = (xproj.get(s)? + h.matmul(&w_hh_t)?)?;
-                        // One sigmoid over all four gate blocks (the g block's is unused): the
-                        // update's cost is the number of ops per step, not their size.
-                        let sg = candle_nn::ops::sigmoid(&g)?;
-                        let gi = sg.narrow(1, 0, hd)?;
-                        let gf = sg.narrow(1, hd, hd)?;
-                        let gg = g.narrow(1, 2 * hd, hd)?.tanh()?;
-                        let go = sg.narrow(1, 3 * hd, hd)?;
-                        c = ((gf * &c)? + (gi * gg)?)?;
-                        h = (go * c.tanh()?)?;
-                        outs.push(h.clone());
-                    }
-                    Tensor::stack(&outs, 0)?.reshape((t * b, hd))?
+                    let hs = match self.recurrence {
+                        Recurrence::Fused => super::lstm_op::LstmSequence::new(
+                            t,
+                            b,
+                            hd,
+                            h0.flatten_all()?.to_vec1()?,
+                            c0.flatten_all()?.to_vec1()?,
+                            masks.flatten_all()?.to_vec1()?,
+                        )?
+                        .apply(&xproj, &w_hh)?,
+                        Recurrence::StepByStep => lstm_step_by_step(&xproj, &w_hh, h0, c0, masks)?,
+                    };
+                    hs.reshape((t * b, hd))?
                 }
                 ActorLayer::Linear { weight, bias, .. } => x
                     .matmul(&get(&self.vars, weight).t()?)?

@@ -87,7 +87,10 @@ fn main() -> anyhow::Result<()> {
         Cmd::Fit(args) => fit::run(args),
         Cmd::Export(args) => export::run(args),
         Cmd::EvalTerrain(args) => eval_terrain::run(args),
-        Cmd::Ppo(args) => ppo::run(args),
+        Cmd::Ppo(args) => {
+            train::ppo::runner::learner_on_one_thread();
+            ppo::run(args)
+        }
         Cmd::PpoEval(args) => ppo_eval::run(args),
         Cmd::PpoExport(args) => ppo_export::run(args),
     }
