@@ -80,6 +80,20 @@ pub fn deps_dir() -> PathBuf {
     }
 }
 
+/// `Err` saying what to run when `scripts/install.sh` has not put the 29-dof model into
+/// [`deps_dir`] (the tests of every crate that loads it ask this first).
+pub fn check_installed() -> Result<(), String> {
+    let xml = ModelChoice::G1_29Dof.path();
+    if xml.exists() {
+        return Ok(());
+    }
+    Err(format!(
+        "\n\nThe 29-dof G1 model is missing at {}.\nRun scripts/install.sh from the repository root \
+         (it installs MuJoCo 3.17.0 and the G1 MJCF into .deps/), then re-run the tests.\n",
+        xml.display()
+    ))
+}
+
 /// The read-only `shared` directory next to the checkout, or `$G1_SHARED_DIR`.
 pub fn shared_dir() -> PathBuf {
     match std::env::var_os("G1_SHARED_DIR") {

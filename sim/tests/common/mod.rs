@@ -1,17 +1,13 @@
 //! Shared test helpers: the installed dependencies are required, never silently skipped.
 #![allow(dead_code)]
-use g1_sim::model::{deps_dir, shared_dir};
+use g1_sim::model::shared_dir;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 
 /// Panics with instructions when `scripts/install.sh` has not been run.
 pub fn require_deps() {
-    let xml = deps_dir().join("g1_29dof/g1.xml");
-    assert!(
-        xml.exists(),
-        "\n\nThe 29-dof G1 model is missing at {}.\nRun scripts/install.sh from the repository root \
-         (it installs MuJoCo 3.17.0 and the G1 MJCF into .deps/), then re-run the tests.\n",
-        xml.display()
-    );
+    if let Err(what) = g1_sim::model::check_installed() {
+        panic!("{what}");
+    }
 }
 
 /// `true` when the 12-dof model is available; prints a loud SKIP when `../shared` is absent.

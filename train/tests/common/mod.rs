@@ -18,11 +18,7 @@ pub fn have_12dof_model() -> bool {
 /// Panics with instructions when `scripts/install.sh` has not been run (the 29-dof model it
 /// installs into .deps/ is missing).
 pub fn require_deps() {
-    let xml = g1_sim::model::deps_dir().join("g1_29dof/g1.xml");
-    assert!(
-        xml.exists(),
-        "\n\nThe 29-dof G1 model is missing at {}.\nRun scripts/install.sh from the repository root \
-         (it installs MuJoCo 3.17.0 and the G1 MJCF into .deps/), then re-run the tests.\n",
-        xml.display()
-    );
+    if let Err(what) = g1_sim::model::check_installed() {
+        panic!("{what}");
+    }
 }
