@@ -9,6 +9,9 @@ use crate::cnn::fit::EpochLog;
 
 const CNN: RGBColor = RGBColor(31, 119, 180);
 const BASE: RGBColor = RGBColor(255, 127, 14);
+/// Staircases up and down, apart (PPO curves).
+const UP: RGBColor = RGBColor(44, 160, 44);
+const DOWN: RGBColor = RGBColor(148, 103, 189);
 const LIMIT: RGBColor = RGBColor(120, 120, 120);
 
 fn check_png(path: &Path) -> anyhow::Result<()> {
@@ -386,6 +389,8 @@ pub fn ppo_curves_png(
         x,
         &[
             ("success", CNN, series(&|l| l.success_rate.map(|v| 100.0 * v))),
+            ("up", UP, series(&|l| l.success_up.map(|v| 100.0 * v))),
+            ("down", DOWN, series(&|l| l.success_down.map(|v| 100.0 * v))),
             ("falls (all)", BASE, series(&|l| l.fall_rate.map(|v| 100.0 * v))),
         ],
         &wall,
@@ -396,7 +401,11 @@ pub fn ppo_curves_png(
         &areas[2],
         "mean terrain level (0: 5 cm … 10: 26 cm)",
         x,
-        &[("level", CNN, series(&|l| Some(l.mean_level)))],
+        &[
+            ("level", CNN, series(&|l| Some(l.mean_level))),
+            ("up", UP, series(&|l| l.level_up)),
+            ("down", DOWN, series(&|l| l.level_down)),
+        ],
         &wall,
         false,
         None,

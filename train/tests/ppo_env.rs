@@ -276,3 +276,26 @@ fn in_environment_evaluation_holds_the_level_and_counts_each_episode_once() {
         (r.successes, r.falls, r.mean_steps)
     );
 }
+
+/// An environment keeps its curriculum column across episodes, and its level moves within it
+/// (IsaacLab's terrain types). With a column drawn per episode, successes going down promoted
+/// environments that then failed every staircase up at that height.
+#[test]
+fn an_environment_keeps_its_column_and_moves_within_its_levels() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let mut e = env(spec, &w, 11, Column::Down);
+    e.place(Column::Up, 4).unwrap();
+    assert_eq!((e.column, e.level), (Column::Up, 4));
+    let zero = vec![0.0f32; 12];
+    for episode in 0..3 {
+        // A few steps standing in front of the staircase: not halfway up, so a level down.
+        for _ in 0..5 {
+            e.step(&zero).unwrap();
+        }
+        e.reset().unwrap();
+        assert_eq!(e.column, Column::Up, "episode {episode} changed the column");
+    }
+    assert_eq!(e.level, 1, "three failures short of halfway: 4 → 1");
+}

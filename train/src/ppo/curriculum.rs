@@ -34,6 +34,25 @@ impl Column {
         (Column::OutdoorDown, 0.125),
     ];
 
+    /// The column environment `i` of `n` keeps for the whole run, in the mix's shares (IsaacLab's
+    /// terrain types: an environment moves up and down the levels of its own column). Drawing a
+    /// column per episode while the level was the environment's let the columns' difficulties
+    /// mix: successes going down promoted an environment that then failed every staircase up at
+    /// that height (run 13, in the training environment: down 15.5 cm 5/8, up 11 and 15.5 cm 0/8).
+    pub fn for_env(i: usize, n: usize, only: Option<Column>) -> Column {
+        if let Some(c) = only {
+            return c;
+        }
+        let mut u = (i as f64 + 0.5) / n.max(1) as f64;
+        for (c, p) in Self::MIX {
+            if u < p {
+                return c;
+            }
+            u -= p;
+        }
+        Column::Flat
+    }
+
     pub fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
         if let Some(c) = only {
             return c;
@@ -46,6 +65,23 @@ impl Column {
             u -= p;
         }
         Column::Flat
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn environments_split_into_the_mix_s_columns() {
+        let n = 128;
+        let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None) == c).count();
+        for (c, share) in Column::MIX {
+            let want = share * n as f64;
+            let got = count(c) as f64;
+            assert!((got - want).abs() <= 1.0, "{c:?}: {got} environments, want {want}");
+        }
+        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up)) == Column::Up));
     }
 }
 

@@ -352,6 +352,15 @@ impl StairEnv {
         )?)
     }
 
+    /// Puts the environment in curriculum `column` at `level` (the runner's assignment, or where a
+    /// resumed run left it) and starts its first episode there.
+    pub fn place(&mut self, column: Column, level: usize) -> anyhow::Result<()> {
+        self.column = column;
+        self.level = level.min(LEVELS - 1);
+        self.step = 0;
+        self.reset()
+    }
+
     /// Holds the curriculum at `level` and the forward command at `vx` from now on, and starts a
     /// new episode there (in-environment evaluation).
     pub fn hold(&mut self, level: usize, vx: f32) -> anyhow::Result<()> {
@@ -385,7 +394,7 @@ impl StairEnv {
                 let walked_half = self.progress >= 0.5 * self.last_riser_s();
                 self.level = curriculum::next_level(self.level, success, walked_half, &mut self.rng);
             }
-            self.column = Column::draw(&mut self.rng, self.cfg.only);
+            // The column stays: the level is this column's (see `Column::for_env`).
         }
         self.world = curriculum::draw_world(self.column, self.level, &mut self.rng);
         self.sim.set_world(&self.world)?;

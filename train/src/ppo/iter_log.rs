@@ -13,12 +13,23 @@ pub struct IterLog {
     pub episodes: usize,
     pub mean_episode_return: Option<f64>,
     pub success_rate: Option<f64>,
+    /// The same for staircases up (straight and outdoor) and down, apart: together they hid that
+    /// climbing failed where descending succeeded (histories before run 14 lack them).
+    #[serde(default)]
+    pub success_up: Option<f64>,
+    #[serde(default)]
+    pub success_down: Option<f64>,
     pub fall_rate: Option<f64>,
     /// Falls by cause, in the order of `env::FALL_CAUSES` (tilt, joint speed, base height, base
     /// angular speed; histories written before the last was added have three).
     #[serde(default)]
     pub fall_causes: Vec<usize>,
     pub mean_level: f64,
+    /// Mean level of the environments whose column goes up, and down.
+    #[serde(default)]
+    pub level_up: Option<f64>,
+    #[serde(default)]
+    pub level_down: Option<f64>,
     pub env_steps_per_s: f64,
     pub learner_share: f64,
     /// Wall time of this iteration's rollouts (the slowest worker) and of the update, s. They

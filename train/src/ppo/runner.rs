@@ -11,7 +11,7 @@ use labkit::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use super::algo::{compute_gae, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
-use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA, LEVELS};
+use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA};
 use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
 use super::rollout::{rollout, Slot};
@@ -266,9 +266,8 @@ fn make_envs(
             .wrapping_mul(1_000_003)
             .wrapping_add(i as u64 + state.iteration as u64 * 7919);
         let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
-        if let Some(&l) = state.levels.get(i) {
-            env.level = l.min(LEVELS - 1);
-        }
+        let level = state.levels.get(i).copied().unwrap_or(env.level);
+        env.place(super::curriculum::Column::for_env(i, cfg.envs, cfg.only), level)?;
         slots.push(Slot {
             env,
             roll: EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, ac.state_len()),
@@ -414,10 +413,22 @@ impl Pipeline {
 /// The iteration's figures, from the episodes that ended since the last one.
 fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
     let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
-    let stair_ends: Vec<_> = ends
-        .iter()
-        .filter(|e| e.column != Some(super::env::Column::Flat))
-        .collect();
+    use super::curriculum::Column;
+    let stair_ends: Vec<_> = ends.iter().filter(|e| e.column != Some(Column::Flat)).collect();
+    let going_up = |c: Option<Column>| matches!(c, Some(Column::Up | Column::OutdoorUp));
+    let going_down = |c: Option<Column>| matches!(c, Some(Column::Down | Column::OutdoorDown));
+    let rate = |which: &dyn Fn(Option<Column>) -> bool| {
+        let n = ends.iter().filter(|e| which(e.column)).count();
+        (n > 0).then(|| ends.iter().filter(|e| which(e.column) && e.success).count() as f64 / n as f64)
+    };
+    let level = |which: &dyn Fn(Option<Column>) -> bool| {
+        let l: Vec<f64> = slots
+            .iter()
+            .filter(|s| which(Some(s.env.column)))
+            .map(|s| s.env.level as f64)
+            .collect();
+        (!l.is_empty()).then(|| l.iter().sum::<f64>() / l.len() as f64)
+    };
     IterLog {
         iteration: state.iteration,
         env_steps: state.env_steps,
@@ -427,11 +438,15 @@ fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) 
         mean_episode_return: (!ends.is_empty()).then(|| ends.iter().map(|e| e.ret).sum::<f64>() / ends.len() as f64),
         success_rate: (!stair_ends.is_empty())
             .then(|| stair_ends.iter().filter(|e| e.success).count() as f64 / stair_ends.len() as f64),
+        success_up: rate(&going_up),
+        success_down: rate(&going_down),
         fall_rate: (!ends.is_empty()).then(|| ends.iter().filter(|e| e.fell).count() as f64 / ends.len() as f64),
         fall_causes: (0..super::env::FALL_CAUSES.len())
             .map(|c| ends.iter().filter(|e| e.fell && e.cause == c).count())
             .collect(),
         mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
+        level_up: level(&going_up),
+        level_down: level(&going_down),
         env_steps_per_s: step.env_steps as f64 / step.t_iter,
         learner_share: step.t_learn / step.t_iter,
         rollout_s: step.t_rollout,
@@ -444,12 +459,14 @@ impl IterLog {
     /// One line for the progress bar.
     fn summary(&self) -> String {
         format!(
-            "{:.0} steps/s  reward/step {:+.3}  return {}  level {:.2}  success {}  falls {}",
+            "{:.0} steps/s  reward/step {:+.3}  return {}  level {:.2}  success {} (up {}, down {})  falls {}",
             self.env_steps_per_s,
             self.mean_reward_per_step,
             self.mean_episode_return.map_or("-".into(), |v| format!("{v:.2}")),
             self.mean_level,
             self.success_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+            self.success_up.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
+            self.success_down.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
             self.fall_rate.map_or("-".into(), |v| format!("{:.0}%", 100.0 * v)),
         )
     }
