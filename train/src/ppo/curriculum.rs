@@ -68,22 +68,6 @@ impl Column {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn environments_split_into_the_mix_s_columns() {
-        let n = 128;
-        let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None) == c).count();
-        for (c, share) in Column::MIX {
-            let want = share * n as f64;
-            let got = count(c) as f64;
-            assert!((got - want).abs() <= 1.0, "{c:?}: {got} environments, want {want}");
-        }
-        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up)) == Column::Up));
-    }
-}
 
 /// The level after an episode on stairs: up after a success (past the top, a random level, so the
 /// whole range stays in the mix), down when the robot did not get halfway to the last riser.
@@ -132,4 +116,21 @@ pub fn draw_world(column: Column, level: usize, r: &mut Rng) -> World {
         }),
     };
     World::build("train", spec).unwrap_or_else(|_| World::preset("flat").expect("preset"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn environments_split_into_the_mix_s_columns() {
+        let n = 128;
+        let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None) == c).count();
+        for (c, share) in Column::MIX {
+            let want = share * n as f64;
+            let got = count(c) as f64;
+            assert!((got - want).abs() <= 1.0, "{c:?}: {got} environments, want {want}");
+        }
+        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up)) == Column::Up));
+    }
 }
