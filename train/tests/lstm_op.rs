@@ -97,3 +97,34 @@ fn fused_lstm_refuses_inputs_of_the_wrong_shape() {
         "a state of the wrong length must be refused"
     );
 }
+
+/// The fused ELU op (`train::ppo::elu_op`) against candle's own `elu`: values and gradient.
+#[test]
+fn fused_elu_matches_candle_s_elu() {
+    let dev = Device::Cpu;
+    let mut rng = labkit::rng::Rng(3);
+    let mut x = random(&mut rng, 600, 4.0);
+    x[0] = 0.0;
+    x[1] = -0.0;
+    let proj = Tensor::from_vec(random(&mut rng, 600, 1.0), (20, 30), &dev).unwrap();
+    let grad_of = |fused: bool| {
+        let v = candle_core::Var::from_tensor(&Tensor::from_vec(x.clone(), (20, 30), &dev).unwrap()).unwrap();
+        let y = if fused {
+            train::ppo::elu_op::Elu { alpha: 1.0 }.apply(v.as_tensor()).unwrap()
+        } else {
+            v.as_tensor().elu(1.0).unwrap()
+        };
+        let g = (&y * &proj).unwrap().sum_all().unwrap().backward().unwrap();
+        let g: Vec<f32> = g.get(v.as_tensor()).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+        (y.flatten_all().unwrap().to_vec1::<f32>().unwrap(), g)
+    };
+    let (y, g) = grad_of(true);
+    let (y_ref, g_ref) = grad_of(false);
+    let (dy, dg) = (max_rel(&y, &y_ref), max_rel(&g, &g_ref));
+    eprintln!("elu: values {dy:.2e}, gradient {dg:.2e}");
+    assert!(dy < 1e-6 && dg < 1e-6, "fused ELU differs: values {dy}, gradient {dg}");
+    assert!(
+        y_ref.iter().any(|&v| v < -0.5),
+        "no negative inputs: the test checks half of ELU"
+    );
+}

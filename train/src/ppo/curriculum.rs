@@ -68,7 +68,6 @@ impl Column {
     }
 }
 
-
 /// The level after an episode on stairs: up after a success (past the top, a random level, so the
 /// whole range stays in the mix), down when the robot did not get halfway to the last riser.
 pub fn next_level(level: usize, success: bool, walked_half: bool, rng: &mut Rng) -> usize {

@@ -7,6 +7,7 @@
 //! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
+//! - [`elu_op`]: ELU as one op with a one-loop backward.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`rollout`]: environments stepping the actor with exploration noise.
@@ -17,6 +18,7 @@
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
 pub mod algo;
 pub mod curriculum;
+pub mod elu_op;
 pub mod env;
 pub mod in_env;
 pub mod iter_log;

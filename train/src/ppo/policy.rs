@@ -264,9 +264,7 @@ fn get(vars: &VarMap, name: &str) -> Tensor {
 }
 
 fn elu(x: &Tensor, alpha: f64) -> Result<Tensor> {
-    // elu(x) = relu(x) + alpha (exp(min(x, 0)) - 1); built from ops candle differentiates.
-    let neg = x.neg()?.relu()?.neg()?;
-    x.relu()? + ((neg.exp()? - 1.0)? * alpha)?
+    super::elu_op::Elu { alpha: alpha as f32 }.apply(&x.contiguous()?)
 }
 
 /// How [`ActorCritic::actor_sequence`] runs an LSTM's recurrence.
