@@ -43,21 +43,18 @@ impl Column {
         if let Some(c) = only {
             return c;
         }
-        let mut u = (i as f64 + 0.5) / n.max(1) as f64;
-        for (c, p) in Self::MIX {
-            if u < p {
-                return c;
-            }
-            u -= p;
-        }
-        Column::Flat
+        Self::at_share((i as f64 + 0.5) / n.max(1) as f64)
     }
 
     pub fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
         if let Some(c) = only {
             return c;
         }
-        let mut u = rng.uniform();
+        Self::at_share(rng.uniform())
+    }
+
+    /// The column at `u` ∈ [0, 1) along the mix's cumulative shares.
+    fn at_share(mut u: f64) -> Column {
         for (c, p) in Self::MIX {
             if u < p {
                 return c;
