@@ -29,6 +29,11 @@ use crate::perception::TerrainSource;
 use crate::sim_run::{run_sim, Heading, SimOptions};
 use crate::spec::DeploySpec;
 
+/// How long the base must stand on the end landing, s, before a stair episode counts as climbed
+/// (`--stop-after-landing`'s default, and the trainer's success: a policy that dives across the
+/// line and falls has not climbed).
+pub const LANDING_HOLD_S: f64 = 1.0;
+
 /// Flat-ground success: walked at least this fraction of vx · time under policy control.
 pub const FLAT_SUCCESS_FRACTION: f64 = 0.8;
 /// Stalled: less than this progress along the course ...

@@ -225,8 +225,30 @@ struct StairsEval {
     passed: u16,
     max_s: f64,
     reached_at: Option<f64>,
-    /// Since when the base has stood on the end landing without a break.
-    on_landing_since: Option<f64>,
+    on_landing: LandingHold,
+}
+
+/// How long the base has stood on the end landing without a break: what `--stop-after-landing`
+/// waits for, and the trainer's success (one definition for both).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LandingHold {
+    since_s: Option<f64>,
+}
+
+impl LandingHold {
+    /// Records whether the base is on the end landing at `time_s`.
+    pub fn observe(&mut self, on_end_landing: bool, time_s: f64) {
+        if on_end_landing {
+            self.since_s.get_or_insert(time_s);
+        } else {
+            self.since_s = None;
+        }
+    }
+
+    /// Whether, at `time_s`, the base has stood on the landing at least `hold_s` without a break.
+    pub fn held(&self, hold_s: f64, time_s: f64) -> bool {
+        self.since_s.is_some_and(|since| time_s - since >= hold_s)
+    }
 }
 
 impl StairsEval {
@@ -239,10 +261,8 @@ impl StairsEval {
         self.max_s = self.max_s.max(p.axis_s);
         if p.on_end_landing {
             self.reached_at.get_or_insert(time_s);
-            self.on_landing_since.get_or_insert(time_s);
-        } else {
-            self.on_landing_since = None;
         }
+        self.on_landing.observe(p.on_end_landing, time_s);
     }
 
     fn report(&self, clean: bool) -> Option<StairsReport> {
@@ -493,8 +513,10 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         let k = v.summary.tick.index;
         ticks = k;
         let agg = &ev.agg;
-        if let (Some(hold), Some(since)) = (opts.stop_after_landing_s, ev.stairs.on_landing_since) {
-            landed |= k as f64 * control_dt - since >= hold && agg.fell_at.is_none() && v.runtime.trip().is_none();
+        if let Some(hold) = opts.stop_after_landing_s {
+            landed |= ev.stairs.on_landing.held(hold, k as f64 * control_dt)
+                && agg.fell_at.is_none()
+                && v.runtime.trip().is_none();
         }
         observe(v);
         if let Some(pb) = &progress {
@@ -1000,5 +1022,23 @@ impl EstimatorEval {
             baseline_contact_agreement: Some(self.base_agree[0] as f64 / (2.0 * n)),
             baseline_contact_agreement_both_feet: Some(self.base_agree[1] as f64 / n),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LandingHold;
+
+    #[test]
+    fn landing_hold_needs_an_unbroken_stay() {
+        let mut h = LandingHold::default();
+        assert!(!h.held(0.0, 0.0), "never on the landing: not held");
+        h.observe(true, 1.0);
+        h.observe(true, 1.5);
+        assert!(!h.held(1.0, 1.5));
+        h.observe(false, 1.6);
+        h.observe(true, 1.7);
+        assert!(!h.held(1.0, 2.6), "a step off the landing restarts the clock");
+        assert!(h.held(1.0, 2.7));
     }
 }

@@ -277,6 +277,58 @@ fn in_environment_evaluation_holds_the_level_and_counts_each_episode_once() {
     );
 }
 
+/// Success in training is `g1fw eval`'s: standing on the end landing for
+/// [`firmware::eval::LANDING_HOLD_S`] without a break, not crossing a line. Ending the episode at
+/// a line taught run 14's policy to dive across it: through `g1fw`, 10 of 16 climbs of 12 cm passed
+/// every riser and then tripped on tilt within 0.4 s of reaching the landing.
+#[test]
+fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
+    if peer_weights().is_none() {
+        return; // the model's meshes come from ../shared too
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let cfg = EnvConfig {
+        model: g1_sim::ModelChoice::G1_12Dof,
+        spec: Arc::new(spec),
+        episode_s: 20.0,
+        random: Randomization::NONE,
+        vx: (0.5, 0.5),
+        max_init_level: 0,
+        only: Some(Column::Down),
+    };
+    let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
+    e.hold(1, 0.5).unwrap();
+    let dt = e.timing().policy_dt;
+    let mut mean = vec![0.0f32; 12];
+    let mut successes = 0;
+    for episode in 0..2 {
+        let last_riser = e.world().stairs.as_ref().unwrap().risers.last().unwrap().s;
+        let line = last_riser + sim_hal::bridge::END_LANDING_MARGIN_M;
+        let mut crossed_at = None;
+        for k in 0usize.. {
+            e.observe_and_act(&mut mean).unwrap();
+            let o = e.step(&mean).unwrap();
+            if crossed_at.is_none() && e.progress() >= line {
+                crossed_at = Some(k);
+            }
+            if o.terminated || o.truncated {
+                if e.success() {
+                    let on_landing_s = (k - crossed_at.unwrap()) as f64 * dt;
+                    assert!(
+                        on_landing_s >= firmware::eval::LANDING_HOLD_S - 1e-9,
+                        "episode {episode}: success {on_landing_s:.2} s after reaching the landing"
+                    );
+                    successes += 1;
+                }
+                break;
+            }
+        }
+        e.reset().unwrap();
+    }
+    assert!(successes >= 1, "the committed policy descends 7 cm steps in training");
+}
+
 /// An environment keeps its curriculum column across episodes, and its level moves within it
 /// (IsaacLab's terrain types). With a column drawn per episode, successes going down promoted
 /// environments that then failed every staircase up at that height.

@@ -281,7 +281,7 @@ struct EvalArgs {
     episodes_per_height: usize,
     /// End an episode once the base has stood on the end landing this long (s); 0 runs every
     /// episode to --time-limit.
-    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    #[arg(long, default_value_t = firmware::eval::LANDING_HOLD_S, value_name = "S")]
     stop_after_landing: f64,
     /// Write the JSON report here.
     #[arg(long)]

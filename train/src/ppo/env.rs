@@ -17,6 +17,7 @@ use std::sync::Arc;
 
 use firmware::nn::Network;
 use firmware::policy_io::PolicyIo;
+use firmware::sim_run::LandingHold;
 use firmware::spec::{DeploySpec, ObsKind};
 use firmware::supervisor::MotionLimits;
 use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
@@ -81,8 +82,6 @@ pub const SOFT_JOINT_SPEED: f32 = 0.9;
 pub const CRITIC_EXTRA: usize = 23;
 /// Terrain samples for the critic: along the heading from −0.3 m to 1.2 m.
 const HEIGHT_SAMPLES: usize = 11;
-/// Success: the base this far past the last riser, m (on the end landing).
-pub const LANDING_MARGIN: f64 = 0.5;
 
 /// The simulator settings of training: 5 ms physics steps, one per `step_control_tick` (the
 /// environment applies the command per physics step to model the action latency).
@@ -240,6 +239,8 @@ pub struct StairEnv {
     max_steps: usize,
     next_push: usize,
     progress: f64,
+    /// How long the base has stood on the end landing (`g1fw eval`'s success).
+    landing: LandingHold,
     fell: bool,
     cause: usize,
     ret: f64,
@@ -327,6 +328,7 @@ impl StairEnv {
             step: 0,
             next_push: 0,
             progress: f64::NEG_INFINITY,
+            landing: LandingHold::default(),
             fell: false,
             cause: 0,
             ret: 0.0,
@@ -385,7 +387,7 @@ impl StairEnv {
                 ret: self.ret,
                 steps: self.step,
                 progress_m: self.progress,
-                goal_m: self.last_riser_s() + LANDING_MARGIN,
+                goal_m: self.last_riser_s() + sim_hal::bridge::END_LANDING_MARGIN_M,
                 start_m: self.start_s,
             });
             if let Some(l) = self.held_level {
@@ -422,6 +424,7 @@ impl StairEnv {
         self.fell = false;
         self.ret = 0.0;
         self.progress = f64::NEG_INFINITY;
+        self.landing = LandingHold::default();
         self.next_push = self.push_interval();
         self.prev_action.iter_mut().for_each(|a| *a = 0.0);
         self.air_time = [0.0; 2];
@@ -512,8 +515,17 @@ impl StairEnv {
         self.world.stairs.as_ref().map_or(x, |s| s.to_axis(x, y).0)
     }
 
+    /// `g1fw eval`'s success: on the end landing ([`World::stair_progress`]) for
+    /// [`firmware::eval::LANDING_HOLD_S`] without a break and without a fall. Ending the episode at
+    /// the landing's edge instead taught a dive across the line: 10 of 16 climbs of 12 cm that
+    /// passed every riser through `g1fw` tripped on tilt within 0.4 s of reaching the landing.
+    /// Time since the episode started, s.
+    fn time_s(&self) -> f64 {
+        self.step as f64 * self.timing.policy_dt
+    }
+
     fn succeeded(&self) -> bool {
-        self.world.stairs.is_some() && !self.fell && self.progress >= self.last_riser_s() + LANDING_MARGIN
+        !self.fell && self.landing.held(firmware::eval::LANDING_HOLD_S, self.time_s())
     }
 
     fn refresh_token(&mut self, force: bool) {
@@ -670,7 +682,8 @@ impl StairEnv {
         self.sim.low_state(&mut self.state);
         let was_success = self.succeeded();
         let (mut terms, terminated) = self.rewards(action);
-        // A fall that carries the base past the landing is no success (no bonus, no promotion).
+        // The bonus comes once the base has stood on the landing (no bonus, no promotion for a
+        // fall that carries it there).
         if !was_success && !terminated && self.succeeded() {
             terms.success = 1.0 / self.timing.policy_dt;
         }
@@ -803,6 +816,11 @@ impl StairEnv {
         }
         // Progress along the staircase, for success and the curriculum.
         self.progress = self.progress.max(self.axis_s(t.base_pos[0], t.base_pos[1]));
+        let on_landing = self
+            .world
+            .stair_progress(t.base_pos[0], t.base_pos[1])
+            .is_some_and(|p| p.on_end_landing);
+        self.landing.observe(on_landing, self.time_s());
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
