@@ -25,7 +25,7 @@
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) (not on time-out or success) | −200 |
 //! | `progress` | speed along the target heading, clamped to 0 … the commanded forward speed, m/s | +2.0 |
-//! | `success` | 1 / dt on the step the base reaches the end landing without falling (a one-off +3) | +3 |
+//! | `success` | 1 / dt on the step the base has stood on the end landing for `LANDING_HOLD_S` (1 s) without a fall: `g1fw eval`'s success (a one-off +3) | +3 |
 //!
 //! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
 //! a 6 cm deficit cost 0.0001 per step against ~0.06 for tracking, nothing the policy noticed, and
@@ -42,6 +42,8 @@
 //! (`g1-train ppo-eval`), falling on the risers. Speed along the heading, capped at the command,
 //! pays for the attempt at every step instead and never for going faster than asked. A fall that
 //! carries the base past the landing earned the bonus and a promotion before; now it earns neither.
+//! And the bonus waits until the base has stood on the landing for 1 s, as `g1fw eval` scores a
+//! climb: paid on crossing a line, it taught run 14 to dive across the line and fall just after.
 //!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
