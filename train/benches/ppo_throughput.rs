@@ -34,6 +34,7 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         vx: (0.3, 0.8),
         max_init_level: 2,
         only: None,
+        joystick_share: 0.0,
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -85,6 +86,7 @@ fn whole_loop(
         max_init_level: 2,
         vx: (0.4, 0.8),
         only: None,
+        joystick_share: 0.0,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -51,6 +51,7 @@ fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u6
         vx: (0.5, 0.5),
         max_init_level: 0,
         only: Some(only),
+        joystick_share: 0.0,
     };
     StairEnv::new(cfg, seed, weights).unwrap()
 }
@@ -296,6 +297,7 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
         vx: (0.5, 0.5),
         max_init_level: 0,
         only: Some(Column::Down),
+        joystick_share: 0.0,
     };
     let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
     e.hold(1, 0.5).unwrap();
@@ -350,4 +352,65 @@ fn an_environment_keeps_its_column_and_moves_within_its_levels() {
         assert_eq!(e.column, Column::Up, "episode {episode} changed the column");
     }
     assert_eq!(e.level, 1, "three failures short of halfway: 4 → 1");
+}
+
+/// Joystick episodes on flat ground (`--joystick-share`): the command is a constant (vx, vy, wz)
+/// within the documented ranges, whatever the robot's yaw does, as `g1fw sim` without
+/// `--heading` sends it; heading-hold episodes never command a lateral speed. Trained only with
+/// heading hold, the policy turned when asked to walk straight without it (issue 29, item 5).
+#[test]
+fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let cfg = |share: f64| EnvConfig {
+        model: g1_sim::ModelChoice::G1_12Dof,
+        spec: Arc::new(spec.clone()),
+        episode_s: 10.0,
+        random: Randomization::NONE,
+        vx: (0.5, 0.5),
+        max_init_level: 0,
+        only: Some(Column::Flat),
+        joystick_share: share,
+    };
+    let mut mean = vec![0.0f32; 12];
+    let mut joystick = StairEnv::new(cfg(1.0), 3, &weights).unwrap();
+    let mut drawn = Vec::new();
+    for _ in 0..4 {
+        joystick.reset().unwrap();
+        let first = joystick.operator_command();
+        assert!(
+            first[0] == 0.5 || first[0] == 0.0,
+            "forward speed from --vx (or a 5 % stand): {first:?}"
+        );
+        assert!(first[1].abs() <= train::ppo::env::JOYSTICK_VY as f32, "{first:?}");
+        assert!(first[2].abs() <= train::ppo::env::JOYSTICK_WZ as f32, "{first:?}");
+        for _ in 0..25 {
+            joystick.observe_and_act(&mut mean).unwrap();
+            joystick.step(&mean).unwrap();
+            assert_eq!(joystick.operator_command(), first, "a joystick command stays put");
+        }
+        drawn.push(first);
+    }
+    assert!(
+        drawn.windows(2).any(|w| w[0] != w[1]),
+        "each episode draws its own command: {drawn:?}"
+    );
+
+    let mut held = StairEnv::new(cfg(0.0), 3, &weights).unwrap();
+    held.reset().unwrap();
+    let mut turn_rates = Vec::new();
+    for _ in 0..50 {
+        held.observe_and_act(&mut mean).unwrap();
+        held.step(&mean).unwrap();
+        let c = held.operator_command();
+        assert_eq!(c[1], 0.0, "heading hold commands no lateral speed");
+        turn_rates.push(c[2]);
+    }
+    assert!(
+        turn_rates.windows(2).any(|w| w[0] != w[1]),
+        "heading hold corrects the turn rate as the yaw drifts"
+    );
 }

@@ -171,7 +171,16 @@ pub struct EnvConfig {
     pub max_init_level: usize,
     /// Train on this terrain column only (default: the curriculum's mix).
     pub only: Option<Column>,
+    /// Share of flat-column episodes commanded as a joystick does: a constant (vx, vy, wz) from
+    /// [`JOYSTICK_VY`] and [`JOYSTICK_WZ`], without heading hold, so the policy learns to hold a
+    /// zero turn rate itself (`g1fw sim` without `--heading`). 0: every episode holds a heading.
+    pub joystick_share: f64,
 }
+
+/// Lateral speed commands of joystick episodes, m/s (symmetric).
+pub const JOYSTICK_VY: f64 = 0.2;
+/// Turn-rate commands of joystick episodes, rad/s (symmetric; a third of them exactly 0).
+pub const JOYSTICK_WZ: f64 = 0.5;
 
 /// Result of one step.
 #[derive(Clone, Copy, Debug, Default)]
@@ -216,6 +225,8 @@ pub struct StairEnv {
     pub level: usize,
     vx_cmd: f32,
     heading: f64,
+    /// A joystick episode's constant command (vx, vy, wz), in place of heading hold.
+    joystick: Option<[f32; 3]>,
     token: TerrainToken,
     token_phase: u32,
     latency: usize,
@@ -306,6 +317,7 @@ impl StairEnv {
             level,
             vx_cmd: 0.0,
             heading: 0.0,
+            joystick: None,
             token: TerrainToken::FLAT,
             token_phase: 0,
             latency: 0,
@@ -420,6 +432,21 @@ impl StairEnv {
             self.rng.range(self.cfg.vx.0, self.cfg.vx.1) as f32
         };
         self.heading = self.world.stairs.as_ref().map_or(0.0, |s| s.yaw) + 0.05 * self.rng.gaussian();
+        self.joystick = None;
+        // Drawn only when enabled, so runs without joystick episodes keep their random streams.
+        if self.column == Column::Flat
+            && self.held_vx.is_none()
+            && self.cfg.joystick_share > 0.0
+            && self.rng.chance(self.cfg.joystick_share)
+        {
+            let vy = self.rng.range(-JOYSTICK_VY, JOYSTICK_VY);
+            let wz = if self.rng.chance(1.0 / 3.0) {
+                0.0
+            } else {
+                self.rng.range(-JOYSTICK_WZ, JOYSTICK_WZ)
+            };
+            self.joystick = Some([self.vx_cmd, vy as f32, wz as f32]);
+        }
         self.step = 0;
         self.fell = false;
         self.ret = 0.0;
@@ -570,8 +597,12 @@ impl StairEnv {
     }
 
     /// The operator's command now: forward speed with heading hold toward the staircase axis,
-    /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval`.
+    /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval`, or a
+    /// joystick episode's constant command.
     pub fn operator_command(&self) -> [f32; 3] {
+        if let Some(cmd) = self.joystick {
+            return cmd;
+        }
         firmware::operator::heading_command(
             self.vx_cmd,
             self.heading as f32,
@@ -717,9 +748,15 @@ impl StairEnv {
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
             // Speed along the target heading, up to the commanded speed: standing at a riser earns
             // none of it, and going faster than asked earns nothing more.
+            // (A joystick episode has no target heading: its forward speed counts.)
             progress: {
-                let (hc, hs) = (self.heading.cos(), self.heading.sin());
-                (hc * v[0] + hs * v[1]).clamp(0.0, (cmd[0]).max(0.0))
+                let along = if self.joystick.is_some() {
+                    vx
+                } else {
+                    let (hc, hs) = (self.heading.cos(), self.heading.sin());
+                    hc * v[0] + hs * v[1]
+                };
+                along.clamp(0.0, (cmd[0]).max(0.0))
             },
             ..Terms::default()
         };

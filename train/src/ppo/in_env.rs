@@ -57,6 +57,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         vx: (opts.vx as f64, opts.vx as f64),
         max_init_level: 0,
         only: Some(opts.column),
+        joystick_share: 0.0,
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

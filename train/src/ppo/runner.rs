@@ -52,6 +52,9 @@ pub struct RunConfig {
     pub vx: (f64, f64),
     /// Train on one terrain column only (default: the curriculum's mix).
     pub only: Option<super::env::Column>,
+    /// Share of flat-column episodes with a joystick's constant (vx, vy, wz) command instead of
+    /// heading hold (`EnvConfig::joystick_share`).
+    pub joystick_share: f64,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -257,6 +260,7 @@ fn make_envs(
         vx: cfg.vx,
         max_init_level: cfg.max_init_level,
         only: cfg.only,
+        joystick_share: cfg.joystick_share,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);

@@ -77,6 +77,11 @@ pub struct Args {
     /// up 30 %, down 30 %, irregular outdoor up and down 12.5 % each).
     #[arg(long, value_enum)]
     only: Option<train::ppo::env::Column>,
+    /// Share of flat-ground episodes commanded as a joystick does: a constant (vx, vy ±0.2 m/s,
+    /// wz ±0.5 rad/s) without heading hold, so the policy holds its own turn rate (`g1fw sim`
+    /// without `--heading`). 0 (default): every episode holds a heading.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
+    joystick_share: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -116,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vx,
         no_randomization,
         only,
+        joystick_share,
         checkpoint_every,
         max_wall,
         judge_every,
@@ -173,6 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_init_level,
         vx,
         only,
+        joystick_share,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,
