@@ -43,6 +43,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         max_init_level: 0,
         vx: (0.4, 0.8),
         only: Some(Column::Flat),
+        joystick_share: 0.0,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

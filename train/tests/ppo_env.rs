@@ -414,3 +414,71 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
         "heading hold corrects the turn rate as the yaw drifts"
     );
 }
+
+/// The supervisor's walls hold at every physics step, not only at policy steps: `g1fw`'s
+/// supervisor checks every 2 ms tick, so a knee-speed spike at a foot strike that is over before
+/// the 20 ms policy step ends still trips the robot. Knee-speed trips were most of the committed
+/// actor's failures through `g1fw` (44 of 91 for run 16's best on 12–22 cm staircases).
+/// A limit set between a joint's fastest speed at the policy steps and its fastest at the physics
+/// steps must end the same (deterministic) episode.
+#[test]
+fn supervisor_walls_hold_at_every_physics_step() {
+    use train::ppo::env::FALL_CAUSES;
+    if peer_weights().is_none() {
+        return;
+    }
+    let base = stair_spec();
+    let weights = std::fs::read(base.weights_path()).unwrap();
+    let run = |spec: DeploySpec| {
+        let mut e = env(spec, &weights, 11, Column::Up);
+        e.hold(1, 0.5).unwrap();
+        let mut mean = vec![0.0f32; 12];
+        let (mut at_steps, mut peaks) = ([0.0f32; hal::NUM_MOTORS], [0.0f32; hal::NUM_MOTORS]);
+        let mut ended = false;
+        for _ in 0..150 {
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            for s in 0..hal::NUM_MOTORS {
+                at_steps[s] = at_steps[s].max(e.low_state().motors[s].dq.abs());
+                peaks[s] = peaks[s].max(e.peak_joint_speed(s));
+            }
+            if out.terminated || out.truncated {
+                ended = out.terminated;
+                break;
+            }
+        }
+        e.reset().unwrap();
+        (at_steps, peaks, ended.then(|| e.last_end.unwrap()))
+    };
+    let (at_steps, peaks, _) = run(base.clone());
+    let limits = firmware::supervisor::MotionLimits::from_spec(&base);
+    // The joint whose physics steps outran its policy steps the most, under its motor's limit.
+    let slot = (0..hal::NUM_MOTORS)
+        .filter(|&s| peaks[s] < limits.joint_speed_rad_s[s])
+        .max_by(|&a, &b| (peaks[a] / at_steps[a].max(1e-3)).total_cmp(&(peaks[b] / at_steps[b].max(1e-3))))
+        .unwrap();
+    assert!(
+        peaks[slot] > at_steps[slot] * 1.02,
+        "no joint moved faster between policy steps than at them: {peaks:?} vs {at_steps:?}"
+    );
+    let limit = 0.5 * (peaks[slot] + at_steps[slot]);
+    let mut strict = base.clone();
+    strict
+        .safety
+        .joint_speed_limits_rad_s
+        .insert(hal::G1_MOTOR_NAMES[slot].to_string(), limit);
+    let (at_steps2, _, end) = run(strict);
+    let end = end.unwrap_or_else(|| {
+        panic!(
+            "{} at {limit:.2} rad/s (policy steps reach {:.2}, physics steps {:.2}) never ended the episode",
+            hal::G1_MOTOR_NAMES[slot],
+            at_steps[slot],
+            peaks[slot]
+        )
+    });
+    assert_eq!(FALL_CAUSES[end.cause], "joint_speed", "{end:?}");
+    assert!(
+        at_steps2[slot] < limit,
+        "the trip came between policy steps, not at one"
+    );
+}

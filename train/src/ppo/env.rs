@@ -241,6 +241,11 @@ pub struct StairEnv {
     slots: Vec<usize>,
     prev_action: Vec<f32>,
     prev_dq: Vec<f32>,
+    /// Fastest |dq| of each motor over the physics steps of the current policy step.
+    peak_dq: [f32; NUM_MOTORS],
+    /// The first supervisor wall (tilt, joint speed, base angular speed; a [`FALL_CAUSES`] index)
+    /// hit at any physics step of the current policy step.
+    physics_step_trip: Option<usize>,
     air_time: [f64; 2],
     contact_time: [f64; 2],
     prev_foot: [[f64; 3]; 2],
@@ -332,6 +337,8 @@ impl StairEnv {
             slots: spec.policy.joint_ids_map.clone(),
             prev_action: vec![0.0; n],
             prev_dq: vec![0.0; n],
+            peak_dq: [0.0; NUM_MOTORS],
+            physics_step_trip: None,
             air_time: [0.0; 2],
             contact_time: [0.0; 2],
             prev_foot: [[0.0; 3]; 2],
@@ -698,10 +705,14 @@ impl StairEnv {
         self.io.apply_action(action, &mut self.target_q);
         self.cmd_prev = self.cmd_now;
         self.cmd_now = self.command(&self.target_q.clone());
+        self.peak_dq = [0.0; NUM_MOTORS];
+        self.physics_step_trip = None;
         for k in 0..self.timing.decimation {
             let c = if k < self.latency { self.cmd_prev } else { self.cmd_now };
             self.sim.apply_command(&c)?;
             self.sim.step_control_tick();
+            self.sim.low_state(&mut self.state);
+            self.watch_physics_step();
         }
         self.step += 1;
         if self.cfg.random.push_mps > 0.0 && self.step == self.next_push {
@@ -710,7 +721,6 @@ impl StairEnv {
             self.sim.push_base(dx, dy)?;
             self.next_push += self.push_interval();
         }
-        self.sim.low_state(&mut self.state);
         let was_success = self.succeeded();
         let (mut terms, terminated) = self.rewards(action);
         // The bonus comes once the base has stood on the landing (no bonus, no promotion for a
@@ -730,6 +740,30 @@ impl StairEnv {
             terminated,
             truncated,
         })
+    }
+
+    /// The supervisor's walls at one physics step. `g1fw`'s supervisor checks every 2 ms tick, so
+    /// a knee-speed spike at a foot strike trips the robot even when it is over before the policy
+    /// step ends; checked only at policy steps (every 20 ms), training never saw most of them.
+    fn watch_physics_step(&mut self) {
+        let mut too_fast = false;
+        for &slot in &self.slots {
+            let dq = self.state.motors[slot].dq;
+            self.peak_dq[slot] = self.peak_dq[slot].max(dq.abs());
+            too_fast |= self.limits.joint_too_fast(slot, dq);
+        }
+        if self.physics_step_trip.is_none() {
+            let t = self.sim.truth();
+            let g = estimator::projected_gravity(t.base_quat.map(|x| x as f32));
+            let w = t.base_ang_vel_body.map(|x| x as f32);
+            // The base height is the field's termination, not the supervisor's: judged per policy step.
+            self.physics_step_trip = termination::cause(&self.limits, -g[2], too_fast, f64::INFINITY, w);
+        }
+    }
+
+    /// Fastest |dq| of motor `slot` over the physics steps of the last policy step, rad/s.
+    pub fn peak_joint_speed(&self, slot: usize) -> f32 {
+        self.peak_dq[slot]
     }
 
     fn rewards(&mut self, action: &[f32]) -> (Terms, bool) {
@@ -761,13 +795,11 @@ impl StairEnv {
             ..Terms::default()
         };
         let policy_dt = self.timing.policy_dt;
-        let mut too_fast = false;
         for (i, &slot) in self.slots.iter().enumerate() {
             let m = &self.state.motors[slot];
             let dq = m.dq as f64;
-            too_fast |= self.limits.joint_too_fast(slot, m.dq);
             let soft = (SOFT_JOINT_SPEED * self.limits.joint_speed_rad_s[slot]) as f64;
-            r.joint_speed += (dq.abs() - soft).max(0.0).powi(2);
+            r.joint_speed += (self.peak_dq[slot] as f64 - soft).max(0.0).powi(2);
             r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
             r.torques += self.sim.applied_torque(slot).powi(2);
             r.joint_acc += ((dq - self.prev_dq[i] as f64) / policy_dt).powi(2);
@@ -861,7 +893,13 @@ impl StairEnv {
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
-        let cause = termination::cause(&self.limits, -g[2], too_fast, height, w.map(|x| x as f32));
+        let cause = self.physics_step_trip.or(termination::cause(
+            &self.limits,
+            -g[2],
+            false,
+            height,
+            w.map(|x| x as f32),
+        ));
         if let Some(c) = cause {
             r.termination = 1.0;
             self.cause = c;
