@@ -22,7 +22,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use anyhow::{bail, Context, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::operator::CommandSchedule;
 use crate::perception::TerrainSource;
@@ -51,7 +51,7 @@ pub struct EpisodeWorld {
 }
 
 /// A staircase drawn by the random sweep (written as a scenario file for the simulator).
-#[derive(Clone, Copy, Debug, Serialize)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct DrawnStairs {
     pub up: bool,
     pub step_height: f64,
@@ -123,7 +123,7 @@ pub struct EvalOptions {
 }
 
 /// One episode's result.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Episode {
     pub index: usize,
     pub world: String,
@@ -149,7 +149,7 @@ pub struct Episode {
 }
 
 /// A row of the per-height table.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Row {
     pub kind: String,
     pub step_height_cm: u32,
@@ -162,7 +162,7 @@ pub struct Row {
 }
 
 /// The JSON report of `g1fw eval`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct EvalReport {
     pub spec: String,
     pub model: String,

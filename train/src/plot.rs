@@ -473,3 +473,158 @@ pub fn ppo_curves_png(
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }
+
+/// Stair success through `g1fw eval` against env steps (left: up, down and both per actor, each
+/// with its 95 % Wilson interval, and the paper's mean as a dashed line) and per riser height for
+/// `table` (right: up and down against the paper's figure per height).
+pub fn success_curve_png(
+    path: &Path,
+    points: &[crate::ppo::success_curve::CurvePoint],
+    table: &firmware::eval::EvalReport,
+) -> anyhow::Result<()> {
+    use crate::ppo::success_curve::{by_height, tally, Tally, PAPER_SUCCESS};
+    check_png(path)?;
+    anyhow::ensure!(!points.is_empty(), "no points to plot");
+    let root = BitMapBackend::new(path, (1600, 650)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let (left, right) = root.split_horizontally(900);
+    let shown = path.display().to_string();
+    let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("drawing {shown}: {e:?}");
+    let paper_mean = PAPER_SUCCESS.iter().map(|p| p.1).sum::<f64>() / PAPER_SUCCESS.len() as f64;
+    // Draws `t` at x as a marker with its interval; `dx` keeps the three series apart.
+    fn with_interval<DB: DrawingBackend>(
+        chart: &mut ChartContext<
+            DB,
+            Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+        >,
+        pts: &[(f64, Tally)],
+        c: RGBColor,
+        name: &str,
+    ) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+        let xy: Vec<(f64, f64)> = pts.iter().filter_map(|(x, t)| t.percent().map(|p| (*x, p))).collect();
+        chart
+            .draw_series(LineSeries::new(xy.clone(), c.stroke_width(2)))?
+            .label(name)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 16, y)], c.stroke_width(2)));
+        chart.draw_series(xy.iter().map(|&p| Circle::new(p, 4, c.filled())))?;
+        chart.draw_series(pts.iter().filter_map(|(x, t)| {
+            t.wilson95()
+                .map(|(lo, hi)| PathElement::new([(*x, lo), (*x, hi)], c.mix(0.5).stroke_width(2)))
+        }))?;
+        Ok(())
+    }
+
+    let x1 = points.last().map_or(1.0, |p| p.env_steps / 1e6) * 1.08 + 1.0;
+    let r0 = &points[0].report;
+    let heights: Vec<u32> = by_height(r0).keys().copied().collect();
+    let caption = format!(
+        "g1fw eval success vs training (risers {}–{} cm, {} per cell, {}, {} token)",
+        heights.first().unwrap_or(&0),
+        heights.last().unwrap_or(&0),
+        r0.table.first().map_or(0, |r| r.episodes),
+        r0.model,
+        r0.terrain_source
+    );
+    let mut chart = ChartBuilder::on(&left)
+        .caption(caption, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(0.0..x1, -3.0..103.0)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc("env steps of training (M, the whole warm-start chain)")
+        .y_desc("success (%)")
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| err(&e))?;
+    chart
+        .draw_series(DashedLineSeries::new(
+            [(0.0, paper_mean), (x1, paper_mean)],
+            8,
+            6,
+            LIMIT.stroke_width(2),
+        ))
+        .map_err(|e| err(&e))?
+        .label(format!("paper, mean of 12–22 cm ({paper_mean:.1} %)"))
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], LIMIT.stroke_width(2)));
+    let dx = 0.006 * x1;
+    for (kind, c, name, off) in [
+        (Some("up"), UP, "up", -dx),
+        (Some("down"), DOWN, "down", dx),
+        (None, CNN, "up and down", 0.0),
+    ] {
+        let pts: Vec<(f64, Tally)> = points
+            .iter()
+            .map(|p| (p.env_steps / 1e6 + off, tally(&p.report, kind)))
+            .collect();
+        with_interval(&mut chart, &pts, c, name).map_err(|e| err(&e))?;
+    }
+    chart
+        .draw_series(points.iter().map(|p| {
+            Text::new(
+                p.label.clone(),
+                (p.env_steps / 1e6, 86.0),
+                ("sans-serif", 13).into_font().color(&BLACK),
+            )
+        }))
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::UpperLeft)
+        .draw()
+        .map_err(|e| err(&e))?;
+
+    let rows = by_height(table);
+    let (h0, h1) = (
+        rows.keys().next().copied().unwrap_or(12).min(12) as f64 - 1.0,
+        rows.keys().last().copied().unwrap_or(22).max(22) as f64 + 1.0,
+    );
+    let mut chart = ChartBuilder::on(&right)
+        .caption(
+            format!("per riser height: {} episodes, {}", table.episodes, table.model),
+            ("sans-serif", 20),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(h0..h1, -3.0..103.0)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc("riser height (cm)")
+        .y_desc("success (%)")
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| err(&e))?;
+    let paper: Vec<(f64, f64)> = PAPER_SUCCESS.iter().map(|&(h, p)| (h as f64, p)).collect();
+    chart
+        .draw_series(DashedLineSeries::new(paper.clone(), 8, 6, LIMIT.stroke_width(2)))
+        .map_err(|e| err(&e))?
+        .label("paper")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], LIMIT.stroke_width(2)));
+    chart
+        .draw_series(paper.iter().map(|&p| Circle::new(p, 4, LIMIT.filled())))
+        .map_err(|e| err(&e))?;
+    let up: Vec<(f64, Tally)> = rows.iter().map(|(h, t)| (*h as f64 - 0.1, t.0)).collect();
+    let down: Vec<(f64, Tally)> = rows.iter().map(|(h, t)| (*h as f64 + 0.1, t.1)).collect();
+    with_interval(&mut chart, &up, UP, "up").map_err(|e| err(&e))?;
+    with_interval(&mut chart, &down, DOWN, "down").map_err(|e| err(&e))?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(SeriesLabelPosition::MiddleLeft)
+        .draw()
+        .map_err(|e| err(&e))?;
+    root.present()
+        .map_err(|e| anyhow::anyhow!("writing {}: {e:?}", path.display()))?;
+    Ok(())
+}

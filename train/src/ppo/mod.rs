@@ -16,6 +16,8 @@
 //! - [`iter_log`]: one iteration's figures.
 //! - [`in_env`]: an actor evaluated in the training environment itself, one level at a time.
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
+//! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
+//!   against the paper (`g1-train success-curve`).
 pub mod algo;
 pub mod curriculum;
 pub mod elu_op;
@@ -28,5 +30,6 @@ pub mod policy;
 pub mod reward;
 pub mod rollout;
 pub mod runner;
+pub mod success_curve;
 pub mod symmetry;
 pub mod termination;

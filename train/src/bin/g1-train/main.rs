@@ -8,6 +8,7 @@ mod fit;
 mod ppo;
 mod ppo_eval;
 mod ppo_export;
+mod success_curve;
 
 use clap::{Parser, Subcommand};
 
@@ -54,6 +55,9 @@ enum Cmd {
     PpoEval(ppo_eval::Args),
     /// Write a PPO checkpoint's actor as the weights file its deploy spec names.
     PpoExport(ppo_export::Args),
+    /// Stair success through `g1fw eval` against env steps (one report per actor) and per riser
+    /// height against the paper: a PNG and a markdown table (README "Stair policy").
+    SuccessCurve(success_curve::Args),
 }
 
 /// glibc hands every freed block over 128 KiB back to the kernel and maps it again on the next
@@ -93,5 +97,6 @@ fn main() -> anyhow::Result<()> {
         }
         Cmd::PpoEval(args) => ppo_eval::run(args),
         Cmd::PpoExport(args) => ppo_export::run(args),
+        Cmd::SuccessCurve(args) => success_curve::run(args),
     }
 }

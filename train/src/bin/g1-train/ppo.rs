@@ -59,6 +59,10 @@ pub struct Args {
     lr: f64,
     #[arg(long, default_value_t = 0.005)]
     entropy_coef: f64,
+    /// KL divergence per update that the adaptive learning rate aims at (rsl_rl's 0.01); a smaller
+    /// target takes smaller steps, for fine-tuning a policy that already works.
+    #[arg(long, default_value_t = 0.01)]
+    desired_kl: f64,
     /// Episode length, s (long enough for the longest staircase at the slowest command:
     /// up to 2 m + 8 × 0.4 m + 0.5 m at 0.4 m/s is 14 s).
     #[arg(long, default_value_t = 20.0)]
@@ -116,6 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         critic_warmup,
         lr,
         entropy_coef,
+        desired_kl,
         episode_s,
         max_init_level,
         vx,
@@ -145,8 +150,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             && init_std.is_finite()
             && init_std > 0.0
             && episode_s.is_finite()
-            && episode_s > 0.0,
-        "--lr, --init-std and --episode-s must be positive numbers"
+            && episode_s > 0.0
+            && desired_kl.is_finite()
+            && desired_kl > 0.0,
+        "--lr, --init-std, --episode-s and --desired-kl must be positive numbers"
     );
     let judge_model = model.to_string();
     let cfg = train::ppo::runner::RunConfig {
@@ -169,6 +176,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             minibatches,
             lr,
             entropy_coef,
+            desired_kl,
             ..Default::default()
         },
         random: if no_randomization {
