@@ -564,10 +564,12 @@ pub fn success_curve_png(
         with_interval(&mut chart, &pts, c, name).map_err(|e| err(&e))?;
     }
     chart
-        .draw_series(points.iter().map(|p| {
+        .draw_series(points.iter().enumerate().map(|(i, p)| {
+            // Alternate heights, so the labels of close points do not overlap.
+            let y = if i % 2 == 0 { 86.0 } else { 81.0 };
             Text::new(
                 p.label.clone(),
-                (p.env_steps / 1e6, 86.0),
+                (p.env_steps / 1e6, y),
                 ("sans-serif", 13).into_font().color(&BLACK),
             )
         }))
