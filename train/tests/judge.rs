@@ -121,3 +121,27 @@ fn a_judge_that_fails_does_not_end_training() {
     assert!(out.join("checkpoint.safetensors").is_file());
     std::fs::remove_dir_all(&out).unwrap();
 }
+
+/// A trainer that cannot judge says so before it trains, not at its first judged checkpoint.
+#[test]
+fn ppo_without_a_simulator_beside_it_refuses_to_start_when_asked_to_judge() {
+    let dir = std::env::temp_dir().join(format!("g1_ppo_judge_nosim_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let exe = dir.join("g1-train");
+    std::fs::copy(env!("CARGO_BIN_EXE_g1-train"), &exe).unwrap();
+    let out = std::process::Command::new(&exe)
+        .args(["ppo", "--judge-every", "3", "--iterations", "1", "--out"])
+        .arg(dir.join("run"))
+        .env_remove("G1_SIM_BIN")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "started without a simulator: {stderr}");
+    assert!(
+        stderr.contains("cannot find the simulator binary g1-sim") && stderr.contains("--judge-every 0"),
+        "{stderr}"
+    );
+    let wrote = dir.join("run").exists();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(!wrote, "it wrote a run directory before refusing");
+}

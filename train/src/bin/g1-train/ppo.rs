@@ -155,6 +155,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             && desired_kl > 0.0,
         "--lr, --init-std, --episode-s and --desired-kl must be positive numbers"
     );
+    if judge_every > 0 {
+        // The judge runs g1fw's eval, each episode with its own g1-sim: find it now, not at the
+        // first judged checkpoint minutes into the run (a trainer copied away from target/ once
+        // trained 27 min unjudged).
+        sim_hal::bridge::find_sim_bin(None).map_err(|e| {
+            anyhow::anyhow!("--judge-every {judge_every}: {e}; or pass --judge-every 0 to train unjudged")
+        })?;
+    }
     let judge_model = model.to_string();
     let cfg = train::ppo::runner::RunConfig {
         spec,
