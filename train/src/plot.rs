@@ -477,6 +477,34 @@ pub fn ppo_curves_png(
 /// Stair success through `g1fw eval` against env steps (left: up, down and both per actor, each
 /// with its 95 % Wilson interval, and the paper's mean as a dashed line) and per riser height for
 /// `table` (right: up and down against the paper's figure per height).
+/// A chart with f64 axes on both sides.
+type XyChart<'a, DB> =
+    ChartContext<'a, DB, Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>>;
+
+/// A success panel (y: 0–100 %) with its axes drawn, for [`success_curve_png`].
+fn success_axes<'a, DB: DrawingBackend + 'a>(
+    area: &'a DrawingArea<DB, plotters::coord::Shift>,
+    caption: String,
+    x: std::ops::Range<f64>,
+    x_desc: &str,
+) -> Result<XyChart<'a, DB>, DrawingAreaErrorKind<DB::ErrorType>> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x, -3.0..103.0)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc("success (%)")
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()?;
+    Ok(chart)
+}
+
 pub fn success_curve_png(
     path: &Path,
     points: &[crate::ppo::success_curve::CurvePoint],
@@ -491,12 +519,9 @@ pub fn success_curve_png(
     let shown = path.display().to_string();
     let err = |e: &dyn std::fmt::Debug| anyhow::anyhow!("drawing {shown}: {e:?}");
     let paper_mean = PAPER_SUCCESS.iter().map(|p| p.1).sum::<f64>() / PAPER_SUCCESS.len() as f64;
-    // Draws `t` at x as a marker with its interval; `dx` keeps the three series apart.
+    // Draws each (x, tally) as a marker on a line, with its 95 % interval as a bar.
     fn with_interval<DB: DrawingBackend>(
-        chart: &mut ChartContext<
-            DB,
-            Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
-        >,
+        chart: &mut XyChart<DB>,
         pts: &[(f64, Tally)],
         c: RGBColor,
         name: &str,
@@ -525,22 +550,13 @@ pub fn success_curve_png(
         r0.model,
         r0.terrain_source
     );
-    let mut chart = ChartBuilder::on(&left)
-        .caption(caption, ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(0.0..x1, -3.0..103.0)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("env steps of training (M, the whole warm-start chain)")
-        .y_desc("success (%)")
-        .y_label_formatter(&|y| format!("{y:.0}"))
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut chart = success_axes(
+        &left,
+        caption,
+        0.0..x1,
+        "env steps of training (M, the whole warm-start chain)",
+    )
+    .map_err(|e| err(&e))?;
     chart
         .draw_series(DashedLineSeries::new(
             [(0.0, paper_mean), (x1, paper_mean)],
@@ -587,25 +603,13 @@ pub fn success_curve_png(
         rows.keys().next().copied().unwrap_or(12).min(12) as f64 - 1.0,
         rows.keys().last().copied().unwrap_or(22).max(22) as f64 + 1.0,
     );
-    let mut chart = ChartBuilder::on(&right)
-        .caption(
-            format!("per riser height: {} episodes, {}", table.episodes, table.model),
-            ("sans-serif", 20),
-        )
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(55)
-        .build_cartesian_2d(h0..h1, -3.0..103.0)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("riser height (cm)")
-        .y_desc("success (%)")
-        .y_label_formatter(&|y| format!("{y:.0}"))
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()
-        .map_err(|e| err(&e))?;
+    let mut chart = success_axes(
+        &right,
+        format!("per riser height: {} episodes, {}", table.episodes, table.model),
+        h0..h1,
+        "riser height (cm)",
+    )
+    .map_err(|e| err(&e))?;
     let paper: Vec<(f64, f64)> = PAPER_SUCCESS.iter().map(|&(h, p)| (h as f64, p)).collect();
     chart
         .draw_series(DashedLineSeries::new(paper.clone(), 8, 6, LIMIT.stroke_width(2)))

@@ -149,7 +149,12 @@ pub fn check_points(points: &mut [CurvePoint]) -> Result<()> {
         "no points: give --point STEPS=REPORT.json at least once"
     );
     let first = protocol(&points[0].report);
-    for p in points.iter().skip(1) {
+    for p in points.iter() {
+        ensure!(
+            !p.report.interrupted,
+            "point {:?}: its evaluation was interrupted",
+            p.label
+        );
         let this = protocol(&p.report);
         ensure!(
             this == first,
@@ -158,17 +163,7 @@ pub fn check_points(points: &mut [CurvePoint]) -> Result<()> {
             p.label,
             points[0].label
         );
-        ensure!(
-            !p.report.interrupted,
-            "point {:?}: its evaluation was interrupted",
-            p.label
-        );
     }
-    ensure!(
-        !points[0].report.interrupted,
-        "point {:?}: its evaluation was interrupted",
-        points[0].label
-    );
     points.sort_by(|a, b| a.env_steps.total_cmp(&b.env_steps));
     Ok(())
 }
