@@ -116,6 +116,8 @@ pub struct EvalOptions {
     /// Stop an episode once it has stood on the end landing this long (s).
     pub stop_after_landing_s: Option<f64>,
     pub sim_bin: Option<PathBuf>,
+    /// The simulator's physics profile (`g1-sim --physics`; `None`: deploy).
+    pub physics: Option<String>,
     pub progress: bool,
     /// Set by SIGINT/SIGTERM: running episodes stop at their next tick (their simulators are
     /// stopped and reaped) and are not scored; no new one starts; the report covers what finished.
@@ -167,6 +169,9 @@ pub struct EvalReport {
     pub spec: String,
     pub model: String,
     pub terrain_source: String,
+    /// The simulator's physics profile (reports from before this field ran `deploy`).
+    #[serde(default = "deploy_physics")]
+    pub physics: String,
     pub vx: f32,
     pub time_limit_s: f64,
     pub seed: u64,
@@ -180,6 +185,10 @@ pub struct EvalReport {
     /// Stopped by a signal: `episodes` finished of `episodes_planned`.
     pub interrupted: bool,
     pub episodes_planned: u64,
+}
+
+fn deploy_physics() -> String {
+    "deploy".into()
 }
 
 /// Runs every episode (up to `jobs` at once, each with its own simulator) and scores them.
@@ -264,6 +273,7 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Epi
         duration_s: opts.time_limit_s,
         seed,
         sim_bin: opts.sim_bin.clone(),
+        physics: opts.physics.clone(),
         stop_on_fall: true,
         world: Some(w.world.clone()),
         terrain_source: opts.terrain_source,
@@ -392,6 +402,7 @@ fn summarise(opts: &EvalOptions, results: Vec<Episode>, wall_s: f64) -> EvalRepo
         spec: opts.spec.display().to_string(),
         model: opts.model.clone(),
         terrain_source: opts.terrain_source.map_or("spec".into(), |s| s.as_str().into()),
+        physics: opts.physics.clone().unwrap_or_else(deploy_physics),
         vx: opts.vx,
         time_limit_s: opts.time_limit_s,
         seed: opts.seed,

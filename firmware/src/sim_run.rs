@@ -47,6 +47,9 @@ pub struct SimOptions {
     /// The simulator's integrator (`g1-sim --integrator`): `None` its default (implicitfast, the
     /// PD's damping implicit), `euler` to reproduce an explicit-PD reference loop.
     pub integrator: Option<String>,
+    /// The simulator's physics profile (`g1-sim --physics`): `None` its default (deploy), or
+    /// `training` (the trainer's lean contacts and solver).
+    pub physics: Option<String>,
     /// Terrain world for the simulator (`g1-sim --world`: preset, scenario file or random:SEED).
     /// With a world the simulator also streams its MID-360 and the perception group runs.
     pub world: Option<String>,
@@ -121,6 +124,7 @@ impl Default for SimOptions {
             imu_noise: None,
             world: None,
             integrator: None,
+            physics: None,
             log: None,
             log_options: LogOptions::default(),
             rt: crate::rt::RtOptions::default(),
@@ -664,6 +668,7 @@ fn start_simulator(
                 imu_noise: opts.imu_noise.clone(),
                 world: opts.world.clone(),
                 integrator: opts.integrator.clone(),
+                physics: opts.physics.clone(),
                 ..SimLaunch::new(&opts.model, control_dt)
             };
             let (c, hal) = launch.start("g1fw", want, Duration::from_secs(30))?;

@@ -103,6 +103,45 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
     assert_eq!(s["state_trace_sha256"], stairs["state_trace_sha256"]);
     assert_eq!(s["stairs"]["success"], false);
     assert_eq!(s["stairs"]["risers_passed"], stairs["risers_passed"]);
+
+    // `--sim-physics training` runs the same episode on the trainer's lean physics: the report
+    // says which, and the trajectory differs (the gap the flag exists to measure).
+    assert_eq!(r["physics"], "deploy");
+    let lean_report = dir.join("lean.json");
+    let out = g1fw(&[
+        "eval",
+        "--spec",
+        spec.to_str().unwrap(),
+        "--model",
+        "g1-12dof",
+        "--worlds",
+        "flat",
+        "--time-limit",
+        "8",
+        "--seed",
+        "3",
+        "--sim-physics",
+        "training",
+        "--quiet",
+        "--report",
+        lean_report.to_str().unwrap(),
+    ]);
+    ok(&out, "g1fw eval --sim-physics training");
+    let lean = read_json(&lean_report);
+    assert_eq!(lean["physics"], "training");
+    let lean_flat = &lean["results"][0];
+    assert_ne!(lean_flat["state_trace_sha256"], flat["state_trace_sha256"]);
+    let out = g1fw(&[
+        "eval",
+        "--spec",
+        spec.to_str().unwrap(),
+        "--worlds",
+        "flat",
+        "--sim-physics",
+        "fast",
+    ]);
+    assert!(!ran(&out));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("deploy"), "{out:?}");
 }
 
 #[test]

@@ -35,6 +35,7 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         max_init_level: 2,
         only: None,
         joystick_share: 0.0,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -87,6 +88,7 @@ fn whole_loop(
         vx: (0.4, 0.8),
         only: None,
         joystick_share: 0.0,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -44,6 +44,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         vx: (0.4, 0.8),
         only: Some(Column::Flat),
         joystick_share: 0.0,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -52,6 +52,7 @@ fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u6
         max_init_level: 0,
         only: Some(only),
         joystick_share: 0.0,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
     };
     StairEnv::new(cfg, seed, weights).unwrap()
 }
@@ -298,6 +299,7 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
         max_init_level: 0,
         only: Some(Column::Down),
         joystick_share: 0.0,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
     };
     let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
     e.hold(1, 0.5).unwrap();
@@ -374,6 +376,7 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
         max_init_level: 0,
         only: Some(Column::Flat),
         joystick_share: share,
+        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
     };
     let mut mean = vec![0.0f32; 12];
     let mut joystick = StairEnv::new(cfg(1.0), 3, &weights).unwrap();
@@ -480,5 +483,52 @@ fn supervisor_walls_hold_at_every_physics_step() {
     assert!(
         at_steps2[slot] < limit,
         "the trip came between policy steps, not at one"
+    );
+}
+
+/// `--soft-joint-speed` moves where the soft penalty starts and nothing else: the same episode
+/// (same seed, same actions) earns less at every step when the penalty starts lower, and the
+/// robot moves identically.
+#[test]
+fn soft_joint_speed_share_moves_where_the_penalty_starts() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let run = |share: f32| {
+        let cfg = EnvConfig {
+            model: g1_sim::ModelChoice::G1_12Dof,
+            spec: Arc::new(spec.clone()),
+            episode_s: 10.0,
+            random: Randomization::NONE,
+            vx: (0.5, 0.5),
+            max_init_level: 0,
+            only: Some(Column::Up),
+            joystick_share: 0.0,
+            soft_joint_speed: share,
+        };
+        let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
+        let mut mean = vec![0.0f32; 12];
+        let (mut rewards, mut knee) = (Vec::new(), Vec::new());
+        for _ in 0..60 {
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            rewards.push(out.reward);
+            knee.push(e.low_state().motors[3].q);
+            if out.terminated || out.truncated {
+                break;
+            }
+        }
+        (rewards, knee)
+    };
+    let (r_default, q_default) = run(train::ppo::env::SOFT_JOINT_SPEED);
+    let (r_low, q_low) = run(0.05);
+    assert_eq!(q_default, q_low, "the share changed the motion, not only the reward");
+    assert!(r_default.iter().zip(&r_low).all(|(d, l)| l <= d));
+    let (sum_d, sum_l): (f32, f32) = (r_default.iter().sum(), r_low.iter().sum());
+    assert!(
+        sum_l < sum_d - 0.01,
+        "a penalty from 5 % of each limit (1 rad/s at the knee) cost nothing: {sum_l} vs {sum_d}"
     );
 }

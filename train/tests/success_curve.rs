@@ -25,6 +25,7 @@ fn report(seed: u64, cells: &[(&str, u32, u64)], per_cell: u64) -> EvalReport {
         spec: "specs/stairs/g1_stairs_lstm.toml".into(),
         model: "g1-12dof".into(),
         terrain_source: "cnn".into(),
+        physics: "deploy".into(),
         vx: 0.5,
         time_limit_s: 20.0,
         seed,
@@ -110,6 +111,13 @@ fn points_from_different_evaluations_are_refused_and_equal_ones_plotted_in_step_
     ];
     assert!(success_curve::check_points(&mut fewer).is_err());
 
+    // The training physics profile is another evaluation, not another point of the curve.
+    let mut lean = report(300, &cells(5, 2), 10);
+    lean.physics = "training".into();
+    let mut physics = vec![point("a", 10e6, report(300, &cells(3, 1), 10)), point("b", 20e6, lean)];
+    let e = success_curve::check_points(&mut physics).unwrap_err().to_string();
+    assert!(e.contains("physics training") && e.contains("--sim-physics"), "{e}");
+
     let mut ok = vec![
         point("late", 20e6, report(300, &cells(5, 2), 10)),
         point("early", 10e6, report(300, &cells(3, 1), 10)),
@@ -137,6 +145,13 @@ fn report_files_load_and_bad_ones_say_what_they_are() {
     std::fs::write(&good, serde_json::to_string(&report(0, &[("up", 14, 2)], 10)).unwrap()).unwrap();
     let r = success_curve::load_report(&good).unwrap();
     assert_eq!(r.table[0].step_height_cm, 14);
+
+    // Reports written before `physics` existed ran the deploy profile.
+    let mut old: serde_json::Value = serde_json::to_value(report(0, &[("up", 14, 2)], 10)).unwrap();
+    old.as_object_mut().unwrap().remove("physics");
+    let old_path = dir.path().join("old.json");
+    std::fs::write(&old_path, old.to_string()).unwrap();
+    assert_eq!(success_curve::load_report(&old_path).unwrap().physics, "deploy");
 
     let flat_only = dir.path().join("flat.json");
     std::fs::write(

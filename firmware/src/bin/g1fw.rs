@@ -147,6 +147,10 @@ struct SimArgs {
     /// (the explicit PD of Unitree's Python reference loop).
     #[arg(long, value_name = "implicitfast|euler")]
     sim_integrator: Option<String>,
+    /// The simulator's physics profile (`g1-sim --physics`): deploy (its default: the model's
+    /// contacts and solver) or training (the trainer's lean profile).
+    #[arg(long, value_name = "deploy|training", value_parser = ["deploy", "training"])]
+    sim_physics: Option<String>,
     /// Terrain world: a preset (flat, stairs-up, stairs-down, outdoor), a scenario file
     /// (SCENARIO.toml) or random:SEED. The simulator then streams its MID-360 (Livox packets), the
     /// perception group builds the BEV grid and a terrain token every frame, and the report gains
@@ -289,6 +293,11 @@ struct EvalArgs {
     /// Path of the g1-sim binary (default: beside g1fw, or $G1_SIM_BIN).
     #[arg(long)]
     sim_bin: Option<PathBuf>,
+    /// The simulator's physics profile: deploy (the default: the model's contacts and solver) or
+    /// training (the trainer's lean profile: feet and shins against the world only, 10 solver
+    /// iterations, no joint friction), to measure how much of a policy's result is the physics.
+    #[arg(long, value_name = "deploy|training", value_parser = ["deploy", "training"])]
+    sim_physics: Option<String>,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -644,6 +653,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         faults: a.faults,
         imu_noise: a.imu_noise,
         integrator: a.sim_integrator,
+        physics: a.sim_physics,
         world: a.world.clone(),
         log: a.log.clone(),
         log_options: Default::default(),
@@ -859,6 +869,7 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
         episodes,
         stop_after_landing_s: (a.stop_after_landing > 0.0).then_some(a.stop_after_landing),
         sim_bin: a.sim_bin,
+        physics: a.sim_physics,
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         stop: stop_on_signals()?,
     };

@@ -65,6 +65,9 @@ pub struct SimLaunch {
     /// `--integrator` (`implicitfast`, the default, or `euler`: the explicit motor law of
     /// Unitree's reference loop).
     pub integrator: Option<String>,
+    /// `--physics` (`deploy`, the default: the model's contacts and solver; or `training`: the
+    /// trainer's lean profile, to measure the gap between the two through the firmware).
+    pub physics: Option<String>,
 }
 
 impl SimLaunch {
@@ -80,6 +83,7 @@ impl SimLaunch {
             imu_noise: None,
             world: None,
             integrator: None,
+            physics: None,
         }
     }
 
@@ -121,6 +125,7 @@ impl SimLaunch {
             .args(self.imu_noise.iter().flat_map(|n| ["--imu-noise", n.as_str()]))
             .args(self.world.iter().flat_map(|w| ["--world", w.as_str(), "--lidar"]))
             .args(self.integrator.iter().flat_map(|i| ["--integrator", i.as_str()]))
+            .args(self.physics.iter().flat_map(|p| ["--physics", p.as_str()]))
             .arg("--quiet")
             .stdin(Stdio::null())
             // Its own process group: a terminal's Ctrl-C reaches g1fw only, which stops the run,

@@ -175,6 +175,10 @@ pub struct EnvConfig {
     /// [`JOYSTICK_VY`] and [`JOYSTICK_WZ`], without heading hold, so the policy learns to hold a
     /// zero turn rate itself (`g1fw sim` without `--heading`). 0: every episode holds a heading.
     pub joystick_share: f64,
+    /// Where the soft joint-speed penalty starts, as a share of each joint's limit from the spec
+    /// ([`SOFT_JOINT_SPEED`] by default). Below 0.9 it leaves a margin for the deploy physics
+    /// (2 ms steps and mesh contacts), whose peaks run higher than training's 5 ms steps.
+    pub soft_joint_speed: f32,
 }
 
 /// Lateral speed commands of joystick episodes, m/s (symmetric).
@@ -798,7 +802,7 @@ impl StairEnv {
         for (i, &slot) in self.slots.iter().enumerate() {
             let m = &self.state.motors[slot];
             let dq = m.dq as f64;
-            let soft = (SOFT_JOINT_SPEED * self.limits.joint_speed_rad_s[slot]) as f64;
+            let soft = (self.cfg.soft_joint_speed * self.limits.joint_speed_rad_s[slot]) as f64;
             r.joint_speed += (self.peak_dq[slot] as f64 - soft).max(0.0).powi(2);
             r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
             r.torques += self.sim.applied_torque(slot).powi(2);

@@ -58,6 +58,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         max_init_level: 0,
         only: Some(opts.column),
         joystick_share: 0.0,
+        soft_joint_speed: super::env::SOFT_JOINT_SPEED,
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

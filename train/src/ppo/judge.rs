@@ -82,6 +82,7 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
         episodes,
         stop_after_landing_s: Some(1.0),
         sim_bin: cfg.sim_bin.clone(),
+        physics: None,
         progress: false,
         stop: Arc::new(AtomicBool::new(false)),
     };

@@ -18,7 +18,7 @@
 //! | `torques` | Σ τ² (legs) | −1.5e-7 |
 //! | `joint_acc` | Σ q̈² (finite difference over the policy step) | −1.25e-7 |
 //! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
-//! | `joint_speed` | Σ max(\|q̇\| − 0.9 × the joint's limit, 0)², \|q̇\| the fastest over the policy step's physics steps (legged_gym's `soft_dof_vel_limit`; limits from the spec, as the supervisor's) | −1.0 |
+//! | `joint_speed` | Σ max(\|q̇\| − s × the joint's limit, 0)² with s = 0.9 unless `--soft-joint-speed` sets it, \|q̇\| the fastest over the policy step's physics steps (legged_gym's `soft_dof_vel_limit`; limits from the spec, as the supervisor's) | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under and 0.12 m ahead of the foot | −10 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |

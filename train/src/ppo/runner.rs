@@ -55,6 +55,9 @@ pub struct RunConfig {
     /// Share of flat-column episodes with a joystick's constant (vx, vy, wz) command instead of
     /// heading hold (`EnvConfig::joystick_share`).
     pub joystick_share: f64,
+    /// Where the soft joint-speed penalty starts, as a share of each joint's limit
+    /// (`EnvConfig::soft_joint_speed`).
+    pub soft_joint_speed: f32,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -261,6 +264,7 @@ fn make_envs(
         max_init_level: cfg.max_init_level,
         only: cfg.only,
         joystick_share: cfg.joystick_share,
+        soft_joint_speed: cfg.soft_joint_speed,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);

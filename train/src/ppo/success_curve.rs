@@ -132,9 +132,10 @@ fn protocol(r: &EvalReport) -> String {
         .map(|row| format!("{} {} cm × {}", row.kind, row.step_height_cm, row.episodes))
         .collect();
     format!(
-        "model {}, token {}, vx {}, seed {}, time limit {} s, cells [{}]",
+        "model {}, token {}, physics {}, vx {}, seed {}, time limit {} s, cells [{}]",
         r.model,
         r.terrain_source,
+        r.physics,
         r.vx,
         r.seed,
         r.time_limit_s,
@@ -159,7 +160,7 @@ pub fn check_points(points: &mut [CurvePoint]) -> Result<()> {
         ensure!(
             this == first,
             "point {:?} ran a different evaluation than {:?}:\n  {this}\n  {first}\nrerun `g1fw eval` with the same \
-             --model, --terrain-source, --vx, --seed, --heights, --kinds and --episodes-per-height",
+             --model, --terrain-source, --sim-physics, --vx, --seed, --heights, --kinds and --episodes-per-height",
             p.label,
             points[0].label
         );

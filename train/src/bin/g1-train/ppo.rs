@@ -86,6 +86,11 @@ pub struct Args {
     /// without `--heading`). 0 (default): every episode holds a heading.
     #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
     joystick_share: f64,
+    /// Where the soft joint-speed penalty starts, as a share of each joint's limit from the
+    /// spec (legged_gym's `soft_dof_vel_limit`, 0.9). A smaller share leaves a margin below the
+    /// supervisor's trip for the deploy physics, whose 2 ms peaks run higher than training's.
+    #[arg(long, default_value_t = train::ppo::env::SOFT_JOINT_SPEED, value_name = "SHARE", value_parser = parse_share)]
+    soft_joint_speed: f32,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -127,6 +132,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         no_randomization,
         only,
         joystick_share,
+        soft_joint_speed,
         checkpoint_every,
         max_wall,
         judge_every,
@@ -196,6 +202,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vx,
         only,
         joystick_share,
+        soft_joint_speed,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,
@@ -231,4 +238,30 @@ fn parse_vx_range(s: &str) -> Result<(f64, f64), String> {
         return Err(bad());
     }
     Ok((a, b))
+}
+
+/// `--soft-joint-speed SHARE`: a share of the joint-speed limit in (0, 1].
+fn parse_share(s: &str) -> Result<f32, String> {
+    let bad = || format!("'{s}': give a share of each joint's speed limit in (0, 1], e.g. 0.8");
+    let v: f32 = s.trim().parse().map_err(|_| bad())?;
+    if v > 0.0 && v <= 1.0 {
+        Ok(v)
+    } else {
+        Err(bad())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn soft_joint_speed_share_must_lie_in_zero_to_one() {
+        assert_eq!(parse_share("0.8"), Ok(0.8));
+        assert_eq!(parse_share("1"), Ok(1.0));
+        for bad in ["0", "-0.5", "1.2", "NaN", "fast"] {
+            let e = parse_share(bad).unwrap_err();
+            assert!(e.contains("(0, 1]"), "{bad}: {e}");
+        }
+    }
 }
