@@ -36,6 +36,7 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         only: None,
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -89,6 +90,7 @@ fn whole_loop(
         only: None,
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -45,6 +45,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         only: Some(Column::Flat),
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -53,6 +53,7 @@ fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u6
         only: Some(only),
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
     };
     StairEnv::new(cfg, seed, weights).unwrap()
 }
@@ -300,6 +301,7 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
         only: Some(Column::Down),
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
     };
     let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
     e.hold(1, 0.5).unwrap();
@@ -377,6 +379,7 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
         only: Some(Column::Flat),
         joystick_share: share,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
     };
     let mut mean = vec![0.0f32; 12];
     let mut joystick = StairEnv::new(cfg(1.0), 3, &weights).unwrap();
@@ -507,6 +510,7 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
             only: Some(Column::Up),
             joystick_share: 0.0,
             soft_joint_speed: share,
+            end_stalled: false,
         };
         let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
         let mut mean = vec![0.0f32; 12];
@@ -530,5 +534,67 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
     assert!(
         sum_l < sum_d - 0.01,
         "a penalty from 5 % of each limit (1 rad/s at the knee) cost nothing: {sum_l} vs {sum_d}"
+    );
+}
+
+/// `--end-stalled`: a robot that makes no progress towards a staircase (the committed policy told
+/// to back away at 0.3 m/s; at vx 0 it drifts forward 0.2 m/s) fails once it has gained less than
+/// `g1fw eval`'s 0.1 m in 3 s, as a stall (cause `stalled`, terminated, not truncated); on flat
+/// ground, and without the flag, it is no failure.
+#[test]
+fn end_stalled_fails_a_robot_making_no_progress_at_the_stairs_as_g1fw_eval_calls_it() {
+    use train::ppo::env::FALL_CAUSES;
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let stand = |column: Column, end_stalled: bool| {
+        let cfg = EnvConfig {
+            model: g1_sim::ModelChoice::G1_12Dof,
+            spec: Arc::new(spec.clone()),
+            episode_s: 10.0,
+            random: Randomization::NONE,
+            vx: (0.5, 0.5),
+            max_init_level: 0,
+            only: Some(column),
+            joystick_share: 0.0,
+            soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
+            end_stalled,
+        };
+        let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
+        e.hold(0, -0.3).unwrap();
+        let dt = e.timing().policy_dt;
+        let mut mean = vec![0.0f32; 12];
+        for step in 1..=(5.0 / dt) as usize {
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            if out.terminated || out.truncated {
+                e.reset().unwrap();
+                let end = e.last_end.unwrap();
+                return Some((step as f64 * dt, out.terminated, FALL_CAUSES[end.cause], end.fell));
+            }
+        }
+        None
+    };
+    let (t, terminated, cause, fell) = stand(Column::Up, true).expect("backing away from the stairs never ended");
+    assert!(
+        terminated && fell && cause == "stalled",
+        "{t} s: terminated {terminated}, cause {cause}"
+    );
+    assert!(
+        t >= firmware::eval::STALL_WINDOW_S,
+        "ended at {t} s, before g1fw eval's {} s window could pass",
+        firmware::eval::STALL_WINDOW_S
+    );
+    assert_eq!(
+        stand(Column::Up, false),
+        None,
+        "without --end-stalled backing away is no failure"
+    );
+    assert_eq!(
+        stand(Column::Flat, true),
+        None,
+        "flat ground has no staircase to stall on"
     );
 }

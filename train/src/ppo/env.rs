@@ -179,6 +179,12 @@ pub struct EnvConfig {
     /// ([`SOFT_JOINT_SPEED`] by default). Below 0.9 it leaves a margin for the deploy physics
     /// (2 ms steps and mesh contacts), whose peaks run higher than training's 5 ms steps.
     pub soft_joint_speed: f32,
+    /// End a staircase episode as a failure (the termination penalty, demotion) once the base has
+    /// gained less than [`firmware::eval::STALL_PROGRESS_M`] along the staircase in the last
+    /// [`firmware::eval::STALL_WINDOW_S`]: `g1fw eval`'s `stalled`. Without it a policy can learn
+    /// to stand at the first riser, which a noisy rollout hides and the mean action shows (run 19:
+    /// up 11 cm 8/16 in `g1-train ppo-eval` at 20.2 M env steps, 0/16, all time-outs, at 22.6 M).
+    pub end_stalled: bool,
 }
 
 /// Lateral speed commands of joystick episodes, m/s (symmetric).
@@ -259,6 +265,9 @@ pub struct StairEnv {
     max_steps: usize,
     next_push: usize,
     progress: f64,
+    /// Stall watch: the farthest point along the staircase that counted as progress, and when.
+    stall_best_s: f64,
+    stall_best_t: f64,
     /// How long the base has stood on the end landing (`g1fw eval`'s success).
     landing: LandingHold,
     fell: bool,
@@ -351,6 +360,8 @@ impl StairEnv {
             step: 0,
             next_push: 0,
             progress: f64::NEG_INFINITY,
+            stall_best_s: f64::NEG_INFINITY,
+            stall_best_t: 0.0,
             landing: LandingHold::default(),
             fell: false,
             cause: 0,
@@ -462,6 +473,8 @@ impl StairEnv {
         self.fell = false;
         self.ret = 0.0;
         self.progress = f64::NEG_INFINITY;
+        self.stall_best_s = f64::NEG_INFINITY;
+        self.stall_best_t = 0.0;
         self.landing = LandingHold::default();
         self.next_push = self.push_interval();
         self.prev_action.iter_mut().for_each(|a| *a = 0.0);
@@ -888,22 +901,33 @@ impl StairEnv {
             }
         }
         // Progress along the staircase, for success and the curriculum.
-        self.progress = self.progress.max(self.axis_s(t.base_pos[0], t.base_pos[1]));
+        let s = self.axis_s(t.base_pos[0], t.base_pos[1]);
+        self.progress = self.progress.max(s);
         let on_landing = self
             .world
             .stair_progress(t.base_pos[0], t.base_pos[1])
             .is_some_and(|p| p.on_end_landing);
         self.landing.observe(on_landing, self.time_s());
+        if s > self.stall_best_s + firmware::eval::STALL_PROGRESS_M || on_landing {
+            self.stall_best_s = self.stall_best_s.max(s);
+            self.stall_best_t = self.time_s();
+        }
+        let stalled = self.cfg.end_stalled
+            && self.world.stairs.is_some()
+            && self.time_s() - self.stall_best_t >= firmware::eval::STALL_WINDOW_S;
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
-        let cause = self.physics_step_trip.or(termination::cause(
-            &self.limits,
-            -g[2],
-            false,
-            height,
-            w.map(|x| x as f32),
-        ));
+        let cause = self
+            .physics_step_trip
+            .or(termination::cause(
+                &self.limits,
+                -g[2],
+                false,
+                height,
+                w.map(|x| x as f32),
+            ))
+            .or(stalled.then_some(termination::STALLED));
         if let Some(c) = cause {
             r.termination = 1.0;
             self.cause = c;

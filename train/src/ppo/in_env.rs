@@ -59,6 +59,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         only: Some(opts.column),
         joystick_share: 0.0,
         soft_joint_speed: super::env::SOFT_JOINT_SPEED,
+        end_stalled: false,
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

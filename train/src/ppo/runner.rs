@@ -58,6 +58,8 @@ pub struct RunConfig {
     /// Where the soft joint-speed penalty starts, as a share of each joint's limit
     /// (`EnvConfig::soft_joint_speed`).
     pub soft_joint_speed: f32,
+    /// End staircase episodes that stall as failures (`EnvConfig::end_stalled`).
+    pub end_stalled: bool,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -265,6 +267,7 @@ fn make_envs(
         only: cfg.only,
         joystick_share: cfg.joystick_share,
         soft_joint_speed: cfg.soft_joint_speed,
+        end_stalled: cfg.end_stalled,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);

@@ -91,6 +91,11 @@ pub struct Args {
     /// supervisor's trip for the deploy physics, whose 2 ms peaks run higher than training's.
     #[arg(long, default_value_t = train::ppo::env::SOFT_JOINT_SPEED, value_name = "SHARE", value_parser = parse_share)]
     soft_joint_speed: f32,
+    /// End a staircase episode as a failure (the termination penalty, and a demotion) once the
+    /// base has gained less than 0.1 m along the staircase in 3 s: `g1fw eval`'s `stalled`. Keeps
+    /// the policy from learning to stand at the first riser.
+    #[arg(long)]
+    end_stalled: bool,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -133,6 +138,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         only,
         joystick_share,
         soft_joint_speed,
+        end_stalled,
         checkpoint_every,
         max_wall,
         judge_every,
@@ -203,6 +209,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         only,
         joystick_share,
         soft_joint_speed,
+        end_stalled,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,

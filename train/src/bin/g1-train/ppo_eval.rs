@@ -71,7 +71,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("reading the actor {}", wpath.display()))?;
     let deploy = std::sync::Arc::new(deploy);
     let mut reports = Vec::new();
-    println!("column  level  step cm  episodes  success  falls (tilt/speed/height/spin)  timeouts  mean s");
+    println!(
+        "column  level  step cm  episodes  success  falls ({})  timeouts  mean s",
+        train::ppo::env::FALL_CAUSES.join("/")
+    );
     for &column in &columns {
         for &level in &levels {
             let r = train::ppo::in_env::evaluate(
