@@ -41,6 +41,50 @@ pub const STALL_PROGRESS_M: f64 = 0.1;
 /// ... over the run's last this many seconds.
 pub const STALL_WINDOW_S: f64 = 3.0;
 
+/// Watches progress along a course for a stall: less than [`STALL_PROGRESS_M`] gained in the last
+/// [`STALL_WINDOW_S`]. `g1fw eval` scores its episodes with it, and the trainer ends stalled
+/// episodes with it (`g1-train ppo --end-stalled`).
+#[derive(Clone, Copy, Debug)]
+pub struct StallWatch {
+    /// The farthest point that counted as progress, and when.
+    best_s: f64,
+    best_t: f64,
+    last_t: f64,
+}
+
+impl Default for StallWatch {
+    fn default() -> Self {
+        Self {
+            best_s: f64::NEG_INFINITY,
+            best_t: 0.0,
+            last_t: 0.0,
+        }
+    }
+}
+
+impl StallWatch {
+    /// The base at `s` along the course at time `t` (s).
+    pub fn observe(&mut self, s: f64, t: f64) {
+        if s > self.best_s + STALL_PROGRESS_M {
+            self.best_s = s;
+            self.best_t = t;
+        }
+        self.last_t = t;
+    }
+
+    /// Counts this moment as progress whatever the distance (e.g. standing on the end landing).
+    pub fn excuse(&mut self, s: f64, t: f64) {
+        self.best_s = self.best_s.max(s);
+        self.best_t = t;
+        self.last_t = t;
+    }
+
+    /// Whether the last [`STALL_WINDOW_S`] up to the latest observation gained too little.
+    pub fn stalled(&self) -> bool {
+        self.last_t - self.best_t >= STALL_WINDOW_S
+    }
+}
+
 /// One world to run an episode on.
 #[derive(Clone, Debug, Serialize)]
 pub struct EpisodeWorld {
@@ -283,21 +327,17 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Epi
         ..SimOptions::default()
     };
     // Progress along the course (the staircase axis; world x on flat ground, where the target
-    // heading is 0), and when it last gained STALL_PROGRESS_M.
+    // heading is 0), and whether it stalled.
     let mut s0: Option<f64> = None;
-    let (mut best, mut best_t, mut last_t, mut progress) = (f64::NEG_INFINITY, 0.0, 0.0, 0.0);
+    let (mut watch, mut progress) = (StallWatch::default(), 0.0);
     let report = run_sim(spec.clone(), &sim, |v| {
         let Some(t) = v.truth else { return };
         let s = t.stairs.map_or(t.base_pos[0], |p| p.axis_s);
         progress = s - *s0.get_or_insert(s);
-        if s > best + STALL_PROGRESS_M {
-            best = s;
-            best_t = t.sim_time_s;
-        }
-        last_t = t.sim_time_s;
+        watch.observe(s, t.sim_time_s);
     })
     .with_context(|| format!("episode {i} on {}", w.world))?;
-    let stalled = last_t - best_t >= STALL_WINDOW_S;
+    let stalled = watch.stalled();
     if report.interrupted {
         return Ok(None);
     }

@@ -27,24 +27,28 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
     let dir = scratch_dir("stair-eval");
     let report = dir.join("eval.json");
     let spec = peer_spec_path();
-    let out = g1fw(&[
-        "eval",
-        "--spec",
-        spec.to_str().unwrap(),
-        "--model",
-        "g1-12dof",
-        "--worlds",
-        "flat,stairs-up",
-        "--time-limit",
-        "8",
-        "--jobs",
-        "2",
-        "--seed",
-        "3",
-        "--quiet",
-        "--report",
-        report.to_str().unwrap(),
-    ]);
+    // Every eval here: 12-dof, 8 s, seed 3; `extra` adds flags.
+    let eval = |worlds: &str, extra: &[&str], report: &Path| {
+        let mut args = vec![
+            "eval",
+            "--spec",
+            spec.to_str().unwrap(),
+            "--model",
+            "g1-12dof",
+            "--worlds",
+            worlds,
+            "--time-limit",
+            "8",
+            "--seed",
+            "3",
+            "--quiet",
+            "--report",
+            report.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        g1fw(&args)
+    };
+    let out = eval("flat,stairs-up", &["--jobs", "2"], &report);
     ok(&out, "g1fw eval");
     let stdout = String::from_utf8_lossy(&out.stdout);
     println!("{stdout}");
@@ -108,24 +112,7 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
     // says which, and the trajectory differs (the gap the flag exists to measure).
     assert_eq!(r["physics"], "deploy");
     let lean_report = dir.join("lean.json");
-    let out = g1fw(&[
-        "eval",
-        "--spec",
-        spec.to_str().unwrap(),
-        "--model",
-        "g1-12dof",
-        "--worlds",
-        "flat",
-        "--time-limit",
-        "8",
-        "--seed",
-        "3",
-        "--sim-physics",
-        "training",
-        "--quiet",
-        "--report",
-        lean_report.to_str().unwrap(),
-    ]);
+    let out = eval("flat", &["--sim-physics", "training"], &lean_report);
     ok(&out, "g1fw eval --sim-physics training");
     let lean = read_json(&lean_report);
     assert_eq!(lean["physics"], "training");

@@ -43,7 +43,13 @@ fn env(spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
 }
 
 fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u64, only: Column) -> StairEnv {
-    let cfg = EnvConfig {
+    StairEnv::new(test_cfg(model, spec, only), seed, weights).unwrap()
+}
+
+/// The tests' environment: 10 s episodes at vx 0.5, no randomisation, one column, training's
+/// defaults otherwise (tests override single fields).
+fn test_cfg(model: g1_sim::ModelChoice, spec: DeploySpec, only: Column) -> EnvConfig {
+    EnvConfig {
         model,
         spec: Arc::new(spec),
         episode_s: 10.0,
@@ -54,8 +60,7 @@ fn env_on(model: g1_sim::ModelChoice, spec: DeploySpec, weights: &[u8], seed: u6
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-    };
-    StairEnv::new(cfg, seed, weights).unwrap()
+    }
 }
 
 #[test]
@@ -292,16 +297,8 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let cfg = EnvConfig {
-        model: g1_sim::ModelChoice::G1_12Dof,
-        spec: Arc::new(spec),
         episode_s: 20.0,
-        random: Randomization::NONE,
-        vx: (0.5, 0.5),
-        max_init_level: 0,
-        only: Some(Column::Down),
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
+        ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, Column::Down)
     };
     let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
     e.hold(1, 0.5).unwrap();
@@ -370,16 +367,8 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let cfg = |share: f64| EnvConfig {
-        model: g1_sim::ModelChoice::G1_12Dof,
-        spec: Arc::new(spec.clone()),
-        episode_s: 10.0,
-        random: Randomization::NONE,
-        vx: (0.5, 0.5),
-        max_init_level: 0,
-        only: Some(Column::Flat),
         joystick_share: share,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
+        ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat)
     };
     let mut mean = vec![0.0f32; 12];
     let mut joystick = StairEnv::new(cfg(1.0), 3, &weights).unwrap();
@@ -501,16 +490,8 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let run = |share: f32| {
         let cfg = EnvConfig {
-            model: g1_sim::ModelChoice::G1_12Dof,
-            spec: Arc::new(spec.clone()),
-            episode_s: 10.0,
-            random: Randomization::NONE,
-            vx: (0.5, 0.5),
-            max_init_level: 0,
-            only: Some(Column::Up),
-            joystick_share: 0.0,
             soft_joint_speed: share,
-            end_stalled: false,
+            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up)
         };
         let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
         let mut mean = vec![0.0f32; 12];
@@ -551,16 +532,8 @@ fn end_stalled_fails_a_robot_making_no_progress_at_the_stairs_as_g1fw_eval_calls
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let stand = |column: Column, end_stalled: bool| {
         let cfg = EnvConfig {
-            model: g1_sim::ModelChoice::G1_12Dof,
-            spec: Arc::new(spec.clone()),
-            episode_s: 10.0,
-            random: Randomization::NONE,
-            vx: (0.5, 0.5),
-            max_init_level: 0,
-            only: Some(column),
-            joystick_share: 0.0,
-            soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
             end_stalled,
+            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), column)
         };
         let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
         e.hold(0, -0.3).unwrap();

@@ -265,9 +265,8 @@ pub struct StairEnv {
     max_steps: usize,
     next_push: usize,
     progress: f64,
-    /// Stall watch: the farthest point along the staircase that counted as progress, and when.
-    stall_best_s: f64,
-    stall_best_t: f64,
+    /// Progress along the staircase for `--end-stalled` (`g1fw eval`'s own stall rule).
+    stall: firmware::eval::StallWatch,
     /// How long the base has stood on the end landing (`g1fw eval`'s success).
     landing: LandingHold,
     fell: bool,
@@ -360,8 +359,7 @@ impl StairEnv {
             step: 0,
             next_push: 0,
             progress: f64::NEG_INFINITY,
-            stall_best_s: f64::NEG_INFINITY,
-            stall_best_t: 0.0,
+            stall: firmware::eval::StallWatch::default(),
             landing: LandingHold::default(),
             fell: false,
             cause: 0,
@@ -473,8 +471,7 @@ impl StairEnv {
         self.fell = false;
         self.ret = 0.0;
         self.progress = f64::NEG_INFINITY;
-        self.stall_best_s = f64::NEG_INFINITY;
-        self.stall_best_t = 0.0;
+        self.stall = firmware::eval::StallWatch::default();
         self.landing = LandingHold::default();
         self.next_push = self.push_interval();
         self.prev_action.iter_mut().for_each(|a| *a = 0.0);
@@ -908,13 +905,12 @@ impl StairEnv {
             .stair_progress(t.base_pos[0], t.base_pos[1])
             .is_some_and(|p| p.on_end_landing);
         self.landing.observe(on_landing, self.time_s());
-        if s > self.stall_best_s + firmware::eval::STALL_PROGRESS_M || on_landing {
-            self.stall_best_s = self.stall_best_s.max(s);
-            self.stall_best_t = self.time_s();
+        if on_landing {
+            self.stall.excuse(s, self.time_s());
+        } else {
+            self.stall.observe(s, self.time_s());
         }
-        let stalled = self.cfg.end_stalled
-            && self.world.stairs.is_some()
-            && self.time_s() - self.stall_best_t >= firmware::eval::STALL_WINDOW_S;
+        let stalled = self.cfg.end_stalled && self.world.stairs.is_some() && self.stall.stalled();
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);
