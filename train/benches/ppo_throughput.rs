@@ -37,6 +37,8 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
+        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        tracking_std: train::ppo::reward::TRACKING_STD,
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -91,6 +93,8 @@ fn whole_loop(
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
+        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        tracking_std: train::ppo::reward::TRACKING_STD,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

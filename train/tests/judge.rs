@@ -46,6 +46,8 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
+        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        tracking_std: train::ppo::reward::TRACKING_STD,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -60,6 +60,8 @@ fn test_cfg(model: g1_sim::ModelChoice, spec: DeploySpec, only: Column) -> EnvCo
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
+        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        tracking_std: train::ppo::reward::TRACKING_STD,
     }
 }
 
@@ -515,6 +517,47 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
     assert!(
         sum_l < sum_d - 0.01,
         "a penalty from 5 % of each limit (1 rad/s at the knee) cost nothing: {sum_l} vs {sum_d}"
+    );
+}
+
+/// `--tracking-std` changes only what tracking pays: the same flat episode (same seed, same
+/// actions, the same motion) earns less at every step under a tighter kernel, because the robot
+/// never walks at exactly the commanded speed.
+#[test]
+fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let run = |std: f64| {
+        let cfg = EnvConfig {
+            tracking_std: std,
+            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat)
+        };
+        let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
+        let mut mean = vec![0.0f32; 12];
+        let (mut rewards, mut hip) = (Vec::new(), Vec::new());
+        for _ in 0..100 {
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            rewards.push(out.reward);
+            hip.push(e.low_state().motors[0].q);
+            if out.terminated || out.truncated {
+                break;
+            }
+        }
+        (rewards, hip)
+    };
+    let (r_default, q_default) = run(train::ppo::reward::TRACKING_STD);
+    let (r_tight, q_tight) = run(0.1);
+    assert_eq!(q_default, q_tight, "the kernel changed the motion, not only the reward");
+    assert_eq!(r_default.len(), 100, "the committed actor fell on flat ground");
+    assert!(r_default.iter().zip(&r_tight).all(|(d, t)| t <= d));
+    let (sum_d, sum_t): (f32, f32) = (r_default.iter().sum(), r_tight.iter().sum());
+    assert!(
+        sum_t < sum_d - 0.1,
+        "a 0.1 m/s kernel paid as much as the 0.5 m/s one for a 2 s walk: {sum_t} vs {sum_d}"
     );
 }
 

@@ -14,6 +14,9 @@ pub fn level_height(level: usize) -> f64 {
     0.05 + 0.021 * level as f64
 }
 
+/// Flat ground's default share of environments (IsaacLab's rough terrain keeps a flat column too).
+pub const FLAT_SHARE: f64 = 0.15;
+
 /// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
 pub enum Column {
@@ -25,9 +28,9 @@ pub enum Column {
 }
 
 impl Column {
-    /// Share of environments per column.
+    /// Share of environments per column by default ([`FLAT_SHARE`] on flat ground).
     const MIX: [(Column, f64); 5] = [
-        (Column::Flat, 0.15),
+        (Column::Flat, FLAT_SHARE),
         (Column::Up, 0.3),
         (Column::Down, 0.3),
         (Column::OutdoorUp, 0.125),
@@ -39,23 +42,31 @@ impl Column {
     /// column per episode while the level was the environment's let the columns' difficulties
     /// mix: successes going down promoted an environment that then failed every staircase up at
     /// that height (run 13, in the training environment: down 15.5 cm 5/8, up 11 and 15.5 cm 0/8).
-    pub fn for_env(i: usize, n: usize, only: Option<Column>) -> Column {
+    /// `flat_share` is flat ground's share; the stair columns split the rest in the mix's ratios.
+    pub fn for_env(i: usize, n: usize, only: Option<Column>, flat_share: f64) -> Column {
         if let Some(c) = only {
             return c;
         }
-        Self::at_share((i as f64 + 0.5) / n.max(1) as f64)
+        Self::at_share((i as f64 + 0.5) / n.max(1) as f64, flat_share)
     }
 
-    pub fn draw(rng: &mut Rng, only: Option<Column>) -> Column {
+    pub fn draw(rng: &mut Rng, only: Option<Column>, flat_share: f64) -> Column {
         if let Some(c) = only {
             return c;
         }
-        Self::at_share(rng.uniform())
+        Self::at_share(rng.uniform(), flat_share)
+    }
+
+    /// Each column's share of environments when flat ground has `flat_share` of them.
+    pub fn mix(flat_share: f64) -> [(Column, f64); 5] {
+        // At the default the scale is exactly 1, so default runs keep their columns bit for bit.
+        let scale = (1.0 - flat_share) / (1.0 - FLAT_SHARE);
+        Self::MIX.map(|(c, p)| (c, if c == Column::Flat { flat_share } else { p * scale }))
     }
 
     /// The column at `u` ∈ [0, 1) along the mix's cumulative shares.
-    fn at_share(mut u: f64) -> Column {
-        for (c, p) in Self::MIX {
+    fn at_share(mut u: f64, flat_share: f64) -> Column {
+        for (c, p) in Self::mix(flat_share) {
             if u < p {
                 return c;
             }
@@ -121,12 +132,25 @@ mod tests {
     #[test]
     fn environments_split_into_the_mix_s_columns() {
         let n = 128;
-        let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None) == c).count();
-        for (c, share) in Column::MIX {
-            let want = share * n as f64;
-            let got = count(c) as f64;
-            assert!((got - want).abs() <= 1.0, "{c:?}: {got} environments, want {want}");
+        for flat in [FLAT_SHARE, 0.3] {
+            let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None, flat) == c).count();
+            for (c, share) in Column::mix(flat) {
+                let want = share * n as f64;
+                let got = count(c) as f64;
+                assert!(
+                    (got - want).abs() <= 1.0,
+                    "flat {flat}, {c:?}: {got} environments, want {want}"
+                );
+            }
         }
-        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up)) == Column::Up));
+        assert_eq!(
+            Column::mix(FLAT_SHARE),
+            Column::MIX,
+            "the default mix is the table, bit for bit"
+        );
+        let up_per_down = |m: [(Column, f64); 5]| m[1].1 / m[2].1;
+        assert_eq!(up_per_down(Column::mix(0.3)), up_per_down(Column::MIX));
+        assert!((Column::mix(0.3).iter().map(|m| m.1).sum::<f64>() - 1.0).abs() < 1e-12);
+        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up), 0.3) == Column::Up));
     }
 }

@@ -60,6 +60,8 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         joystick_share: 0.0,
         soft_joint_speed: super::env::SOFT_JOINT_SPEED,
         end_stalled: false,
+        flat_share: super::curriculum::FLAT_SHARE,
+        tracking_std: super::reward::TRACKING_STD,
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

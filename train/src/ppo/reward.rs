@@ -8,8 +8,8 @@
 //!
 //! | term | value (per policy step) | weight |
 //! |---|---|---|
-//! | `track_lin_vel_xy` | exp(−‖v_cmd,xy − v_xy‖² / 0.5²), v in the yaw frame | +1.0 |
-//! | `track_ang_vel_z` | exp(−(ω_cmd,z − ω_z)² / 0.5²) | +2.0 |
+//! | `track_lin_vel_xy` | exp(−‖v_cmd,xy − v_xy‖² / σ²), v in the yaw frame, σ = 0.5 unless `--tracking-std` sets it | +1.0 |
+//! | `track_ang_vel_z` | exp(−(ω_cmd,z − ω_z)² / σ²) | +2.0 |
 //! | `feet_air_time` | biped: min(time in the current mode of the single stance foot, 0.4 s), if ‖cmd‖ > 0.1 | +0.25 |
 //! | `feet_slide` | Σ feet in contact ‖v_foot,xy‖ | −0.1 |
 //! | `flat_orientation` | ‖g_xy‖² (projected gravity) | −1.0 |

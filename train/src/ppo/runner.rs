@@ -60,6 +60,10 @@ pub struct RunConfig {
     pub soft_joint_speed: f32,
     /// End staircase episodes that stall as failures (`EnvConfig::end_stalled`).
     pub end_stalled: bool,
+    /// Flat ground's share of environments (`EnvConfig::flat_share`).
+    pub flat_share: f64,
+    /// The tracking kernels' standard deviation (`EnvConfig::tracking_std`).
+    pub tracking_std: f64,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -268,6 +272,8 @@ fn make_envs(
         joystick_share: cfg.joystick_share,
         soft_joint_speed: cfg.soft_joint_speed,
         end_stalled: cfg.end_stalled,
+        flat_share: cfg.flat_share,
+        tracking_std: cfg.tracking_std,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);
@@ -278,7 +284,10 @@ fn make_envs(
             .wrapping_add(i as u64 + state.iteration as u64 * 7919);
         let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
         let level = state.levels.get(i).copied().unwrap_or(env.level);
-        env.place(super::curriculum::Column::for_env(i, cfg.envs, cfg.only), level)?;
+        env.place(
+            super::curriculum::Column::for_env(i, cfg.envs, cfg.only, cfg.flat_share),
+            level,
+        )?;
         slots.push(Slot {
             env,
             roll: EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, ac.state_len()),

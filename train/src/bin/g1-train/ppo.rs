@@ -96,6 +96,14 @@ pub struct Args {
     /// the policy from learning to stand at the first riser.
     #[arg(long)]
     end_stalled: bool,
+    /// Flat ground's share of environments (0.15 by default); the stair columns split the rest
+    /// in their usual ratios. Flat episodes are where the policy learns to follow the command.
+    #[arg(long, default_value_t = train::ppo::curriculum::FLAT_SHARE, value_name = "SHARE", value_parser = parse_flat_share)]
+    flat_share: f64,
+    /// Standard deviation of the tracking kernels exp(−err² / std²), m/s and rad/s (IsaacLab's
+    /// 0.5 by default). A tighter kernel pays more for walking at the commanded speed.
+    #[arg(long, default_value_t = train::ppo::reward::TRACKING_STD, value_name = "STD", value_parser = parse_tracking_std)]
+    tracking_std: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -139,6 +147,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         joystick_share,
         soft_joint_speed,
         end_stalled,
+        flat_share,
+        tracking_std,
         checkpoint_every,
         max_wall,
         judge_every,
@@ -210,6 +220,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         joystick_share,
         soft_joint_speed,
         end_stalled,
+        flat_share,
+        tracking_std,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,
@@ -258,6 +270,28 @@ fn parse_share(s: &str) -> Result<f32, String> {
     }
 }
 
+/// `--flat-share SHARE`: flat ground's share of environments, in [0, 1).
+fn parse_flat_share(s: &str) -> Result<f64, String> {
+    let bad = || format!("'{s}': give flat ground's share of environments in [0, 1), e.g. 0.3");
+    let v: f64 = s.trim().parse().map_err(|_| bad())?;
+    if (0.0..1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(bad())
+    }
+}
+
+/// `--tracking-std STD`: the tracking kernels' standard deviation, in (0, 2].
+fn parse_tracking_std(s: &str) -> Result<f64, String> {
+    let bad = || format!("'{s}': give the tracking kernels' standard deviation in (0, 2] m/s, e.g. 0.35");
+    let v: f64 = s.trim().parse().map_err(|_| bad())?;
+    if v > 0.0 && v <= 2.0 {
+        Ok(v)
+    } else {
+        Err(bad())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -269,6 +303,19 @@ mod tests {
         for bad in ["0", "-0.5", "1.2", "NaN", "fast"] {
             let e = parse_share(bad).unwrap_err();
             assert!(e.contains("(0, 1]"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn flat_share_and_tracking_std_refuse_values_outside_their_ranges() {
+        assert_eq!(parse_flat_share("0.3"), Ok(0.3));
+        assert_eq!(parse_flat_share("0"), Ok(0.0));
+        for bad in ["1", "-0.1", "NaN", "most"] {
+            assert!(parse_flat_share(bad).unwrap_err().contains("[0, 1)"), "{bad}");
+        }
+        assert_eq!(parse_tracking_std("0.35"), Ok(0.35));
+        for bad in ["0", "-0.5", "3", "NaN", "tight"] {
+            assert!(parse_tracking_std(bad).unwrap_err().contains("(0, 2]"), "{bad}");
         }
     }
 }
