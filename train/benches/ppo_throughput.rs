@@ -39,6 +39,7 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         end_stalled: false,
         flat_share: train::ppo::curriculum::FLAT_SHARE,
         tracking_std: train::ppo::reward::TRACKING_STD,
+        joystick_vx: None,
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -95,6 +96,7 @@ fn whole_loop(
         end_stalled: false,
         flat_share: train::ppo::curriculum::FLAT_SHARE,
         tracking_std: train::ppo::reward::TRACKING_STD,
+        joystick_vx: None,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -48,6 +48,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         end_stalled: false,
         flat_share: train::ppo::curriculum::FLAT_SHARE,
         tracking_std: train::ppo::reward::TRACKING_STD,
+        joystick_vx: None,
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

@@ -62,6 +62,7 @@ fn test_cfg(model: g1_sim::ModelChoice, spec: DeploySpec, only: Column) -> EnvCo
         end_stalled: false,
         flat_share: train::ppo::curriculum::FLAT_SHARE,
         tracking_std: train::ppo::reward::TRACKING_STD,
+        joystick_vx: None,
     }
 }
 
@@ -395,6 +396,23 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
         drawn.windows(2).any(|w| w[0] != w[1]),
         "each episode draws its own command: {drawn:?}"
     );
+
+    // --joystick-vx: joystick episodes draw their forward speed from their own range, backwards
+    // included, and it is what the policy is told.
+    let mut backwards = StairEnv::new(
+        EnvConfig {
+            joystick_vx: Some((-0.5, -0.2)),
+            ..cfg(1.0)
+        },
+        3,
+        &weights,
+    )
+    .unwrap();
+    for _ in 0..4 {
+        backwards.reset().unwrap();
+        let c = backwards.operator_command();
+        assert!((-0.5..=-0.2).contains(&c[0]), "forward speed from --joystick-vx: {c:?}");
+    }
 
     let mut held = StairEnv::new(cfg(0.0), 3, &weights).unwrap();
     held.reset().unwrap();

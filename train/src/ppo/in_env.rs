@@ -62,6 +62,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         end_stalled: false,
         flat_share: super::curriculum::FLAT_SHARE,
         tracking_std: super::reward::TRACKING_STD,
+        joystick_vx: None,
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

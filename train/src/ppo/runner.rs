@@ -64,6 +64,8 @@ pub struct RunConfig {
     pub flat_share: f64,
     /// The tracking kernels' standard deviation (`EnvConfig::tracking_std`).
     pub tracking_std: f64,
+    /// Forward speed range of joystick episodes (`EnvConfig::joystick_vx`).
+    pub joystick_vx: Option<(f64, f64)>,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -274,6 +276,7 @@ fn make_envs(
         end_stalled: cfg.end_stalled,
         flat_share: cfg.flat_share,
         tracking_std: cfg.tracking_std,
+        joystick_vx: cfg.joystick_vx,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);

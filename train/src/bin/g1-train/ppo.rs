@@ -104,6 +104,10 @@ pub struct Args {
     /// 0.5 by default). A tighter kernel pays more for walking at the commanded speed.
     #[arg(long, default_value_t = train::ppo::reward::TRACKING_STD, value_name = "STD", value_parser = parse_tracking_std)]
     tracking_std: f64,
+    /// Forward speed commands of joystick episodes, m/s: MIN,MAX with −1 ≤ MIN ≤ MAX ≤ 2, e.g.
+    /// -0.5,1.0 so the policy learns to stop and back up (default: the --vx range).
+    #[arg(long, value_name = "MIN,MAX", allow_hyphen_values = true, value_parser = parse_joystick_vx)]
+    joystick_vx: Option<(f64, f64)>,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -149,6 +153,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         end_stalled,
         flat_share,
         tracking_std,
+        joystick_vx,
         checkpoint_every,
         max_wall,
         judge_every,
@@ -222,6 +227,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         end_stalled,
         flat_share,
         tracking_std,
+        joystick_vx,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,
@@ -254,6 +260,20 @@ fn parse_vx_range(s: &str) -> Result<(f64, f64), String> {
         b.trim().parse().map_err(|_| bad())?,
     );
     if !(0.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
+/// `--joystick-vx MIN,MAX`: a forward speed range of joystick episodes, m/s, backwards allowed.
+fn parse_joystick_vx(s: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("'{s}': give MIN,MAX in m/s with -1 <= MIN <= MAX <= 2, e.g. -0.5,1.0");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b): (f64, f64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if !(-1.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
         return Err(bad());
     }
     Ok((a, b))
@@ -316,6 +336,10 @@ mod tests {
         assert_eq!(parse_tracking_std("0.35"), Ok(0.35));
         for bad in ["0", "-0.5", "3", "NaN", "tight"] {
             assert!(parse_tracking_std(bad).unwrap_err().contains("(0, 2]"), "{bad}");
+        }
+        assert_eq!(parse_joystick_vx("-0.5,1.0"), Ok((-0.5, 1.0)));
+        for bad in ["-1.5,0", "0.5,0.2", "0,3", "0.5", "a,b"] {
+            assert!(parse_joystick_vx(bad).unwrap_err().contains("-1 <= MIN"), "{bad}");
         }
     }
 }
