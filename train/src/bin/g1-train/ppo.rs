@@ -253,27 +253,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// `--vx MIN,MAX`: a forward speed range, m/s.
 fn parse_vx_range(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("'{s}': give MIN,MAX in m/s with 0 <= MIN <= MAX <= 2, e.g. 0.3,0.8");
-    let (a, b) = s.split_once(',').ok_or_else(bad)?;
-    let (a, b): (f64, f64) = (
-        a.trim().parse().map_err(|_| bad())?,
-        b.trim().parse().map_err(|_| bad())?,
-    );
-    if !(0.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
-        return Err(bad());
-    }
-    Ok((a, b))
+    parse_speed_range(s, 0.0, "0.3,0.8")
 }
 
 /// `--joystick-vx MIN,MAX`: a forward speed range of joystick episodes, m/s, backwards allowed.
 fn parse_joystick_vx(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("'{s}': give MIN,MAX in m/s with -1 <= MIN <= MAX <= 2, e.g. -0.5,1.0");
+    parse_speed_range(s, -1.0, "-0.5,1.0")
+}
+
+/// `MIN,MAX` in m/s with `lowest <= MIN <= MAX <= 2`.
+fn parse_speed_range(s: &str, lowest: f64, example: &str) -> Result<(f64, f64), String> {
+    let bad = || format!("'{s}': give MIN,MAX in m/s with {lowest} <= MIN <= MAX <= 2, e.g. {example}");
     let (a, b) = s.split_once(',').ok_or_else(bad)?;
     let (a, b): (f64, f64) = (
         a.trim().parse().map_err(|_| bad())?,
         b.trim().parse().map_err(|_| bad())?,
     );
-    if !(-1.0..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
+    if !(lowest..=2.0).contains(&a) || !(a..=2.0).contains(&b) {
         return Err(bad());
     }
     Ok((a, b))
@@ -341,5 +337,7 @@ mod tests {
         for bad in ["-1.5,0", "0.5,0.2", "0,3", "0.5", "a,b"] {
             assert!(parse_joystick_vx(bad).unwrap_err().contains("-1 <= MIN"), "{bad}");
         }
+        assert_eq!(parse_vx_range("0.4,0.8"), Ok((0.4, 0.8)));
+        assert!(parse_vx_range("-0.5,1.0").unwrap_err().contains("0 <= MIN"));
     }
 }
