@@ -498,6 +498,24 @@ fn supervisor_walls_hold_at_every_physics_step() {
     );
 }
 
+/// The committed actor's mean action for up to `steps` policy steps: each step's reward and joint
+/// `slot`'s position (to show that a reward-only change leaves the motion as it was).
+fn rewards_and_joint(cfg: EnvConfig, seed: u64, weights: &[u8], steps: usize, slot: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut e = StairEnv::new(cfg, seed, weights).unwrap();
+    let mut mean = vec![0.0f32; 12];
+    let (mut rewards, mut q) = (Vec::new(), Vec::new());
+    for _ in 0..steps {
+        e.observe_and_act(&mut mean).unwrap();
+        let out = e.step(&mean).unwrap();
+        rewards.push(out.reward);
+        q.push(e.low_state().motors[slot].q);
+        if out.terminated || out.truncated {
+            break;
+        }
+    }
+    (rewards, q)
+}
+
 /// `--soft-joint-speed` moves where the soft penalty starts and nothing else: the same episode
 /// (same seed, same actions) earns less at every step when the penalty starts lower, and the
 /// robot moves identically.
@@ -513,19 +531,7 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
             soft_joint_speed: share,
             ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up)
         };
-        let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
-        let mut mean = vec![0.0f32; 12];
-        let (mut rewards, mut knee) = (Vec::new(), Vec::new());
-        for _ in 0..60 {
-            e.observe_and_act(&mut mean).unwrap();
-            let out = e.step(&mean).unwrap();
-            rewards.push(out.reward);
-            knee.push(e.low_state().motors[3].q);
-            if out.terminated || out.truncated {
-                break;
-            }
-        }
-        (rewards, knee)
+        rewards_and_joint(cfg, 5, &weights, 60, 3)
     };
     let (r_default, q_default) = run(train::ppo::env::SOFT_JOINT_SPEED);
     let (r_low, q_low) = run(0.05);
@@ -553,19 +559,7 @@ fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
             tracking_std: std,
             ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat)
         };
-        let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
-        let mut mean = vec![0.0f32; 12];
-        let (mut rewards, mut hip) = (Vec::new(), Vec::new());
-        for _ in 0..100 {
-            e.observe_and_act(&mut mean).unwrap();
-            let out = e.step(&mean).unwrap();
-            rewards.push(out.reward);
-            hip.push(e.low_state().motors[0].q);
-            if out.terminated || out.truncated {
-                break;
-            }
-        }
-        (rewards, hip)
+        rewards_and_joint(cfg, 3, &weights, 100, 0)
     };
     let (r_default, q_default) = run(train::ppo::reward::TRACKING_STD);
     let (r_tight, q_tight) = run(0.1);
