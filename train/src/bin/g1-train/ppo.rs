@@ -84,12 +84,12 @@ pub struct Args {
     /// Share of flat-ground episodes commanded as a joystick does: a constant (vx, vy ±0.2 m/s,
     /// wz ±0.5 rad/s) without heading hold, so the policy holds its own turn rate (`g1fw sim`
     /// without `--heading`). 0 (default): every episode holds a heading.
-    #[arg(long, default_value_t = 0.0, value_name = "SHARE")]
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_joystick_share)]
     joystick_share: f64,
     /// Where the soft joint-speed penalty starts, as a share of each joint's limit from the
     /// spec (legged_gym's `soft_dof_vel_limit`, 0.9). A smaller share leaves a margin below the
     /// supervisor's trip for the deploy physics, whose 2 ms peaks run higher than training's.
-    #[arg(long, default_value_t = train::ppo::env::SOFT_JOINT_SPEED, value_name = "SHARE", value_parser = parse_share)]
+    #[arg(long, default_value_t = train::ppo::env::SOFT_JOINT_SPEED, value_name = "SHARE", value_parser = parse_soft_joint_speed)]
     soft_joint_speed: f32,
     /// End a staircase episode as a failure (the termination penalty, and a demotion) once the
     /// base has gained less than 0.1 m along the staircase in 3 s: `g1fw eval`'s `stalled`. Keeps
@@ -276,35 +276,35 @@ fn parse_speed_range(s: &str, lowest: f64, example: &str) -> Result<(f64, f64), 
 }
 
 /// `--soft-joint-speed SHARE`: a share of the joint-speed limit in (0, 1].
-fn parse_share(s: &str) -> Result<f32, String> {
-    let bad = || format!("'{s}': give a share of each joint's speed limit in (0, 1], e.g. 0.8");
-    let v: f32 = s.trim().parse().map_err(|_| bad())?;
-    if v > 0.0 && v <= 1.0 {
-        Ok(v)
-    } else {
-        Err(bad())
-    }
+fn parse_soft_joint_speed(s: &str) -> Result<f32, String> {
+    let want = "a share of each joint's speed limit in (0, 1], e.g. 0.8";
+    parse_number(s, |v| v > 0.0 && v <= 1.0, want).map(|v| v as f32)
+}
+
+/// `--joystick-share SHARE`: a share of flat-ground episodes in [0, 1].
+fn parse_joystick_share(s: &str) -> Result<f64, String> {
+    let want = "the joystick episodes' share of flat ground in [0, 1], e.g. 0.7";
+    parse_number(s, |v| (0.0..=1.0).contains(&v), want)
 }
 
 /// `--flat-share SHARE`: flat ground's share of environments, in [0, 1).
 fn parse_flat_share(s: &str) -> Result<f64, String> {
-    let bad = || format!("'{s}': give flat ground's share of environments in [0, 1), e.g. 0.3");
-    let v: f64 = s.trim().parse().map_err(|_| bad())?;
-    if (0.0..1.0).contains(&v) {
-        Ok(v)
-    } else {
-        Err(bad())
-    }
+    let want = "flat ground's share of environments in [0, 1), e.g. 0.3";
+    parse_number(s, |v| (0.0..1.0).contains(&v), want)
 }
 
 /// `--tracking-std STD`: the tracking kernels' standard deviation, in (0, 2].
 fn parse_tracking_std(s: &str) -> Result<f64, String> {
-    let bad = || format!("'{s}': give the tracking kernels' standard deviation in (0, 2] m/s, e.g. 0.35");
-    let v: f64 = s.trim().parse().map_err(|_| bad())?;
-    if v > 0.0 && v <= 2.0 {
-        Ok(v)
-    } else {
-        Err(bad())
+    let want = "the tracking kernels' standard deviation in (0, 2] m/s, e.g. 0.35";
+    parse_number(s, |v| v > 0.0 && v <= 2.0, want)
+}
+
+/// One number that `accept` takes (NaN never passes a comparison); otherwise an error that says
+/// what to give.
+fn parse_number(s: &str, accept: impl Fn(f64) -> bool, want: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if accept(v) => Ok(v),
+        _ => Err(format!("'{s}': give {want}")),
     }
 }
 
@@ -314,16 +314,16 @@ mod tests {
 
     #[test]
     fn soft_joint_speed_share_must_lie_in_zero_to_one() {
-        assert_eq!(parse_share("0.8"), Ok(0.8));
-        assert_eq!(parse_share("1"), Ok(1.0));
+        assert_eq!(parse_soft_joint_speed("0.8"), Ok(0.8));
+        assert_eq!(parse_soft_joint_speed("1"), Ok(1.0));
         for bad in ["0", "-0.5", "1.2", "NaN", "fast"] {
-            let e = parse_share(bad).unwrap_err();
+            let e = parse_soft_joint_speed(bad).unwrap_err();
             assert!(e.contains("(0, 1]"), "{bad}: {e}");
         }
     }
 
     #[test]
-    fn flat_share_and_tracking_std_refuse_values_outside_their_ranges() {
+    fn shares_std_and_speed_ranges_refuse_values_outside_their_ranges() {
         assert_eq!(parse_flat_share("0.3"), Ok(0.3));
         assert_eq!(parse_flat_share("0"), Ok(0.0));
         for bad in ["1", "-0.1", "NaN", "most"] {
@@ -332,6 +332,11 @@ mod tests {
         assert_eq!(parse_tracking_std("0.35"), Ok(0.35));
         for bad in ["0", "-0.5", "3", "NaN", "tight"] {
             assert!(parse_tracking_std(bad).unwrap_err().contains("(0, 2]"), "{bad}");
+        }
+        assert_eq!(parse_joystick_share("0"), Ok(0.0));
+        assert_eq!(parse_joystick_share("1"), Ok(1.0));
+        for bad in ["1.1", "-0.1", "NaN", "half"] {
+            assert!(parse_joystick_share(bad).unwrap_err().contains("[0, 1]"), "{bad}");
         }
         assert_eq!(parse_joystick_vx("-0.5,1.0"), Ok((-0.5, 1.0)));
         for bad in ["-1.5,0", "0.5,0.2", "0,3", "0.5", "a,b"] {
