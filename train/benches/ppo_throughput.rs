@@ -37,7 +37,7 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        mix: train::ppo::curriculum::ColumnMix::default(),
         tracking_std: train::ppo::reward::TRACKING_STD,
         joystick_vx: None,
     };
@@ -94,7 +94,7 @@ fn whole_loop(
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        mix: train::ppo::curriculum::ColumnMix::default(),
         tracking_std: train::ppo::reward::TRACKING_STD,
         joystick_vx: None,
         checkpoint_every_s: f64::INFINITY,

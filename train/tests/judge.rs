@@ -46,7 +46,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        mix: train::ppo::curriculum::ColumnMix::default(),
         tracking_std: train::ppo::reward::TRACKING_STD,
         joystick_vx: None,
         checkpoint_every_s: f64::INFINITY,

@@ -60,7 +60,7 @@ fn test_cfg(model: g1_sim::ModelChoice, spec: DeploySpec, only: Column) -> EnvCo
         joystick_share: 0.0,
         soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-        flat_share: train::ppo::curriculum::FLAT_SHARE,
+        mix: train::ppo::curriculum::ColumnMix::default(),
         tracking_std: train::ppo::reward::TRACKING_STD,
         joystick_vx: None,
     }

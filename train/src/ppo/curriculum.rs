@@ -17,6 +17,27 @@ pub fn level_height(level: usize) -> f64 {
 /// Flat ground's default share of environments (IsaacLab's rough terrain keeps a flat column too).
 pub const FLAT_SHARE: f64 = 0.15;
 
+/// The default share of stair environments that climb (the columns up and outdoor up).
+pub const UP_SHARE: f64 = 0.5;
+
+/// How the environments split between the columns: flat ground's share of all of them, and the
+/// climbing columns' share of the stair ones. The stair columns otherwise keep the table's ratios
+/// (indoor 0.3 : outdoor 0.125 on each side).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ColumnMix {
+    pub flat: f64,
+    pub up: f64,
+}
+
+impl Default for ColumnMix {
+    fn default() -> Self {
+        Self {
+            flat: FLAT_SHARE,
+            up: UP_SHARE,
+        }
+    }
+}
+
 /// Terrain columns of the curriculum (IsaacLab's sub-terrain types).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
 pub enum Column {
@@ -42,31 +63,39 @@ impl Column {
     /// column per episode while the level was the environment's let the columns' difficulties
     /// mix: successes going down promoted an environment that then failed every staircase up at
     /// that height (run 13, in the training environment: down 15.5 cm 5/8, up 11 and 15.5 cm 0/8).
-    /// `flat_share` is flat ground's share; the stair columns split the rest in the mix's ratios.
-    pub fn for_env(i: usize, n: usize, only: Option<Column>, flat_share: f64) -> Column {
+    pub fn for_env(i: usize, n: usize, only: Option<Column>, mix: ColumnMix) -> Column {
         if let Some(c) = only {
             return c;
         }
-        Self::at_share((i as f64 + 0.5) / n.max(1) as f64, flat_share)
+        Self::at_share((i as f64 + 0.5) / n.max(1) as f64, mix)
     }
 
-    pub fn draw(rng: &mut Rng, only: Option<Column>, flat_share: f64) -> Column {
+    pub fn draw(rng: &mut Rng, only: Option<Column>, mix: ColumnMix) -> Column {
         if let Some(c) = only {
             return c;
         }
-        Self::at_share(rng.uniform(), flat_share)
+        Self::at_share(rng.uniform(), mix)
     }
 
-    /// Each column's share of environments when flat ground has `flat_share` of them.
-    pub fn mix(flat_share: f64) -> [(Column, f64); 5] {
-        // At the default the scale is exactly 1, so default runs keep their columns bit for bit.
-        let scale = (1.0 - flat_share) / (1.0 - FLAT_SHARE);
-        Self::MIX.map(|(c, p)| (c, if c == Column::Flat { flat_share } else { p * scale }))
+    /// Each column's share of environments under `mix`.
+    pub fn mix(mix: ColumnMix) -> [(Column, f64); 5] {
+        // At the defaults every scale is exactly 1, so default runs keep their columns bit for bit.
+        let stairs = (1.0 - mix.flat) / (1.0 - FLAT_SHARE);
+        let up = mix.up / UP_SHARE;
+        let down = (1.0 - mix.up) / (1.0 - UP_SHARE);
+        Self::MIX.map(|(c, p)| {
+            let share = match c {
+                Column::Flat => mix.flat,
+                Column::Up | Column::OutdoorUp => p * stairs * up,
+                Column::Down | Column::OutdoorDown => p * stairs * down,
+            };
+            (c, share)
+        })
     }
 
     /// The column at `u` ∈ [0, 1) along the mix's cumulative shares.
-    fn at_share(mut u: f64, flat_share: f64) -> Column {
-        for (c, p) in Self::mix(flat_share) {
+    fn at_share(mut u: f64, mix: ColumnMix) -> Column {
+        for (c, p) in Self::mix(mix) {
             if u < p {
                 return c;
             }
@@ -132,25 +161,41 @@ mod tests {
     #[test]
     fn environments_split_into_the_mix_s_columns() {
         let n = 128;
-        for flat in [FLAT_SHARE, 0.3] {
-            let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None, flat) == c).count();
-            for (c, share) in Column::mix(flat) {
+        let mixes = [(FLAT_SHARE, UP_SHARE), (0.3, UP_SHARE), (0.3, 0.7)];
+        for mix in mixes.map(|(flat, up)| ColumnMix { flat, up }) {
+            let count = |c: Column| (0..n).filter(|&i| Column::for_env(i, n, None, mix) == c).count();
+            for (c, share) in Column::mix(mix) {
                 let want = share * n as f64;
                 let got = count(c) as f64;
                 assert!(
                     (got - want).abs() <= 1.0,
-                    "flat {flat}, {c:?}: {got} environments, want {want}"
+                    "{mix:?}, {c:?}: {got} environments, want {want}"
                 );
             }
+            let shares = Column::mix(mix);
+            assert!((shares.iter().map(|m| m.1).sum::<f64>() - 1.0).abs() < 1e-12);
+            let climbing = shares[1].1 + shares[3].1;
+            assert!(
+                (climbing / (1.0 - mix.flat) - mix.up).abs() < 1e-12,
+                "{mix:?}: up {climbing}"
+            );
+            let indoor_per_outdoor = |a: usize, b: usize| shares[a].1 / shares[b].1;
+            assert!((indoor_per_outdoor(1, 3) - 2.4).abs() < 1e-12, "{mix:?}");
+            assert!((indoor_per_outdoor(2, 4) - 2.4).abs() < 1e-12, "{mix:?}");
         }
         assert_eq!(
-            Column::mix(FLAT_SHARE),
+            Column::mix(ColumnMix::default()),
             Column::MIX,
             "the default mix is the table, bit for bit"
         );
         let up_per_down = |m: [(Column, f64); 5]| m[1].1 / m[2].1;
-        assert_eq!(up_per_down(Column::mix(0.3)), up_per_down(Column::MIX));
-        assert!((Column::mix(0.3).iter().map(|m| m.1).sum::<f64>() - 1.0).abs() < 1e-12);
-        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up), 0.3) == Column::Up));
+        let flat_03 = ColumnMix {
+            flat: 0.3,
+            ..ColumnMix::default()
+        };
+        assert_eq!(up_per_down(Column::mix(flat_03)), up_per_down(Column::MIX));
+        let up_07 = ColumnMix { flat: 0.3, up: 0.7 };
+        assert!((up_per_down(Column::mix(up_07)) - 0.7 / 0.3).abs() < 1e-12);
+        assert!((0..n).all(|i| Column::for_env(i, n, Some(Column::Up), flat_03) == Column::Up));
     }
 }

@@ -185,9 +185,10 @@ pub struct EnvConfig {
     /// to stand at the first riser, which a noisy rollout hides and the mean action shows (run 19:
     /// up 11 cm 8/16 in `g1-train ppo-eval` at 20.2 M env steps, 0/16, all time-outs, at 22.6 M).
     pub end_stalled: bool,
-    /// Flat ground's share of environments ([`curriculum::FLAT_SHARE`] by default); the stair
-    /// columns split the rest in their usual ratios.
-    pub flat_share: f64,
+    /// How environments split between the columns: flat ground's share
+    /// ([`curriculum::FLAT_SHARE`] by default) and the climbing share of the stair columns
+    /// ([`curriculum::UP_SHARE`]).
+    pub mix: curriculum::ColumnMix,
     /// Standard deviation of the two tracking kernels, m/s and rad/s ([`reward::TRACKING_STD`]
     /// by default). A tighter kernel pays more for walking at the commanded speed rather than
     /// near it (run 20 walked 0.59 m/s for 0.5 and 0.47 for 0.3 on flat ground).
@@ -341,7 +342,7 @@ impl StairEnv {
             io,
             net,
             world,
-            column: Column::draw(&mut rng, cfg.only, cfg.flat_share),
+            column: Column::draw(&mut rng, cfg.only, cfg.mix),
             level,
             vx_cmd: 0.0,
             heading: 0.0,

@@ -60,7 +60,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         joystick_share: 0.0,
         soft_joint_speed: super::env::SOFT_JOINT_SPEED,
         end_stalled: false,
-        flat_share: super::curriculum::FLAT_SHARE,
+        mix: super::curriculum::ColumnMix::default(),
         tracking_std: super::reward::TRACKING_STD,
         joystick_vx: None,
     };

@@ -60,8 +60,8 @@ pub struct RunConfig {
     pub soft_joint_speed: f32,
     /// End staircase episodes that stall as failures (`EnvConfig::end_stalled`).
     pub end_stalled: bool,
-    /// Flat ground's share of environments (`EnvConfig::flat_share`).
-    pub flat_share: f64,
+    /// How environments split between the columns (`EnvConfig::mix`).
+    pub mix: super::curriculum::ColumnMix,
     /// The tracking kernels' standard deviation (`EnvConfig::tracking_std`).
     pub tracking_std: f64,
     /// Forward speed range of joystick episodes (`EnvConfig::joystick_vx`).
@@ -274,7 +274,7 @@ fn make_envs(
         joystick_share: cfg.joystick_share,
         soft_joint_speed: cfg.soft_joint_speed,
         end_stalled: cfg.end_stalled,
-        flat_share: cfg.flat_share,
+        mix: cfg.mix,
         tracking_std: cfg.tracking_std,
         joystick_vx: cfg.joystick_vx,
     };
@@ -288,7 +288,7 @@ fn make_envs(
         let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
         let level = state.levels.get(i).copied().unwrap_or(env.level);
         env.place(
-            super::curriculum::Column::for_env(i, cfg.envs, cfg.only, cfg.flat_share),
+            super::curriculum::Column::for_env(i, cfg.envs, cfg.only, cfg.mix),
             level,
         )?;
         slots.push(Slot {

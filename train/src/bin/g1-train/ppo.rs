@@ -100,6 +100,10 @@ pub struct Args {
     /// in their usual ratios. Flat episodes are where the policy learns to follow the command.
     #[arg(long, default_value_t = train::ppo::curriculum::FLAT_SHARE, value_name = "SHARE", value_parser = parse_flat_share)]
     flat_share: f64,
+    /// Share of the stair environments that climb (the columns up and outdoor up; 0.5 by
+    /// default, the rest go down). Going up is the harder half: raise it to train more climbs.
+    #[arg(long, default_value_t = train::ppo::curriculum::UP_SHARE, value_name = "SHARE", value_parser = parse_up_share)]
+    up_share: f64,
     /// Standard deviation of the tracking kernels exp(−err² / std²), m/s and rad/s (IsaacLab's
     /// 0.5 by default). A tighter kernel pays more for walking at the commanded speed.
     #[arg(long, default_value_t = train::ppo::reward::TRACKING_STD, value_name = "STD", value_parser = parse_tracking_std)]
@@ -152,6 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         soft_joint_speed,
         end_stalled,
         flat_share,
+        up_share,
         tracking_std,
         joystick_vx,
         checkpoint_every,
@@ -225,7 +230,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         joystick_share,
         soft_joint_speed,
         end_stalled,
-        flat_share,
+        mix: train::ppo::curriculum::ColumnMix {
+            flat: flat_share,
+            up: up_share,
+        },
         tracking_std,
         joystick_vx,
         checkpoint_every_s: checkpoint_every,
@@ -293,6 +301,12 @@ fn parse_flat_share(s: &str) -> Result<f64, String> {
     parse_number(s, |v| (0.0..1.0).contains(&v), want)
 }
 
+/// `--up-share SHARE`: the climbing share of the stair environments, in (0, 1).
+fn parse_up_share(s: &str) -> Result<f64, String> {
+    let want = "the climbing share of the stair environments in (0, 1), e.g. 0.65";
+    parse_number(s, |v| v > 0.0 && v < 1.0, want)
+}
+
 /// `--tracking-std STD`: the tracking kernels' standard deviation, in (0, 2].
 fn parse_tracking_std(s: &str) -> Result<f64, String> {
     let want = "the tracking kernels' standard deviation in (0, 2] m/s, e.g. 0.35";
@@ -332,6 +346,10 @@ mod tests {
         assert_eq!(parse_tracking_std("0.35"), Ok(0.35));
         for bad in ["0", "-0.5", "3", "NaN", "tight"] {
             assert!(parse_tracking_std(bad).unwrap_err().contains("(0, 2]"), "{bad}");
+        }
+        assert_eq!(parse_up_share("0.65"), Ok(0.65));
+        for bad in ["0", "1", "-0.2", "NaN", "more"] {
+            assert!(parse_up_share(bad).unwrap_err().contains("(0, 1)"), "{bad}");
         }
         assert_eq!(parse_joystick_share("0"), Ok(0.0));
         assert_eq!(parse_joystick_share("1"), Ok(1.0));
