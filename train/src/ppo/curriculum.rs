@@ -179,9 +179,12 @@ mod tests {
                 (climbing / (1.0 - mix.flat) - mix.up).abs() < 1e-12,
                 "{mix:?}: up {climbing}"
             );
-            let indoor_per_outdoor = |a: usize, b: usize| shares[a].1 / shares[b].1;
-            assert!((indoor_per_outdoor(1, 3) - 2.4).abs() < 1e-12, "{mix:?}");
-            assert!((indoor_per_outdoor(2, 4) - 2.4).abs() < 1e-12, "{mix:?}");
+            // Each side keeps the table's indoor : outdoor ratio.
+            let ratio = |m: &[(Column, f64); 5], indoor: usize, outdoor: usize| m[indoor].1 / m[outdoor].1;
+            for (indoor, outdoor) in [(1, 3), (2, 4)] {
+                let (got, table) = (ratio(&shares, indoor, outdoor), ratio(&Column::MIX, indoor, outdoor));
+                assert!((got - table).abs() < 1e-12, "{mix:?}: {got} against {table}");
+            }
         }
         assert_eq!(
             Column::mix(ColumnMix::default()),
