@@ -21,7 +21,7 @@ use std::time::Instant;
 use firmware::spec::DeploySpec;
 use g1_sim::world::World;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
-use train::ppo::env::{EnvConfig, Randomization, StairEnv, Timing, PHYSICS_DT};
+use train::ppo::env::{EnvConfig, EnvSettings, StairEnv, Timing, PHYSICS_DT};
 use train::ppo::policy::{ActorArch, ActorCritic, Sizes};
 
 /// One training environment on one thread for `steps` policy steps: env steps/s.
@@ -29,17 +29,10 @@ fn one_env(spec: &DeploySpec, weights: &[u8], steps: usize) -> anyhow::Result<(f
     let env_cfg = EnvConfig {
         model: ModelChoice::G1_12Dof,
         spec: Arc::new(spec.clone()),
-        episode_s: 12.0,
-        random: Randomization::DEFAULT,
-        vx: (0.3, 0.8),
-        max_init_level: 2,
-        only: None,
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        settings: EnvSettings {
+            episode_s: 12.0,
+            ..EnvSettings::DEFAULT
+        },
     };
     let mut env = StairEnv::new(env_cfg, 1, weights)?;
     let a = spec.num_joints();
@@ -85,18 +78,12 @@ fn whole_loop(
         symmetry,
         init_std: 0.3,
         critic_warmup: 0,
-        episode_s: 12.0,
         ppo,
-        random: Randomization::DEFAULT,
-        max_init_level: 2,
-        vx: (0.4, 0.8),
-        only: None,
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        env: EnvSettings {
+            episode_s: 12.0,
+            vx: (0.4, 0.8),
+            ..EnvSettings::DEFAULT
+        },
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

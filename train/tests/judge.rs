@@ -5,7 +5,7 @@ mod common;
 use common::have_12dof_model;
 use std::path::PathBuf;
 
-use train::ppo::env::{Column, Randomization};
+use train::ppo::env::{Column, EnvSettings, Randomization};
 use train::ppo::judge::{judge, JudgeConfig};
 use train::ppo::runner::{read_judgements, train, RunConfig, BEST, CURVES, JUDGE};
 
@@ -37,18 +37,15 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         symmetry: false,
         init_std: 0.3,
         critic_warmup: 2,
-        episode_s: 2.0,
         ppo: Default::default(),
-        random: Randomization::NONE,
-        max_init_level: 0,
-        vx: (0.4, 0.8),
-        only: Some(Column::Flat),
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        env: EnvSettings {
+            episode_s: 2.0,
+            random: Randomization::NONE,
+            max_init_level: 0,
+            vx: (0.4, 0.8),
+            only: Some(Column::Flat),
+            ..EnvSettings::DEFAULT
+        },
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
@@ -106,11 +103,10 @@ fn a_judge_that_fails_does_not_end_training() {
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_judge_fails_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let cfg = RunConfig {
+    let mut cfg = RunConfig {
         envs: 2,
         threads: 1,
         seed: 5,
-        episode_s: 1.0,
         checkpoint_every_s: 0.0,
         ..flat_run(
             &out,
@@ -120,6 +116,7 @@ fn a_judge_that_fails_does_not_end_training() {
             },
         )
     };
+    cfg.env.episode_s = 1.0;
     let history = train(&cfg).expect("training outlives a failing judge");
     assert_eq!(history.last().map(|h| h.iteration), Some(2));
     assert!(read_judgements(&out).is_empty(), "nothing was judged");

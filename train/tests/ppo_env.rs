@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use firmware::controller::Controller;
 use firmware::spec::DeploySpec;
-use train::ppo::env::{Column, EnvConfig, Randomization, StairEnv};
+use train::ppo::env::{Column, EnvConfig, EnvSettings, Randomization, StairEnv};
 use train::ppo::policy::ActorCritic;
 
 fn root() -> PathBuf {
@@ -52,17 +52,14 @@ fn test_cfg(model: g1_sim::ModelChoice, spec: DeploySpec, only: Column) -> EnvCo
     EnvConfig {
         model,
         spec: Arc::new(spec),
-        episode_s: 10.0,
-        random: Randomization::NONE,
-        vx: (0.5, 0.5),
-        max_init_level: 0,
-        only: Some(only),
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        settings: EnvSettings {
+            episode_s: 10.0,
+            random: Randomization::NONE,
+            vx: (0.5, 0.5),
+            max_init_level: 0,
+            only: Some(only),
+            ..EnvSettings::DEFAULT
+        },
     }
 }
 
@@ -299,10 +296,8 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
     }
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
-    let cfg = EnvConfig {
-        episode_s: 20.0,
-        ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, Column::Down)
-    };
+    let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, Column::Down);
+    cfg.settings.episode_s = 20.0;
     let mut e = StairEnv::new(cfg, 5, &weights).unwrap();
     e.hold(1, 0.5).unwrap();
     let dt = e.timing().policy_dt;
@@ -369,9 +364,10 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
     }
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
-    let cfg = |share: f64| EnvConfig {
-        joystick_share: share,
-        ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat)
+    let cfg = |share: f64| {
+        let mut c = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
+        c.settings.joystick_share = share;
+        c
     };
     let mut mean = vec![0.0f32; 12];
     let mut joystick = StairEnv::new(cfg(1.0), 3, &weights).unwrap();
@@ -400,9 +396,10 @@ fn joystick_episodes_hold_a_constant_command_without_heading_hold() {
     // --joystick-vx: joystick episodes draw their forward speed from their own range, backwards
     // included, and it is what the policy is told.
     let mut backwards = StairEnv::new(
-        EnvConfig {
-            joystick_vx: Some((-0.5, -0.2)),
-            ..cfg(1.0)
+        {
+            let mut c = cfg(1.0);
+            c.settings.joystick_vx = Some((-0.5, -0.2));
+            c
         },
         3,
         &weights,
@@ -527,10 +524,8 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let run = |share: f32| {
-        let cfg = EnvConfig {
-            soft_joint_speed: share,
-            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up)
-        };
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
+        cfg.settings.soft_joint_speed = share;
         rewards_and_joint(cfg, 5, &weights, 60, 3)
     };
     let (r_default, q_default) = run(train::ppo::env::SOFT_JOINT_SPEED);
@@ -555,10 +550,8 @@ fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let run = |std: f64| {
-        let cfg = EnvConfig {
-            tracking_std: std,
-            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat)
-        };
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
+        cfg.settings.tracking_std = std;
         rewards_and_joint(cfg, 3, &weights, 100, 0)
     };
     let (r_default, q_default) = run(train::ppo::reward::TRACKING_STD);
@@ -585,10 +578,8 @@ fn end_stalled_fails_a_robot_making_no_progress_at_the_stairs_as_g1fw_eval_calls
     let spec = stair_spec();
     let (_, weights) = warm_start(&spec, &peer);
     let stand = |column: Column, end_stalled: bool| {
-        let cfg = EnvConfig {
-            end_stalled,
-            ..test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), column)
-        };
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), column);
+        cfg.settings.end_stalled = end_stalled;
         let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
         e.hold(0, -0.3).unwrap();
         let dt = e.timing().policy_dt;

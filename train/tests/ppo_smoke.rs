@@ -6,7 +6,7 @@ mod common;
 use common::have_12dof_model;
 use std::path::{Path, PathBuf};
 
-use train::ppo::env::{Column, Randomization};
+use train::ppo::env::{Column, EnvSettings, Randomization};
 use train::ppo::runner::{train, RunConfig, ACTORS, CHECKPOINT, CURVES, HISTORY};
 
 #[test]
@@ -33,21 +33,18 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         symmetry: true,
         init_std: 2.0,
         critic_warmup: 0,
-        episode_s: 2.0,
         ppo: train::ppo::algo::PpoConfig {
             lr: 1e-3,
             ..Default::default()
         },
-        random: Randomization::NONE,
-        max_init_level: 0,
-        vx: (0.4, 0.8),
-        only: Some(Column::Flat),
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        env: EnvSettings {
+            episode_s: 2.0,
+            random: Randomization::NONE,
+            max_init_level: 0,
+            vx: (0.4, 0.8),
+            only: Some(Column::Flat),
+            ..EnvSettings::DEFAULT
+        },
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
@@ -131,18 +128,13 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         symmetry: false,
         init_std: 0.5,
         critic_warmup: 1,
-        episode_s: 1.0,
         ppo: Default::default(),
-        random: Randomization::DEFAULT,
-        max_init_level: 10,
-        vx: (0.4, 0.8),
-        only: None,
-        joystick_share: 0.0,
-        soft_joint_speed: train::ppo::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: train::ppo::curriculum::ColumnMix::default(),
-        tracking_std: train::ppo::reward::TRACKING_STD,
-        joystick_vx: None,
+        env: EnvSettings {
+            episode_s: 1.0,
+            max_init_level: 10,
+            vx: (0.4, 0.8),
+            ..EnvSettings::DEFAULT
+        },
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

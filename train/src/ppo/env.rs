@@ -127,7 +127,7 @@ pub fn terrain_capacity() -> (usize, usize) {
 }
 
 /// What an environment randomises (all on by default; tests turn them off).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Randomization {
     /// Uniform observation noise: gyro (rad/s), joint position (rad), joint velocity (rad/s).
     pub obs_noise: [f32; 3],
@@ -163,6 +163,14 @@ impl Randomization {
 pub struct EnvConfig {
     pub model: ModelChoice,
     pub spec: Arc<DeploySpec>,
+    pub settings: EnvSettings,
+}
+
+/// How environments are drawn, commanded and rewarded: what `g1-train ppo`'s options set, held
+/// once so that the run's config, each environment's and the tests' share one list of them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EnvSettings {
+    /// Episode length, s.
     pub episode_s: f64,
     pub random: Randomization,
     /// Commanded forward speed range, m/s.
@@ -193,10 +201,36 @@ pub struct EnvConfig {
     /// by default). A tighter kernel pays more for walking at the commanded speed rather than
     /// near it (run 20 walked 0.59 m/s for 0.5 and 0.47 for 0.3 on flat ground).
     pub tracking_std: f64,
-    /// Forward speed range of joystick episodes, m/s (`None`: [`EnvConfig::vx`]). Including 0 and
+    /// Forward speed range of joystick episodes, m/s (`None`: [`EnvSettings::vx`]). Including 0 and
     /// negative speeds teaches the policy to stop and back up when a joystick asks (run 21's actor,
     /// trained on 0.4–0.8 and a 5 % stand, walked 0.27 m/s when asked for 0).
     pub joystick_vx: Option<(f64, f64)>,
+}
+
+impl EnvSettings {
+    /// `g1-train ppo`'s defaults.
+    pub const DEFAULT: Self = Self {
+        episode_s: 20.0,
+        random: Randomization::DEFAULT,
+        vx: (0.3, 0.8),
+        max_init_level: 2,
+        only: None,
+        joystick_share: 0.0,
+        soft_joint_speed: SOFT_JOINT_SPEED,
+        end_stalled: false,
+        mix: curriculum::ColumnMix {
+            flat: curriculum::FLAT_SHARE,
+            up: curriculum::UP_SHARE,
+        },
+        tracking_std: reward::TRACKING_STD,
+        joystick_vx: None,
+    };
+}
+
+impl Default for EnvSettings {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
 }
 
 /// Lateral speed commands of joystick episodes, m/s (symmetric).
@@ -333,16 +367,16 @@ impl StairEnv {
         };
         let foot_body = [body("left_ankle_roll_link")?, body("right_ankle_roll_link")?];
         let n = spec.num_joints();
-        let level = rng.int(0, cfg.max_init_level as u64) as usize;
+        let level = rng.int(0, cfg.settings.max_init_level as u64) as usize;
         let mut env = Self {
-            max_steps: (cfg.episode_s / timing.policy_dt).round() as usize,
+            max_steps: (cfg.settings.episode_s / timing.policy_dt).round() as usize,
             timing,
             limits,
             token_scale,
             io,
             net,
             world,
-            column: Column::draw(&mut rng, cfg.only, cfg.mix),
+            column: Column::draw(&mut rng, cfg.settings.only, cfg.settings.mix),
             level,
             vx_cmd: 0.0,
             heading: 0.0,
@@ -444,7 +478,7 @@ impl StairEnv {
         }
         self.world = curriculum::draw_world(self.column, self.level, &mut self.rng);
         self.sim.set_world(&self.world)?;
-        let r = self.cfg.random;
+        let r = self.cfg.settings.random;
         if r.dynamics {
             self.sim.set_friction(self.rng.range(0.5, 1.25))?;
             self.sim.set_added_base_mass(self.rng.range(-1.0, 3.0))?;
@@ -461,15 +495,15 @@ impl StairEnv {
         } else if self.rng.chance(0.05) {
             0.0
         } else {
-            self.rng.range(self.cfg.vx.0, self.cfg.vx.1) as f32
+            self.rng.range(self.cfg.settings.vx.0, self.cfg.settings.vx.1) as f32
         };
         self.heading = self.world.stairs.as_ref().map_or(0.0, |s| s.yaw) + 0.05 * self.rng.gaussian();
         self.joystick = None;
         // Drawn only when enabled, so runs without joystick episodes keep their random streams.
         if self.column == Column::Flat
             && self.held_vx.is_none()
-            && self.cfg.joystick_share > 0.0
-            && self.rng.chance(self.cfg.joystick_share)
+            && self.cfg.settings.joystick_share > 0.0
+            && self.rng.chance(self.cfg.settings.joystick_share)
         {
             let vy = self.rng.range(-JOYSTICK_VY, JOYSTICK_VY);
             let wz = if self.rng.chance(1.0 / 3.0) {
@@ -477,7 +511,7 @@ impl StairEnv {
             } else {
                 self.rng.range(-JOYSTICK_WZ, JOYSTICK_WZ)
             };
-            if let Some((lo, hi)) = self.cfg.joystick_vx {
+            if let Some((lo, hi)) = self.cfg.settings.joystick_vx {
                 self.vx_cmd = self.rng.range(lo, hi) as f32;
             }
             self.joystick = Some([self.vx_cmd, vy as f32, wz as f32]);
@@ -598,7 +632,7 @@ impl StairEnv {
         let t = self.sim.truth();
         let yaw = yaw_of(t.base_quat);
         let (mut z, riser) = self.world.labelled_truth(t.base_pos[0], t.base_pos[1], yaw);
-        let n = self.cfg.random.token_noise;
+        let n = self.cfg.settings.random.token_noise;
         if z.class != TerrainClass::Flat {
             z.step_height_m += (n[0] * self.rng.gaussian()) as f32;
             z.step_depth_m += (n[1] * self.rng.gaussian()) as f32;
@@ -619,7 +653,7 @@ impl StairEnv {
 
     fn noisy_state(&mut self) -> LowState {
         let mut s = self.state;
-        let [g, q, dq] = self.cfg.random.obs_noise;
+        let [g, q, dq] = self.cfg.settings.random.obs_noise;
         if g > 0.0 {
             for v in &mut s.imu.gyroscope {
                 *v += g * (2.0 * self.rng.uniform() as f32 - 1.0);
@@ -744,8 +778,8 @@ impl StairEnv {
             self.watch_physics_step();
         }
         self.step += 1;
-        if self.cfg.random.push_mps > 0.0 && self.step == self.next_push {
-            let p = self.cfg.random.push_mps;
+        if self.cfg.settings.random.push_mps > 0.0 && self.step == self.next_push {
+            let p = self.cfg.settings.random.push_mps;
             let (dx, dy) = (self.rng.range(-p, p), self.rng.range(-p, p));
             self.sim.push_base(dx, dy)?;
             self.next_push += self.push_interval();
@@ -805,8 +839,10 @@ impl StairEnv {
         let w = t.base_ang_vel_body;
         let g = estimator::projected_gravity(t.base_quat.map(|x| x as f32));
         let mut r = Terms {
-            track_lin_vel_xy: (-((cmd[0] - vx).powi(2) + (cmd[1] - vy).powi(2)) / self.cfg.tracking_std.powi(2)).exp(),
-            track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / self.cfg.tracking_std.powi(2)).exp(),
+            track_lin_vel_xy: (-((cmd[0] - vx).powi(2) + (cmd[1] - vy).powi(2))
+                / self.cfg.settings.tracking_std.powi(2))
+            .exp(),
+            track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / self.cfg.settings.tracking_std.powi(2)).exp(),
             flat_orientation: (g[0] as f64).powi(2) + (g[1] as f64).powi(2),
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
             // Speed along the target heading, up to the commanded speed: standing at a riser earns
@@ -827,7 +863,7 @@ impl StairEnv {
         for (i, &slot) in self.slots.iter().enumerate() {
             let m = &self.state.motors[slot];
             let dq = m.dq as f64;
-            let soft = (self.cfg.soft_joint_speed * self.limits.joint_speed_rad_s[slot]) as f64;
+            let soft = (self.cfg.settings.soft_joint_speed * self.limits.joint_speed_rad_s[slot]) as f64;
             r.joint_speed += (self.peak_dq[slot] as f64 - soft).max(0.0).powi(2);
             r.action_rate += ((action[i] - self.prev_action[i]) as f64).powi(2);
             r.torques += self.sim.applied_torque(slot).powi(2);
@@ -925,7 +961,7 @@ impl StairEnv {
         } else {
             self.stall.observe(s, self.time_s());
         }
-        let stalled = self.cfg.end_stalled && self.world.stairs.is_some() && self.stall.stalled();
+        let stalled = self.cfg.settings.end_stalled && self.world.stairs.is_some() && self.stall.stalled();
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);

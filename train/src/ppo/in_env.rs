@@ -52,17 +52,14 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
     let cfg = EnvConfig {
         model: opts.model.clone(),
         spec: opts.spec.clone(),
-        episode_s: opts.episode_s,
-        random: opts.random,
-        vx: (opts.vx as f64, opts.vx as f64),
-        max_init_level: 0,
-        only: Some(opts.column),
-        joystick_share: 0.0,
-        soft_joint_speed: super::env::SOFT_JOINT_SPEED,
-        end_stalled: false,
-        mix: super::curriculum::ColumnMix::default(),
-        tracking_std: super::reward::TRACKING_STD,
-        joystick_vx: None,
+        settings: super::env::EnvSettings {
+            episode_s: opts.episode_s,
+            random: opts.random,
+            vx: (opts.vx as f64, opts.vx as f64),
+            max_init_level: 0,
+            only: Some(opts.column),
+            ..super::env::EnvSettings::DEFAULT
+        },
     };
     let lanes = LANES.min(opts.episodes.max(1));
     let per_lane: Vec<usize> = (0..lanes)

@@ -11,7 +11,7 @@ use labkit::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use super::algo::{compute_gae, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
-use super::env::{EnvConfig, Randomization, StairEnv, CRITIC_EXTRA};
+use super::env::{EnvConfig, StairEnv, CRITIC_EXTRA};
 use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
 use super::rollout::{rollout, Slot};
@@ -44,28 +44,9 @@ pub struct RunConfig {
     pub symmetry: bool,
     pub init_std: f64,
     pub critic_warmup: usize,
-    pub episode_s: f64,
     pub ppo: PpoConfig,
-    pub random: Randomization,
-    pub max_init_level: usize,
-    /// Forward speed commands are drawn from this range, m/s.
-    pub vx: (f64, f64),
-    /// Train on one terrain column only (default: the curriculum's mix).
-    pub only: Option<super::env::Column>,
-    /// Share of flat-column episodes with a joystick's constant (vx, vy, wz) command instead of
-    /// heading hold (`EnvConfig::joystick_share`).
-    pub joystick_share: f64,
-    /// Where the soft joint-speed penalty starts, as a share of each joint's limit
-    /// (`EnvConfig::soft_joint_speed`).
-    pub soft_joint_speed: f32,
-    /// End staircase episodes that stall as failures (`EnvConfig::end_stalled`).
-    pub end_stalled: bool,
-    /// How environments split between the columns (`EnvConfig::mix`).
-    pub mix: super::curriculum::ColumnMix,
-    /// The tracking kernels' standard deviation (`EnvConfig::tracking_std`).
-    pub tracking_std: f64,
-    /// Forward speed range of joystick episodes (`EnvConfig::joystick_vx`).
-    pub joystick_vx: Option<(f64, f64)>,
+    /// How environments are drawn, commanded and rewarded.
+    pub env: super::env::EnvSettings,
     pub checkpoint_every_s: f64,
     pub quiet: bool,
     /// Stop after this many seconds of wall time (checkpointing first).
@@ -266,17 +247,7 @@ fn make_envs(
     let env_cfg = EnvConfig {
         model: cfg.model.clone(),
         spec: Arc::new(spec),
-        episode_s: cfg.episode_s,
-        random: cfg.random,
-        vx: cfg.vx,
-        max_init_level: cfg.max_init_level,
-        only: cfg.only,
-        joystick_share: cfg.joystick_share,
-        soft_joint_speed: cfg.soft_joint_speed,
-        end_stalled: cfg.end_stalled,
-        mix: cfg.mix,
-        tracking_std: cfg.tracking_std,
-        joystick_vx: cfg.joystick_vx,
+        settings: cfg.env,
     };
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);
@@ -288,7 +259,7 @@ fn make_envs(
         let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
         let level = state.levels.get(i).copied().unwrap_or(env.level);
         env.place(
-            super::curriculum::Column::for_env(i, cfg.envs, cfg.only, cfg.mix),
+            super::curriculum::Column::for_env(i, cfg.envs, cfg.env.only, cfg.env.mix),
             level,
         )?;
         slots.push(Slot {

@@ -65,10 +65,10 @@ pub struct Args {
     desired_kl: f64,
     /// Episode length, s (long enough for the longest staircase at the slowest command:
     /// up to 2 m + 8 × 0.4 m + 0.5 m at 0.4 m/s is 14 s).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = train::ppo::env::EnvSettings::DEFAULT.episode_s)]
     episode_s: f64,
     /// Highest curriculum level environments start at (0: 5 cm steps … 10: 26 cm).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = train::ppo::env::EnvSettings::DEFAULT.max_init_level)]
     max_init_level: usize,
     /// Forward speed commands, m/s, drawn uniformly per episode: MIN,MAX (runs up to 11 used
     /// 0.4,0.8; below 0.4 such policies stood at the first riser).
@@ -127,7 +127,34 @@ pub struct Args {
     quiet: bool,
 }
 
+impl Args {
+    /// The environment settings these options give (`EnvSettings::DEFAULT` when none is set).
+    fn env_settings(&self) -> train::ppo::env::EnvSettings {
+        train::ppo::env::EnvSettings {
+            episode_s: self.episode_s,
+            random: if self.no_randomization {
+                train::ppo::env::Randomization::NONE
+            } else {
+                train::ppo::env::Randomization::DEFAULT
+            },
+            max_init_level: self.max_init_level,
+            vx: self.vx,
+            only: self.only,
+            joystick_share: self.joystick_share,
+            soft_joint_speed: self.soft_joint_speed,
+            end_stalled: self.end_stalled,
+            mix: train::ppo::curriculum::ColumnMix {
+                flat: self.flat_share,
+                up: self.up_share,
+            },
+            tracking_std: self.tracking_std,
+            joystick_vx: self.joystick_vx,
+        }
+    }
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let env = args.env_settings();
     let Args {
         spec,
         model,
@@ -147,23 +174,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         lr,
         entropy_coef,
         desired_kl,
-        episode_s,
-        max_init_level,
-        vx,
-        no_randomization,
-        only,
-        joystick_share,
-        soft_joint_speed,
-        end_stalled,
-        flat_share,
-        up_share,
-        tracking_std,
-        joystick_vx,
         checkpoint_every,
         max_wall,
         judge_every,
         quiet,
+        ..
     } = args;
+    let episode_s = env.episode_s;
     tracing_subscriber::fmt().with_writer(std::io::stderr).init();
     // Counts that size allocations are bounded before anything is built: each environment
     // holds its own MuJoCo model (~80 MB), each rollout steps × envs rows.
@@ -209,7 +226,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         symmetry,
         init_std,
         critic_warmup,
-        episode_s,
         ppo: train::ppo::algo::PpoConfig {
             steps,
             epochs,
@@ -219,23 +235,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             desired_kl,
             ..Default::default()
         },
-        random: if no_randomization {
-            train::ppo::env::Randomization::NONE
-        } else {
-            train::ppo::env::Randomization::DEFAULT
-        },
-        max_init_level,
-        vx,
-        only,
-        joystick_share,
-        soft_joint_speed,
-        end_stalled,
-        mix: train::ppo::curriculum::ColumnMix {
-            flat: flat_share,
-            up: up_share,
-        },
-        tracking_std,
-        joystick_vx,
+        env,
         checkpoint_every_s: checkpoint_every,
         quiet,
         max_wall_s: max_wall,
@@ -325,6 +325,60 @@ fn parse_number(s: &str, accept: impl Fn(f64) -> bool, want: &str) -> Result<f64
 #[cfg(test)]
 mod tests {
     use super::*;
+    use clap::Parser;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    #[test]
+    fn options_left_unset_give_the_library_defaults_and_each_option_reaches_its_setting() {
+        let parse = |extra: &[&str]| {
+            let argv = [&["g1-train", "--out", "run"][..], extra].concat();
+            Cli::try_parse_from(argv).expect("parses").args.env_settings()
+        };
+        assert_eq!(parse(&[]), train::ppo::env::EnvSettings::DEFAULT);
+        let set = parse(&[
+            "--episode-s",
+            "9",
+            "--max-init-level",
+            "4",
+            "--vx",
+            "0.4,0.6",
+            "--no-randomization",
+            "--only",
+            "up",
+            "--joystick-share",
+            "0.7",
+            "--soft-joint-speed",
+            "0.8",
+            "--end-stalled",
+            "--flat-share",
+            "0.3",
+            "--up-share",
+            "0.65",
+            "--tracking-std",
+            "0.35",
+            "--joystick-vx",
+            "-0.5,1.0",
+        ]);
+        let want = train::ppo::env::EnvSettings {
+            episode_s: 9.0,
+            random: train::ppo::env::Randomization::NONE,
+            max_init_level: 4,
+            vx: (0.4, 0.6),
+            only: Some(train::ppo::env::Column::Up),
+            joystick_share: 0.7,
+            soft_joint_speed: 0.8,
+            end_stalled: true,
+            mix: train::ppo::curriculum::ColumnMix { flat: 0.3, up: 0.65 },
+            tracking_std: 0.35,
+            joystick_vx: Some((-0.5, 1.0)),
+        };
+        assert_eq!(set, want);
+    }
 
     #[test]
     fn soft_joint_speed_share_must_lie_in_zero_to_one() {
