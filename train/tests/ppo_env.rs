@@ -616,3 +616,57 @@ fn end_stalled_fails_a_robot_making_no_progress_at_the_stairs_as_g1fw_eval_calls
         "flat ground has no staircase to stall on"
     );
 }
+
+/// A stand command on a staircase (IsaacLab's standing envs) asks the robot to stay put: with
+/// `--end-stalled` it is no stall, it scores no success and it moves no curriculum level. Until run
+/// 21 it ended as a stall and paid the success bonus for crossing anyway, which taught the stair
+/// policy to walk at 0.27 m/s when told to stop.
+#[test]
+fn a_stand_command_on_stairs_is_neither_a_stall_nor_a_success_and_keeps_the_level() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, weights) = warm_start(&spec, &peer);
+    let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
+    cfg.settings.end_stalled = true;
+    cfg.settings.stand_share = 1.0;
+    cfg.settings.episode_s = 5.0;
+    let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
+    e.place(Column::Up, 3).unwrap();
+    assert!(e.standing(), "stand share 1: {:?}", e.operator_command());
+    assert_eq!(e.operator_command()[0], 0.0);
+    let dt = e.timing().policy_dt;
+    let mut progress = Vec::new();
+    let mut mean = vec![0.0f32; 12];
+    let mut steps = 0;
+    loop {
+        e.observe_and_act(&mut mean).unwrap();
+        let out = e.step(&mean).unwrap();
+        steps += 1;
+        progress.push(e.progress());
+        assert!(
+            !out.terminated,
+            "ended at {} s: {}",
+            steps as f64 * dt,
+            e.debug_summary()
+        );
+        if out.truncated {
+            break;
+        }
+    }
+    assert!(
+        steps as f64 * dt > firmware::eval::STALL_WINDOW_S,
+        "the episode ({steps} steps) was shorter than the stall window"
+    );
+    // It did stand: some stall window passed with less progress than a walking command needs.
+    let window = (firmware::eval::STALL_WINDOW_S / dt).round() as usize;
+    let least = progress.windows(window + 1).map(|w| w[window] - w[0]).fold(f64::INFINITY, f64::min);
+    assert!(
+        least < firmware::eval::STALL_PROGRESS_M,
+        "the peer gained at least {least} m in every stall window when told to stand"
+    );
+    e.reset().unwrap();
+    let end = e.last_end.unwrap();
+    assert!(end.standing && !end.success && !end.fell, "{end:?}");
+    assert_eq!(end.level, 3);
+    assert_eq!(e.level, 3, "a stand that did not get halfway demoted the environment");
+}

@@ -205,7 +205,13 @@ pub struct EnvSettings {
     /// negative speeds teaches the policy to stop and back up when a joystick asks (run 21's actor,
     /// trained on 0.4–0.8 and a 5 % stand, walked 0.27 m/s when asked for 0).
     pub joystick_vx: Option<(f64, f64)>,
+    /// Share of episodes commanded to stand (vx 0), on every column (IsaacLab's
+    /// `rel_standing_envs`; [`STAND_SHARE`] by default).
+    pub stand_share: f64,
 }
+
+/// The default share of episodes commanded to stand.
+pub const STAND_SHARE: f64 = 0.05;
 
 impl EnvSettings {
     /// `g1-train ppo`'s defaults.
@@ -224,6 +230,7 @@ impl EnvSettings {
         },
         tracking_std: reward::TRACKING_STD,
         joystick_vx: None,
+        stand_share: STAND_SHARE,
     };
 }
 
@@ -252,6 +259,8 @@ pub struct StepOut {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct EpisodeEnd {
     pub column: Option<Column>,
+    /// The episode commanded a stand ([`StairEnv::standing`]): no success to score.
+    pub standing: bool,
     /// Why it fell: an index into [`FALL_CAUSES`] (meaningful when `fell`).
     pub cause: usize,
     pub level: usize,
@@ -455,9 +464,10 @@ impl StairEnv {
     /// Ends the current episode's bookkeeping (curriculum) and starts a new one.
     pub fn reset(&mut self) -> anyhow::Result<()> {
         if self.step > 0 {
-            let success = self.succeeded();
+            let success = self.succeeded() && !self.standing();
             self.last_end = Some(EpisodeEnd {
                 column: Some(self.column),
+                standing: self.standing(),
                 level: self.level,
                 success,
                 fell: self.fell,
@@ -470,7 +480,7 @@ impl StairEnv {
             });
             if let Some(l) = self.held_level {
                 self.level = l;
-            } else if self.column != Column::Flat {
+            } else if self.column != Column::Flat && !self.standing() {
                 let walked_half = self.progress >= 0.5 * self.last_riser_s();
                 self.level = curriculum::next_level(self.level, success, walked_half, &mut self.rng);
             }
@@ -492,7 +502,7 @@ impl StairEnv {
         self.token_phase = self.rng.int(0, self.timing.token_period as u64 - 1) as u32;
         self.vx_cmd = if let Some(vx) = self.held_vx {
             vx
-        } else if self.rng.chance(0.05) {
+        } else if self.rng.chance(self.cfg.settings.stand_share) {
             0.0
         } else {
             self.rng.range(self.cfg.settings.vx.0, self.cfg.settings.vx.1) as f32
@@ -619,6 +629,17 @@ impl StairEnv {
     /// Time since the episode started, s.
     fn time_s(&self) -> f64 {
         self.step as f64 * self.timing.policy_dt
+    }
+
+    /// The episode commands the robot to stand (vx 0 with heading hold, or a joystick at rest):
+    /// on a staircase it is neither a stall nor a success, and it moves no curriculum level.
+    /// Until run 21 a stand on stairs (5 % of episodes) ended as a stall and paid the success
+    /// bonus for crossing, which taught the policy to walk when told to stop (0.27 m/s for 0).
+    pub fn standing(&self) -> bool {
+        match self.joystick {
+            Some(c) => c == [0.0; 3],
+            None => self.vx_cmd == 0.0,
+        }
     }
 
     fn succeeded(&self) -> bool {
@@ -788,7 +809,8 @@ impl StairEnv {
         let (mut terms, terminated) = self.rewards(action);
         // The bonus comes once the base has stood on the landing (no bonus, no promotion for a
         // fall that carries it there).
-        if !was_success && !terminated && self.succeeded() {
+        // A stand command earns nothing for crossing the staircase anyway.
+        if !was_success && !terminated && !self.standing() && self.succeeded() {
             terms.success = 1.0 / self.timing.policy_dt;
         }
         let reward = terms.total(&WEIGHTS, self.timing.policy_dt);
@@ -796,7 +818,7 @@ impl StairEnv {
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);
         self.refresh_token(false);
-        let truncated = !terminated && (self.step >= self.max_steps || self.succeeded());
+        let truncated = !terminated && (self.step >= self.max_steps || (self.succeeded() && !self.standing()));
         self.fell |= terminated;
         Ok(StepOut {
             reward: reward as f32,
@@ -961,7 +983,9 @@ impl StairEnv {
         } else {
             self.stall.observe(s, self.time_s());
         }
-        let stalled = self.cfg.settings.end_stalled && self.world.stairs.is_some() && self.stall.stalled();
+        // Standing still is what a stand command asks for, not a stall.
+        let stalled =
+            self.cfg.settings.end_stalled && self.world.stairs.is_some() && !self.standing() && self.stall.stalled();
         // The supervisor's own checks (tilt, joint speed, base angular speed per axis) on the true
         // state, and a base too low (the field's termination; the robot has no such guard).
         let height = t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]);

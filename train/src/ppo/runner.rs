@@ -408,12 +408,16 @@ impl Pipeline {
 fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
     let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
     use super::curriculum::Column;
-    let stair_ends: Vec<_> = ends.iter().filter(|e| e.column != Some(Column::Flat)).collect();
+    // Stand commands have no success to score.
+    let stair_ends: Vec<_> = ends
+        .iter()
+        .filter(|e| e.column != Some(Column::Flat) && !e.standing)
+        .collect();
     let going_up = |c: Option<Column>| matches!(c, Some(Column::Up | Column::OutdoorUp));
     let going_down = |c: Option<Column>| matches!(c, Some(Column::Down | Column::OutdoorDown));
     let rate = |which: &dyn Fn(Option<Column>) -> bool| {
-        let n = ends.iter().filter(|e| which(e.column)).count();
-        (n > 0).then(|| ends.iter().filter(|e| which(e.column) && e.success).count() as f64 / n as f64)
+        let n = stair_ends.iter().filter(|e| which(e.column)).count();
+        (n > 0).then(|| stair_ends.iter().filter(|e| which(e.column) && e.success).count() as f64 / n as f64)
     };
     let level = |which: &dyn Fn(Option<Column>) -> bool| {
         let l: Vec<f64> = slots

@@ -112,6 +112,10 @@ pub struct Args {
     /// -0.5,1.0 so the policy learns to stop and back up (default: the --vx range).
     #[arg(long, value_name = "MIN,MAX", allow_hyphen_values = true, value_parser = parse_joystick_vx)]
     joystick_vx: Option<(f64, f64)>,
+    /// Share of episodes, on every column, commanded to stand (vx 0; IsaacLab's
+    /// rel_standing_envs). On a staircase a stand is neither a stall nor a success.
+    #[arg(long, default_value_t = train::ppo::env::STAND_SHARE, value_name = "SHARE", value_parser = parse_stand_share)]
+    stand_share: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -149,6 +153,7 @@ impl Args {
             },
             tracking_std: self.tracking_std,
             joystick_vx: self.joystick_vx,
+            stand_share: self.stand_share,
         }
     }
 }
@@ -315,6 +320,14 @@ fn parse_tracking_std(s: &str) -> Result<f64, String> {
 
 /// One number that `accept` takes (NaN never passes a comparison); otherwise an error that says
 /// what to give.
+fn parse_stand_share(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..0.5).contains(&v),
+        "the share of episodes told to stand, in [0, 0.5), e.g. 0.1",
+    )
+}
+
 fn parse_number(s: &str, accept: impl Fn(f64) -> bool, want: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if accept(v) => Ok(v),
@@ -363,6 +376,8 @@ mod tests {
             "0.35",
             "--joystick-vx",
             "-0.5,1.0",
+            "--stand-share",
+            "0.1",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -376,6 +391,7 @@ mod tests {
             mix: train::ppo::curriculum::ColumnMix { flat: 0.3, up: 0.65 },
             tracking_std: 0.35,
             joystick_vx: Some((-0.5, 1.0)),
+            stand_share: 0.1,
         };
         assert_eq!(set, want);
     }
@@ -413,6 +429,10 @@ mod tests {
         assert_eq!(parse_joystick_vx("-0.5,1.0"), Ok((-0.5, 1.0)));
         for bad in ["-1.5,0", "0.5,0.2", "0,3", "0.5", "a,b"] {
             assert!(parse_joystick_vx(bad).unwrap_err().contains("-1 <= MIN"), "{bad}");
+        }
+        assert_eq!(parse_stand_share("0.1"), Ok(0.1));
+        for bad in ["0.5", "-0.1", "NaN", "some"] {
+            assert!(parse_stand_share(bad).unwrap_err().contains("[0, 0.5)"), "{bad}");
         }
         assert_eq!(parse_vx_range("0.4,0.8"), Ok((0.4, 0.8)));
         assert!(parse_vx_range("-0.5,1.0").unwrap_err().contains("0 <= MIN"));
