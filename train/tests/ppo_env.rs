@@ -659,7 +659,10 @@ fn a_stand_command_on_stairs_is_neither_a_stall_nor_a_success_and_keeps_the_leve
     );
     // It did stand: some stall window passed with less progress than a walking command needs.
     let window = (firmware::eval::STALL_WINDOW_S / dt).round() as usize;
-    let least = progress.windows(window + 1).map(|w| w[window] - w[0]).fold(f64::INFINITY, f64::min);
+    let least = progress
+        .windows(window + 1)
+        .map(|w| w[window] - w[0])
+        .fold(f64::INFINITY, f64::min);
     assert!(
         least < firmware::eval::STALL_PROGRESS_M,
         "the peer gained at least {least} m in every stall window when told to stand"
