@@ -303,7 +303,8 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
     let dt = e.timing().policy_dt;
     let mut mean = vec![0.0f32; 12];
     let mut successes = 0;
-    for episode in 0..2 {
+    // A few staircases: the policy sometimes stops at an edge (a stall ends no episode here).
+    for episode in 0..8 {
         let last_riser = e.world().stairs.as_ref().unwrap().risers.last().unwrap().s;
         let line = last_riser + sim_hal::bridge::END_LANDING_MARGIN_M;
         let mut crossed_at = None;
@@ -327,7 +328,8 @@ fn training_success_is_the_landing_held_as_g1fw_eval_scores_it() {
         }
         e.reset().unwrap();
     }
-    assert!(successes >= 1, "the committed policy descends 7 cm steps in training");
+    eprintln!("{successes} of 8 descents of 7 cm succeeded");
+    assert!(successes >= 2, "the committed policy descends 7 cm steps in training");
 }
 
 /// An environment keeps its curriculum column across episodes, and its level moves within it
