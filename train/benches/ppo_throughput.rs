@@ -68,6 +68,7 @@ fn whole_loop(
     let run = train::ppo::runner::RunConfig {
         spec: spec_path.to_path_buf(),
         model: ModelChoice::G1_12Dof,
+        mixed_model: None,
         out: out.clone(),
         envs,
         threads,

@@ -5,7 +5,6 @@ mod common;
 use common::have_12dof_model;
 use std::path::PathBuf;
 
-use train::ppo::env::{Column, EnvSettings, Randomization};
 use train::ppo::judge::{judge, JudgeConfig};
 use train::ppo::runner::{read_judgements, train, RunConfig, BEST, CURVES, JUDGE};
 
@@ -27,6 +26,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
     RunConfig {
         spec: root().join("specs/stairs/g1_stairs_lstm.toml"),
         model: g1_sim::ModelChoice::G1_12Dof,
+        mixed_model: None,
         out: out.to_path_buf(),
         envs: 4,
         threads: 2,
@@ -38,14 +38,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         init_std: 0.3,
         critic_warmup: 2,
         ppo: Default::default(),
-        env: EnvSettings {
-            episode_s: 2.0,
-            random: Randomization::NONE,
-            max_init_level: 0,
-            vx: (0.4, 0.8),
-            only: Some(Column::Flat),
-            ..EnvSettings::DEFAULT
-        },
+        env: common::flat_settings(2.0),
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,

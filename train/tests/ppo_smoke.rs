@@ -6,7 +6,7 @@ mod common;
 use common::have_12dof_model;
 use std::path::{Path, PathBuf};
 
-use train::ppo::env::{Column, EnvSettings, Randomization};
+use train::ppo::env::EnvSettings;
 use train::ppo::runner::{train, RunConfig, ACTORS, CHECKPOINT, CURVES, HISTORY};
 
 #[test]
@@ -23,6 +23,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     let mut cfg = RunConfig {
         spec: root.join("specs/stairs/g1_stairs_mlp.toml"),
         model: g1_sim::ModelChoice::G1_12Dof,
+        mixed_model: None,
         out: out.clone(),
         envs: 32,
         threads: 2,
@@ -37,14 +38,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
             lr: 1e-3,
             ..Default::default()
         },
-        env: EnvSettings {
-            episode_s: 2.0,
-            random: Randomization::NONE,
-            max_init_level: 0,
-            vx: (0.4, 0.8),
-            only: Some(Column::Flat),
-            ..EnvSettings::DEFAULT
-        },
+        env: common::flat_settings(2.0),
         checkpoint_every_s: f64::INFINITY,
         quiet: true,
         max_wall_s: f64::INFINITY,
@@ -118,6 +112,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
     let cfg = RunConfig {
         spec: root.join("specs/stairs/g1_stairs_lstm.toml"),
         model: g1_sim::ModelChoice::G1_12Dof,
+        mixed_model: None,
         out: out.to_path_buf(),
         envs: 8,
         threads,

@@ -464,7 +464,7 @@ impl StairEnv {
     /// Ends the current episode's bookkeeping (curriculum) and starts a new one.
     pub fn reset(&mut self) -> anyhow::Result<()> {
         if self.step > 0 {
-            let success = self.succeeded() && !self.standing();
+            let success = self.succeeded();
             self.last_end = Some(EpisodeEnd {
                 column: Some(self.column),
                 standing: self.standing(),
@@ -642,8 +642,10 @@ impl StairEnv {
         }
     }
 
+    /// Stood on the end landing long enough, alive, and not told to stand (a stand that
+    /// started on the landing crosses nothing).
     fn succeeded(&self) -> bool {
-        !self.fell && self.landing.held(firmware::eval::LANDING_HOLD_S, self.time_s())
+        !self.fell && !self.standing() && self.landing.held(firmware::eval::LANDING_HOLD_S, self.time_s())
     }
 
     fn refresh_token(&mut self, force: bool) {
@@ -809,8 +811,8 @@ impl StairEnv {
         let (mut terms, terminated) = self.rewards(action);
         // The bonus comes once the base has stood on the landing (no bonus, no promotion for a
         // fall that carries it there).
-        // A stand command earns nothing for crossing the staircase anyway.
-        if !was_success && !terminated && !self.standing() && self.succeeded() {
+        // A stand command never succeeds, so it earns nothing for crossing the staircase.
+        if !was_success && !terminated && self.succeeded() {
             terms.success = 1.0 / self.timing.policy_dt;
         }
         let reward = terms.total(&WEIGHTS, self.timing.policy_dt);
@@ -818,7 +820,7 @@ impl StairEnv {
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);
         self.refresh_token(false);
-        let truncated = !terminated && (self.step >= self.max_steps || (self.succeeded() && !self.standing()));
+        let truncated = !terminated && (self.step >= self.max_steps || self.succeeded());
         self.fell |= terminated;
         Ok(StepOut {
             reward: reward as f32,
@@ -1006,7 +1008,8 @@ impl StairEnv {
         (r, cause.is_some())
     }
 
-    /// Whether the episode's world is a staircase and the robot has reached its end landing.
+    /// Whether the episode's world is a staircase and the robot, not told to stand, has reached
+    /// and held its end landing.
     pub fn success(&self) -> bool {
         self.succeeded()
     }

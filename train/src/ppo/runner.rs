@@ -30,6 +30,9 @@ pub const BEST: &str = "best.safetensors";
 pub struct RunConfig {
     pub spec: PathBuf,
     pub model: ModelChoice,
+    /// A second robot model and its share of the environments (spread evenly over the columns
+    /// and both pipeline halves), so one actor learns both bodies it is deployed on.
+    pub mixed_model: Option<(ModelChoice, f64)>,
     pub out: PathBuf,
     pub envs: usize,
     pub threads: usize,
@@ -256,7 +259,14 @@ fn make_envs(
             .seed
             .wrapping_mul(1_000_003)
             .wrapping_add(i as u64 + state.iteration as u64 * 7919);
-        let mut env = StairEnv::new(env_cfg.clone(), seed, &weights)?;
+        let cfg_i = match &cfg.mixed_model {
+            Some((model, share)) if takes_mixed_model(i, *share) => EnvConfig {
+                model: model.clone(),
+                ..env_cfg.clone()
+            },
+            _ => env_cfg.clone(),
+        };
+        let mut env = StairEnv::new(cfg_i, seed, &weights)?;
         let level = state.levels.get(i).copied().unwrap_or(env.level);
         env.place(
             super::curriculum::Column::for_env(i, cfg.envs, cfg.env.only, cfg.env.mix),
@@ -271,7 +281,22 @@ fn make_envs(
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if let Some((model, share)) = &cfg.mixed_model {
+        let mixed = (0..cfg.envs).filter(|&i| takes_mixed_model(i, *share)).count();
+        tracing::info!(
+            "environments: {} on {}, {mixed} on {model}",
+            cfg.envs - mixed,
+            cfg.model
+        );
+    }
     Ok(slots)
+}
+
+/// Whether environment `i` runs the mixed-in model at `share` of the environments: spread evenly
+/// by index (as a line is drawn on a pixel grid), so every column and both pipeline halves, which
+/// are contiguous index ranges, get their share of it.
+pub fn takes_mixed_model(i: usize, share: f64) -> bool {
+    ((i + 1) as f64 * share).floor() > (i as f64 * share).floor()
 }
 
 /// What one pipelined step learned, and how long its parts took.
@@ -538,4 +563,42 @@ pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
     let path = spec.weights_path();
     std::fs::write(&path, ac.actor_safetensors()?)?;
     Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::curriculum::{Column, ColumnMix};
+    use super::*;
+
+    #[test]
+    fn a_mixed_model_gets_its_share_of_every_column_and_of_both_pipeline_halves() {
+        let n = 256;
+        for share in [0.25, 0.5, 0.3] {
+            let mixed: Vec<usize> = (0..n).filter(|&i| takes_mixed_model(i, share)).collect();
+            let want = (n as f64 * share).floor() as usize;
+            assert_eq!(mixed.len(), want, "share {share}");
+            let first_half = mixed.iter().filter(|&&i| i < n / 2).count();
+            assert!(
+                first_half.abs_diff(want - first_half) <= 1,
+                "share {share}: {first_half} of {want}"
+            );
+            for column in [
+                Column::Flat,
+                Column::Up,
+                Column::Down,
+                Column::OutdoorUp,
+                Column::OutdoorDown,
+            ] {
+                let of = |v: &mut dyn Iterator<Item = usize>| {
+                    v.filter(|&i| Column::for_env(i, n, None, ColumnMix::default()) == column)
+                        .count() as f64
+                };
+                let (all, in_mix) = (of(&mut (0..n)), of(&mut mixed.iter().copied()));
+                assert!(
+                    (in_mix - all * share).abs() <= 1.0,
+                    "share {share}, {column:?}: {in_mix} of {all}"
+                );
+            }
+        }
+    }
 }

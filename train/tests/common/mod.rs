@@ -22,3 +22,17 @@ pub fn require_deps() {
         panic!("{what}");
     }
 }
+
+/// Flat ground only, no randomization, forward commands of 0.4-0.8 m/s: the short training runs
+/// of the smoke and judge tests.
+pub fn flat_settings(episode_s: f64) -> train::ppo::env::EnvSettings {
+    use train::ppo::env::{Column, EnvSettings, Randomization};
+    EnvSettings {
+        episode_s,
+        random: Randomization::NONE,
+        max_init_level: 0,
+        vx: (0.4, 0.8),
+        only: Some(Column::Flat),
+        ..EnvSettings::DEFAULT
+    }
+}

@@ -10,6 +10,10 @@ pub struct Args {
     /// g1-12dof (default), g1-29dof (upper body held by the spec's [[held]] groups) or an MJCF.
     #[arg(long, default_value = "g1-12dof")]
     model: g1_sim::ModelChoice,
+    /// A second model for a share of the environments, MODEL:SHARE, e.g. g1-29dof:0.5: one actor
+    /// that learns both bodies it is deployed on (the judge stays on --model).
+    #[arg(long, value_name = "MODEL:SHARE", value_parser = parse_mixed_model)]
+    mix_model: Option<(g1_sim::ModelChoice, f64)>,
     /// Run directory: created if missing; a run whose directory holds a checkpoint resumes from it
     #[arg(long)]
     out: PathBuf,
@@ -163,6 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let Args {
         spec,
         model,
+        mix_model,
         out,
         envs,
         threads,
@@ -221,6 +226,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let cfg = train::ppo::runner::RunConfig {
         spec,
         model,
+        mixed_model: mix_model,
         out: out.clone(),
         envs,
         threads,
@@ -328,6 +334,13 @@ fn parse_stand_share(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_mixed_model(s: &str) -> Result<(g1_sim::ModelChoice, f64), String> {
+    let want = "MODEL:SHARE with a share in (0, 1), e.g. g1-29dof:0.5";
+    let (model, share) = s.rsplit_once(':').ok_or_else(|| format!("'{s}': give {want}"))?;
+    let Ok(model) = model.parse::<g1_sim::ModelChoice>();
+    Ok((model, parse_number(share, |v| v > 0.0 && v < 1.0, want)?))
+}
+
 fn parse_number(s: &str, accept: impl Fn(f64) -> bool, want: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if accept(v) => Ok(v),
@@ -433,6 +446,13 @@ mod tests {
         assert_eq!(parse_stand_share("0.1"), Ok(0.1));
         for bad in ["0.5", "-0.1", "NaN", "some"] {
             assert!(parse_stand_share(bad).unwrap_err().contains("[0, 0.5)"), "{bad}");
+        }
+        assert_eq!(
+            parse_mixed_model("g1-29dof:0.5"),
+            Ok((g1_sim::ModelChoice::G1_29Dof, 0.5))
+        );
+        for bad in ["g1-29dof", "g1-29dof:0", "g1-29dof:1", "g1-29dof:half"] {
+            assert!(parse_mixed_model(bad).unwrap_err().contains("MODEL:SHARE"), "{bad}");
         }
         assert_eq!(parse_vx_range("0.4,0.8"), Ok((0.4, 0.8)));
         assert!(parse_vx_range("-0.5,1.0").unwrap_err().contains("0 <= MIN"));
