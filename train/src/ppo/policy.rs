@@ -368,9 +368,10 @@ impl ActorCritic {
     /// Overwrites actor tensors from a safetensors file with the spec's names. An input matrix
     /// narrower than ours is widened with zero columns on the right (the warm start: the peer
     /// walker, its input widened by the terrain token at zero weight).
+    /// Returns how many zero columns were added (0 for an actor already in the spec's layout).
     pub fn load_actor_widened(&self, path: &Path) -> anyhow::Result<usize> {
         let src = candle_core::safetensors::load(path, &Device::Cpu)?;
-        let mut loaded = 0;
+        let mut widened_by = 0;
         let input = self.arch.input_matrix().map(str::to_string);
         for (name, shape) in self.arch.shapes() {
             let Some(t) = src.get(&name) else {
@@ -381,6 +382,7 @@ impl ActorCritic {
             };
             let t = t.to_dtype(DType::F32)?;
             let t = if Some(&name) == input.as_ref() && t.dim(1)? < self.obs_dim {
+                widened_by = self.obs_dim - t.dim(1)?;
                 let pad = Tensor::zeros((t.dim(0)?, self.obs_dim - t.dim(1)?), DType::F32, &Device::Cpu)?;
                 Tensor::cat(&[&t, &pad], 1)?
             } else {
@@ -390,9 +392,8 @@ impl ActorCritic {
                 anyhow::bail!("{}: {name} is {:?}, need {:?}", path.display(), t.dims(), shape);
             }
             self.vars.data().lock().unwrap()[&name].set(&t)?;
-            loaded += 1;
         }
-        Ok(loaded)
+        Ok(widened_by)
     }
 
     pub fn log_std(&self) -> Tensor {

@@ -217,13 +217,13 @@ fn start_or_resume(
         return Ok((ac, st, history));
     }
     let started_from = match &cfg.init_actor {
-        Some(p) => {
-            ac.load_actor_widened(p)?;
-            format!(
-                "actor warm-started from {} (input widened by the token at zero weight)",
+        Some(p) => match ac.load_actor_widened(p)? {
+            0 => format!("actor warm-started from {}", p.display()),
+            n => format!(
+                "actor warm-started from {} (input widened by {n} zero columns: the token)",
                 p.display()
-            )
-        }
+            ),
+        },
         None => "random initialisation".to_string(),
     };
     let state = RunState {
