@@ -383,7 +383,7 @@ impl ActorCritic {
             let t = t.to_dtype(DType::F32)?;
             let t = if Some(&name) == input.as_ref() && t.dim(1)? < self.obs_dim {
                 widened_by = self.obs_dim - t.dim(1)?;
-                let pad = Tensor::zeros((t.dim(0)?, self.obs_dim - t.dim(1)?), DType::F32, &Device::Cpu)?;
+                let pad = Tensor::zeros((t.dim(0)?, widened_by), DType::F32, &Device::Cpu)?;
                 Tensor::cat(&[&t, &pad], 1)?
             } else {
                 t
