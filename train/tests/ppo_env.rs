@@ -355,6 +355,38 @@ fn an_environment_keeps_its_column_and_moves_within_its_levels() {
     assert_eq!(e.level, 1, "three failures short of halfway: 4 → 1");
 }
 
+/// `--up-level-floor`: the climbing columns never train below the floor, whatever the episodes
+/// give; the descending ones are not held by it.
+#[test]
+fn the_climbing_columns_stay_at_or_above_the_level_floor() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, Column::Up);
+    cfg.settings.up_level_floor = 3;
+    cfg.settings.stand_share = 0.0; // a stand never moves the level
+    let mut e = StairEnv::new(cfg, 11, &w).unwrap();
+    e.place(Column::Up, 1).unwrap();
+    assert_eq!(e.level, 3, "placed under the floor: raised to it");
+    e.place(Column::Up, 5).unwrap();
+    let zero = vec![0.0f32; 12];
+    let fail_short = |e: &mut StairEnv| {
+        for _ in 0..5 {
+            e.step(&zero).unwrap();
+        }
+        e.reset().unwrap();
+    };
+    for _ in 0..4 {
+        fail_short(&mut e);
+    }
+    assert_eq!(e.level, 3, "four failures short of halfway: 5 → 3, and no lower");
+    e.place(Column::Down, 2).unwrap();
+    for _ in 0..3 {
+        fail_short(&mut e);
+    }
+    assert_eq!(e.level, 0, "the floor holds only the climbing columns");
+}
+
 /// Joystick episodes on flat ground (`--joystick-share`): the command is a constant (vx, vy, wz)
 /// within the documented ranges, whatever the robot's yaw does, as `g1fw sim` without
 /// `--heading` sends it; heading-hold episodes never command a lateral speed. Trained only with

@@ -70,6 +70,11 @@ impl Column {
         Self::at_share((i as f64 + 0.5) / n.max(1) as f64, mix)
     }
 
+    /// Whether the column's staircases go up (indoor or outdoor).
+    pub fn climbs(self) -> bool {
+        matches!(self, Column::Up | Column::OutdoorUp)
+    }
+
     pub fn draw(rng: &mut Rng, only: Option<Column>, mix: ColumnMix) -> Column {
         if let Some(c) = only {
             return c;
@@ -106,11 +111,13 @@ impl Column {
 }
 
 /// The level after an episode on stairs: up after a success (past the top, a random level, so the
-/// whole range stays in the mix), down when the robot did not get halfway to the last riser.
-pub fn next_level(level: usize, success: bool, walked_half: bool, rng: &mut Rng) -> usize {
-    if success {
+/// whole range stays in the mix), down when the robot did not get halfway to the last riser; never
+/// below `floor` (the lowest level this environment's column may train at).
+pub fn next_level(level: usize, success: bool, walked_half: bool, floor: usize, rng: &mut Rng) -> usize {
+    let floor = floor.min(LEVELS - 1);
+    let next = if success {
         if level + 1 >= LEVELS {
-            rng.int(0, LEVELS as u64 - 1) as usize
+            rng.int(floor as u64, LEVELS as u64 - 1) as usize
         } else {
             level + 1
         }
@@ -118,7 +125,8 @@ pub fn next_level(level: usize, success: bool, walked_half: bool, rng: &mut Rng)
         level.saturating_sub(1)
     } else {
         level
-    }
+    };
+    next.max(floor)
 }
 
 /// Draws the next world of `column` at `level`.
@@ -157,6 +165,40 @@ pub fn draw_world(column: Column, level: usize, r: &mut Rng) -> World {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn levels_never_fall_below_the_floor_and_the_top_redraws_above_it() {
+        let mut rng = Rng(7);
+        // Without a floor: a failure short of halfway demotes, down to 0.
+        assert_eq!(next_level(3, false, false, 0, &mut rng), 2);
+        assert_eq!(next_level(0, false, false, 0, &mut rng), 0);
+        assert_eq!(next_level(3, true, true, 0, &mut rng), 4);
+        assert_eq!(next_level(3, false, true, 0, &mut rng), 3);
+        // With a floor of 4: no demotion below it, a level under it is raised to it.
+        assert_eq!(next_level(4, false, false, 4, &mut rng), 4);
+        assert_eq!(next_level(5, false, false, 4, &mut rng), 4);
+        assert_eq!(next_level(1, false, true, 4, &mut rng), 4);
+        assert_eq!(next_level(6, true, true, 4, &mut rng), 7);
+        let redrawn: Vec<usize> = (0..400)
+            .map(|_| next_level(LEVELS - 1, true, true, 4, &mut rng))
+            .collect();
+        assert!(redrawn.iter().all(|&l| (4..LEVELS).contains(&l)), "{redrawn:?}");
+        assert!(
+            redrawn.contains(&4) && redrawn.contains(&(LEVELS - 1)),
+            "the whole range above the floor"
+        );
+        let unfloored: Vec<usize> = (0..400)
+            .map(|_| next_level(LEVELS - 1, true, true, 0, &mut rng))
+            .collect();
+        assert!(
+            unfloored.contains(&0),
+            "without a floor the top redraws over every level"
+        );
+        // A floor past the top is the top.
+        assert_eq!(next_level(2, false, false, 99, &mut rng), LEVELS - 1);
+        assert!(Column::Up.climbs() && Column::OutdoorUp.climbs());
+        assert!(!Column::Down.climbs() && !Column::OutdoorDown.climbs() && !Column::Flat.climbs());
+    }
 
     #[test]
     fn environments_split_into_the_mix_s_columns() {

@@ -208,6 +208,11 @@ pub struct EnvSettings {
     /// Share of episodes commanded to stand (vx 0), on every column (IsaacLab's
     /// `rel_standing_envs`; [`STAND_SHARE`] by default).
     pub stand_share: f64,
+    /// The lowest curriculum level of the climbing columns (up and outdoor up): they start there
+    /// at least and are never demoted below it, so the climbs train at the heights that fail
+    /// (the committed actor's climbing environments sat near level 3.8, 13 cm, while `g1fw`
+    /// scores 12–22 cm). 0 (default): no floor.
+    pub up_level_floor: usize,
 }
 
 /// The default share of episodes commanded to stand.
@@ -231,6 +236,7 @@ impl EnvSettings {
         tracking_std: reward::TRACKING_STD,
         joystick_vx: None,
         stand_share: STAND_SHARE,
+        up_level_floor: 0,
     };
 }
 
@@ -441,11 +447,20 @@ impl StairEnv {
         )?)
     }
 
+    /// The lowest level this environment's column trains at ([`EnvSettings::up_level_floor`]).
+    fn level_floor(&self) -> usize {
+        if self.column.climbs() {
+            self.cfg.settings.up_level_floor
+        } else {
+            0
+        }
+    }
+
     /// Puts the environment in curriculum `column` at `level` (the runner's assignment, or where a
     /// resumed run left it) and starts its first episode there.
     pub fn place(&mut self, column: Column, level: usize) -> anyhow::Result<()> {
         self.column = column;
-        self.level = level.min(LEVELS - 1);
+        self.level = level.max(self.level_floor()).min(LEVELS - 1);
         self.step = 0;
         self.reset()
     }
@@ -482,7 +497,8 @@ impl StairEnv {
                 self.level = l;
             } else if self.column != Column::Flat && !self.standing() {
                 let walked_half = self.progress >= 0.5 * self.last_riser_s();
-                self.level = curriculum::next_level(self.level, success, walked_half, &mut self.rng);
+                let floor = self.level_floor();
+                self.level = curriculum::next_level(self.level, success, walked_half, floor, &mut self.rng);
             }
             // The column stays: the level is this column's (see `Column::for_env`).
         }

@@ -120,6 +120,11 @@ pub struct Args {
     /// rel_standing_envs). On a staircase a stand is neither a stall nor a success.
     #[arg(long, default_value_t = train::ppo::env::STAND_SHARE, value_name = "SHARE", value_parser = parse_stand_share)]
     stand_share: f64,
+    /// Lowest curriculum level of the climbing columns (0: 5 cm … 10: 26 cm; 4: 13.4 cm): they
+    /// start there at least and are never demoted below it, so climbs train at the heights that
+    /// fail. 0 (default): no floor.
+    #[arg(long, default_value_t = 0, value_name = "LEVEL", value_parser = parse_level)]
+    up_level_floor: usize,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -158,6 +163,7 @@ impl Args {
             tracking_std: self.tracking_std,
             joystick_vx: self.joystick_vx,
             stand_share: self.stand_share,
+            up_level_floor: self.up_level_floor,
         }
     }
 }
@@ -334,6 +340,17 @@ fn parse_stand_share(s: &str) -> Result<f64, String> {
     )
 }
 
+/// `--up-level-floor LEVEL`: a curriculum level, 0 … 10.
+fn parse_level(s: &str) -> Result<usize, String> {
+    let top = train::ppo::curriculum::LEVELS - 1;
+    match s.trim().parse::<usize>() {
+        Ok(v) if v <= top => Ok(v),
+        _ => Err(format!(
+            "'{s}': give a curriculum level from 0 (5 cm steps) to {top} (26 cm), e.g. 4"
+        )),
+    }
+}
+
 fn parse_mixed_model(s: &str) -> Result<(g1_sim::ModelChoice, f64), String> {
     let want = "MODEL:SHARE with a share in (0, 1), e.g. g1-29dof:0.5";
     let (model, share) = s.rsplit_once(':').ok_or_else(|| format!("'{s}': give {want}"))?;
@@ -391,6 +408,8 @@ mod tests {
             "-0.5,1.0",
             "--stand-share",
             "0.1",
+            "--up-level-floor",
+            "4",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -405,6 +424,7 @@ mod tests {
             tracking_std: 0.35,
             joystick_vx: Some((-0.5, 1.0)),
             stand_share: 0.1,
+            up_level_floor: 4,
         };
         assert_eq!(set, want);
     }
@@ -442,6 +462,10 @@ mod tests {
         assert_eq!(parse_joystick_vx("-0.5,1.0"), Ok((-0.5, 1.0)));
         for bad in ["-1.5,0", "0.5,0.2", "0,3", "0.5", "a,b"] {
             assert!(parse_joystick_vx(bad).unwrap_err().contains("-1 <= MIN"), "{bad}");
+        }
+        assert_eq!(parse_level("4"), Ok(4));
+        for bad in ["11", "-1", "4.5", "high"] {
+            assert!(parse_level(bad).unwrap_err().contains("curriculum level"), "{bad}");
         }
         assert_eq!(parse_stand_share("0.1"), Ok(0.1));
         for bad in ["0.5", "-0.1", "NaN", "some"] {
