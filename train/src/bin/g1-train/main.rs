@@ -48,7 +48,8 @@ enum Cmd {
     /// --spec. Writes into --out: checkpoint.safetensors + state.json (re-running the same
     /// command resumes), history.json and curves.png (learning curves), the actor as g1fw loads it
     /// under the spec's weights file name (`g1-train ppo-export` puts it beside the spec).
-    Ppo(ppo::Args),
+    // Boxed: its many options would make every other command as large.
+    Ppo(Box<ppo::Args>),
     /// Evaluate an actor in the training environment itself (its physics, worlds, starts, token and
     /// walls), with the mean action, at held curriculum levels: splits a gap between training's
     /// figures and `g1fw eval` into the environment's part and the policy's.
@@ -93,7 +94,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::EvalTerrain(args) => eval_terrain::run(args),
         Cmd::Ppo(args) => {
             train::ppo::runner::learner_on_one_thread();
-            ppo::run(args)
+            ppo::run(*args)
         }
         Cmd::PpoEval(args) => ppo_eval::run(args),
         Cmd::PpoExport(args) => ppo_export::run(args),
