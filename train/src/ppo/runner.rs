@@ -438,7 +438,7 @@ fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) 
         .iter()
         .filter(|e| e.column != Some(Column::Flat) && !e.standing)
         .collect();
-    let going_up = |c: Option<Column>| matches!(c, Some(Column::Up | Column::OutdoorUp));
+    let going_up = |c: Option<Column>| c.is_some_and(Column::climbs);
     let going_down = |c: Option<Column>| matches!(c, Some(Column::Down | Column::OutdoorDown));
     let rate = |which: &dyn Fn(Option<Column>) -> bool| {
         let n = stair_ends.iter().filter(|e| which(e.column)).count();
