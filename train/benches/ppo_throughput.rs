@@ -75,6 +75,7 @@ fn whole_loop(
         iterations: 12,
         seed: 0,
         init_actor,
+        init_critic: None,
         actor_hidden,
         symmetry,
         init_std: 0.3,

@@ -33,6 +33,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         iterations: 2,
         seed: 3,
         init_actor: Some(peer),
+        init_critic: None,
         actor_hidden: Vec::new(),
         symmetry: false,
         init_std: 0.3,

@@ -30,6 +30,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         iterations: 30,
         seed: 1,
         init_actor: None,
+        init_critic: None,
         actor_hidden: vec![64, 64, 64],
         symmetry: true,
         init_std: 2.0,
@@ -87,8 +88,17 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     let mut actors: Vec<_> = std::fs::read_dir(out.join(ACTORS))
         .expect("actors/ written")
         .map(|e| e.unwrap().path())
+        .filter(|p| !p.to_string_lossy().ends_with(".critic.safetensors"))
         .collect();
     actors.sort();
+    // Each actor has its critic beside it (weights, normaliser, action noise).
+    for a in &actors {
+        assert!(
+            train::ppo::critic_file::beside(a).exists(),
+            "no critic beside {}",
+            a.display()
+        );
+    }
     assert_eq!(
         actors.len(),
         2,
@@ -102,6 +112,34 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         std::fs::read(&actors[1]).unwrap(),
         std::fs::read(out.join("g1_stairs_mlp.safetensors")).unwrap()
     );
+    // A fine-tune from the export with --init-critic continues the critic: its normaliser keeps
+    // counting from the 32 iterations behind it, and the recipe says where the critic came from.
+    let export = out.join("g1_stairs_mlp.safetensors");
+    let tuned = RunConfig {
+        out: out.with_extension("tuned"),
+        iterations: 1,
+        init_actor: Some(export.clone()),
+        init_critic: Some(train::ppo::critic_file::beside(&export)),
+        ..cfg.clone()
+    };
+    let _ = std::fs::remove_dir_all(&tuned.out);
+    train(&tuned).expect("a fine-tune with --init-critic");
+    let state = |dir: &Path| -> train::ppo::runner::RunState {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("state.json")).unwrap()).unwrap()
+    };
+    let (before, after) = (state(&out), state(&tuned.out));
+    assert!(
+        after.normalizer.count > before.normalizer.count,
+        "the normaliser restarted: {} rows after, {} before",
+        after.normalizer.count,
+        before.normalizer.count
+    );
+    assert!(
+        after.started_from.contains("critic, normaliser and action noise from"),
+        "{}",
+        after.started_from
+    );
+    std::fs::remove_dir_all(&tuned.out).unwrap();
     std::fs::remove_dir_all(&out).unwrap();
 }
 
@@ -119,6 +157,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         iterations: 4,
         seed: 7,
         init_actor: None,
+        init_critic: None,
         actor_hidden: vec![64, 32],
         symmetry: false,
         init_std: 0.5,

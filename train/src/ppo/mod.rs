@@ -7,6 +7,7 @@
 //! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
+//! - [`critic_file`]: the critic, its normaliser and the action noise, saved beside each actor.
 //! - [`elu_op`]: ELU as one op with a one-loop backward.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
@@ -19,6 +20,7 @@
 //! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
 //!   against the paper (`g1-train success-curve`).
 pub mod algo;
+pub mod critic_file;
 pub mod curriculum;
 pub mod elu_op;
 pub mod env;

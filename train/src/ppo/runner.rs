@@ -40,6 +40,9 @@ pub struct RunConfig {
     pub seed: u64,
     /// Warm start: an actor in the spec's layout (its input widened with zero columns).
     pub init_actor: Option<PathBuf>,
+    /// The critic, its input normaliser and the action noise that go with the actor
+    /// ([`super::critic_file`]), so a fine-tune continues instead of training a new critic.
+    pub init_critic: Option<PathBuf>,
     /// Hidden sizes of a fresh actor (one per linear/lstm layer of the spec's network but the
     /// last); unused when resuming or warm-starting, where the weights give them.
     pub actor_hidden: Vec<usize>,
@@ -226,12 +229,33 @@ fn start_or_resume(
         },
         None => "random initialisation".to_string(),
     };
+    let (normalizer, started_from) = match &cfg.init_critic {
+        None => (Normalizer::new(dims.critic), started_from),
+        Some(p) => {
+            let (normalizer, from) = super::critic_file::load(&ac, p)?;
+            let actor_sha = firmware::nn::sha256_hex(&ac.actor_safetensors()?);
+            if from.actor_sha256 != actor_sha {
+                // Allowed (a critic of a related actor beats a new one), but never silently.
+                tracing::warn!(
+                    "{} was trained with actor sha256 {}, not this run's start actor ({actor_sha})",
+                    p.display(),
+                    from.actor_sha256
+                );
+            }
+            let s = format!(
+                "{started_from}; critic, normaliser and action noise from {} (written at {} env steps)",
+                p.display(),
+                from.env_steps
+            );
+            (normalizer, s)
+        }
+    };
     let state = RunState {
         iteration: 0,
         env_steps: 0,
         wall_s: 0.0,
         lr: cfg.ppo.lr,
-        normalizer: Normalizer::new(dims.critic),
+        normalizer,
         levels: Vec::new(),
         started_from,
     };
@@ -510,12 +534,24 @@ fn save(
     std::fs::write(out.join(HISTORY), serde_json::to_string(history)?)?;
     let actor = ac.actor_safetensors()?;
     std::fs::write(out.join(weights_name), &actor)?;
+    let from = super::critic_file::Provenance {
+        actor_sha256: firmware::nn::sha256_hex(&actor),
+        env_steps: state.env_steps,
+    };
+    super::critic_file::save(
+        &super::critic_file::beside(&out.join(weights_name)),
+        ac,
+        &state.normalizer,
+        &from,
+    )?;
     // Every checkpoint's actor is kept (130 KB each): training's own success rate does not rank
     // checkpoints as `g1fw eval` does (docs/stair_policy.md), so the choice is made afterwards.
     let actors = out.join(ACTORS);
     std::fs::create_dir_all(&actors)?;
     let kept = actors.join(format!("actor_{:012}.safetensors", state.env_steps));
     std::fs::write(&kept, &actor)?;
+    // Its critic beside it: whichever actor is committed keeps the critic to fine-tune it with.
+    super::critic_file::save(&super::critic_file::beside(&kept), ac, &state.normalizer, &from)?;
     crate::plot::ppo_curves_png(&out.join(CURVES), history, &read_judgements(out))?;
     Ok(kept)
 }

@@ -43,6 +43,12 @@ pub struct Args {
     /// resuming.
     #[arg(long)]
     init_actor: Option<PathBuf>,
+    /// The critic that goes with --init-actor: its weights, input normaliser and action noise
+    /// (which replaces --init-std), as every checkpoint writes them beside its actor
+    /// (`<actor>.critic.safetensors`), e.g. specs/stairs/g1_stairs_lstm.critic.safetensors. A
+    /// fine-tune then needs no --critic-warmup. Ignored when resuming.
+    #[arg(long, requires = "init_actor")]
+    init_critic: Option<PathBuf>,
     /// Hidden sizes of a fresh actor, one per linear/lstm layer of the spec's network but the
     /// last, e.g. 128,64,64 for specs/stairs/g1_stairs_mlp.toml or 64,32 for the LSTM spec.
     /// Needed without --init-actor on a new run; resuming and warm starts take the weights'.
@@ -183,6 +189,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         minibatches,
         seed,
         init_actor,
+        init_critic,
         actor_hidden,
         symmetry,
         init_std,
@@ -239,6 +246,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         iterations,
         seed,
         init_actor,
+        init_critic,
         actor_hidden,
         symmetry,
         init_std,
