@@ -78,7 +78,7 @@ fn whole_loop(
         init_critic: None,
         actor_hidden,
         symmetry,
-        init_std: 0.3,
+        init_std: Some(0.3),
         critic_warmup: 0,
         ppo,
         env: EnvSettings {

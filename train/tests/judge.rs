@@ -36,7 +36,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         init_critic: None,
         actor_hidden: Vec::new(),
         symmetry: false,
-        init_std: 0.3,
+        init_std: Some(0.3),
         critic_warmup: 2,
         ppo: Default::default(),
         env: common::flat_settings(2.0),

@@ -33,7 +33,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         init_critic: None,
         actor_hidden: vec![64, 64, 64],
         symmetry: true,
-        init_std: 2.0,
+        init_std: Some(2.0),
         critic_warmup: 0,
         ppo: train::ppo::algo::PpoConfig {
             lr: 1e-3,
@@ -123,7 +123,32 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         ..cfg.clone()
     };
     let _ = std::fs::remove_dir_all(&tuned.out);
-    train(&tuned).expect("a fine-tune with --init-critic");
+    // Without --init-std the action noise is the file's (where the 32 iterations left it); with it,
+    // the flag's.
+    let tuned = RunConfig {
+        init_std: None,
+        ..tuned
+    };
+    let ht = train(&tuned).expect("a fine-tune with --init-critic");
+    let std_then = h2.last().unwrap().update.mean_std;
+    let std_now = ht[0].update.mean_std;
+    assert!(
+        (std_now / std_then - 1.0).abs() < 0.05,
+        "noise {std_now} after the file's {std_then}"
+    );
+    let loud = RunConfig {
+        out: out.with_extension("loud"),
+        init_std: Some(0.05),
+        ..tuned.clone()
+    };
+    let _ = std::fs::remove_dir_all(&loud.out);
+    let hl = train(&loud).expect("a fine-tune with --init-critic and --init-std");
+    assert!(
+        (hl[0].update.mean_std / 0.05 - 1.0).abs() < 0.05 && (std_then / 0.05 - 1.0).abs() > 0.5,
+        "--init-std 0.05 gave noise {} (the file's {std_then})",
+        hl[0].update.mean_std
+    );
+    std::fs::remove_dir_all(&loud.out).unwrap();
     let state = |dir: &Path| -> train::ppo::runner::RunState {
         serde_json::from_str(&std::fs::read_to_string(dir.join("state.json")).unwrap()).unwrap()
     };
@@ -160,7 +185,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         init_critic: None,
         actor_hidden: vec![64, 32],
         symmetry: false,
-        init_std: 0.5,
+        init_std: Some(0.5),
         critic_warmup: 1,
         ppo: Default::default(),
         env: EnvSettings {

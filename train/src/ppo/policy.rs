@@ -396,6 +396,17 @@ impl ActorCritic {
         Ok(widened_by)
     }
 
+    /// Sets the action noise σ of every action dimension.
+    pub fn set_action_std(&self, std: f64) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            std.is_finite() && std > 0.0,
+            "the action noise σ must be positive (got {std})"
+        );
+        let t = Tensor::full(std.ln() as f32, self.act_dim, &Device::Cpu)?;
+        self.vars.data().lock().expect("var map lock")["log_std"].set(&t)?;
+        Ok(())
+    }
+
     pub fn log_std(&self) -> Tensor {
         get(&self.vars, "log_std")
     }

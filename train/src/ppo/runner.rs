@@ -16,6 +16,8 @@ use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
 use super::rollout::{rollout, Slot};
 
+/// The action noise σ of a run that is not told otherwise (in units of the action scale).
+pub const DEFAULT_INIT_STD: f64 = 0.3;
 pub const CHECKPOINT: &str = "checkpoint.safetensors";
 /// Folder of the actor at every checkpoint, named by env steps (`g1fw eval --weights`).
 pub const ACTORS: &str = "actors";
@@ -48,7 +50,9 @@ pub struct RunConfig {
     pub actor_hidden: Vec<usize>,
     /// Learn every transition mirrored too (left–right symmetry; feed-forward actors only).
     pub symmetry: bool,
-    pub init_std: f64,
+    /// Initial action noise σ; `None`: [`DEFAULT_INIT_STD`], or the noise in `init_critic`'s file.
+    /// Given with `init_critic`, it replaces the file's noise.
+    pub init_std: Option<f64>,
     pub critic_warmup: usize,
     pub ppo: PpoConfig,
     /// How environments are drawn, commanded and rewarded.
@@ -203,7 +207,7 @@ fn start_or_resume(
     };
     let arch = ActorArch::from_desc(&spec.policy.network, dims.act, sizes)
         .with_context(|| format!("the actor of {}", cfg.spec.display()))?;
-    let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std, cfg.seed)?;
+    let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std.unwrap_or(DEFAULT_INIT_STD), cfg.seed)?;
     ac.recurrence = cfg.ppo.recurrence;
     if resuming {
         ac.load(&ckpt)?;
@@ -233,6 +237,10 @@ fn start_or_resume(
         None => (Normalizer::new(dims.critic), started_from),
         Some(p) => {
             let (normalizer, from) = super::critic_file::load(&ac, p)?;
+            if let Some(std) = cfg.init_std {
+                // An explicit --init-std wins over the file's noise (e.g. more exploration).
+                ac.set_action_std(std)?;
+            }
             let actor_sha = firmware::nn::sha256_hex(&ac.actor_safetensors()?);
             if from.actor_sha256 != actor_sha {
                 // Allowed (a critic of a related actor beats a new one), but never silently.

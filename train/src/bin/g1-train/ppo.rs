@@ -44,7 +44,7 @@ pub struct Args {
     #[arg(long)]
     init_actor: Option<PathBuf>,
     /// The critic that goes with --init-actor: its weights, input normaliser and action noise
-    /// (which replaces --init-std), as every checkpoint writes them beside its actor
+    /// (kept unless --init-std is given), as every checkpoint writes them beside its actor
     /// (`<actor>.critic.safetensors`), e.g. specs/stairs/g1_stairs_lstm.critic.safetensors. A
     /// fine-tune then needs no --critic-warmup. Ignored when resuming.
     #[arg(long, requires = "init_actor")]
@@ -58,9 +58,10 @@ pub struct Args {
     /// simulated step; feed-forward actors only).
     #[arg(long)]
     symmetry: bool,
-    /// Initial action noise standard deviation (actions are in units of action_scale).
-    #[arg(long, default_value_t = 0.3)]
-    init_std: f64,
+    /// Initial action noise standard deviation, in units of action_scale (default 0.3; with
+    /// --init-critic, the critic file's noise unless this is given).
+    #[arg(long)]
+    init_std: Option<f64>,
     /// Iterations that train only the critic (after a warm start).
     #[arg(long, default_value_t = 10)]
     critic_warmup: usize,
@@ -219,8 +220,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         lr.is_finite()
             && lr > 0.0
-            && init_std.is_finite()
-            && init_std > 0.0
+            && init_std.is_none_or(|s| s.is_finite() && s > 0.0)
             && episode_s.is_finite()
             && episode_s > 0.0
             && desired_kl.is_finite()
