@@ -17,6 +17,7 @@
 //! - [`iter_log`]: one iteration's figures.
 //! - [`in_env`]: an actor evaluated in the training environment itself, one level at a time.
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
+//! - [`widen`]: a wider actor that computes what the narrow one did (`g1-train widen-actor`).
 //! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
 //!   against the paper (`g1-train success-curve`).
 pub mod algo;
@@ -35,3 +36,4 @@ pub mod runner;
 pub mod success_curve;
 pub mod symmetry;
 pub mod termination;
+pub mod widen;

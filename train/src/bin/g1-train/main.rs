@@ -9,6 +9,7 @@ mod ppo;
 mod ppo_eval;
 mod ppo_export;
 mod success_curve;
+mod widen_actor;
 
 use clap::{Parser, Subcommand};
 
@@ -59,6 +60,9 @@ enum Cmd {
     /// Stair success through `g1fw eval` against env steps (one report per actor) and per riser
     /// height against the paper: a PNG and a markdown table (README "Stair policy").
     SuccessCurve(success_curve::Args),
+    /// Widen an actor's hidden layers so that it still computes what it did (new units start
+    /// unread), to fine-tune it with more capacity: `g1-train ppo --init-actor` takes the result.
+    WidenActor(widen_actor::Args),
 }
 
 /// glibc hands every freed block over 128 KiB back to the kernel and maps it again on the next
@@ -99,5 +103,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::PpoEval(args) => ppo_eval::run(args),
         Cmd::PpoExport(args) => ppo_export::run(args),
         Cmd::SuccessCurve(args) => success_curve::run(args),
+        Cmd::WidenActor(args) => widen_actor::run(args),
     }
 }
