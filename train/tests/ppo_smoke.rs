@@ -148,6 +148,13 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         "--init-std 0.05 gave noise {} (the file's {std_then})",
         hl[0].update.mean_std
     );
+    let said: train::ppo::runner::RunState =
+        serde_json::from_str(&std::fs::read_to_string(loud.out.join("state.json")).unwrap()).unwrap();
+    let said = said.started_from;
+    assert!(
+        said.contains("critic and normaliser from") && said.contains("action noise 0.05 (--init-std)"),
+        "{said}"
+    );
     std::fs::remove_dir_all(&loud.out).unwrap();
     let state = |dir: &Path| -> train::ppo::runner::RunState {
         serde_json::from_str(&std::fs::read_to_string(dir.join("state.json")).unwrap()).unwrap()

@@ -250,11 +250,18 @@ fn start_or_resume(
                     from.actor_sha256
                 );
             }
-            let s = format!(
-                "{started_from}; critic, normaliser and action noise from {} (written at {} env steps)",
-                p.display(),
-                from.env_steps
-            );
+            let s = match cfg.init_std {
+                None => format!(
+                    "{started_from}; critic, normaliser and action noise from {} (written at {} env steps)",
+                    p.display(),
+                    from.env_steps
+                ),
+                Some(std) => format!(
+                    "{started_from}; critic and normaliser from {} (written at {} env steps), action noise {std} (--init-std)",
+                    p.display(),
+                    from.env_steps
+                ),
+            };
             (normalizer, s)
         }
     };
