@@ -43,18 +43,24 @@ fn f64_bytes(v: &[f64]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
 }
 
+/// Which of an actor-critic's variables the file holds: the critic's and the action noise, by name.
+fn file_vars(data: &HashMap<String, candle_core::Var>) -> Vec<String> {
+    let mut names: Vec<String> = data
+        .keys()
+        .filter(|k| k.starts_with("critic.") || *k == "log_std")
+        .cloned()
+        .collect();
+    names.sort();
+    names
+}
+
 /// The file's bytes: every `critic.*` tensor and `log_std` (f32), the normaliser's `count`, `mean`
 /// and `m2` (f64, as accumulated), and the provenance as metadata.
 pub fn to_bytes(ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) -> anyhow::Result<Vec<u8>> {
     let mut tensors: Vec<(String, safetensors::Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
     {
         let data = ac.vars.data().lock().expect("var map lock");
-        let mut names: Vec<&String> = data
-            .keys()
-            .filter(|k| k.starts_with("critic.") || *k == "log_std")
-            .collect();
-        names.sort();
-        for n in names {
+        for n in &file_vars(&data) {
             let t = data[n].as_tensor();
             tensors.push((n.clone(), safetensors::Dtype::F32, t.dims().to_vec(), f32_bytes(t)?));
         }
@@ -124,12 +130,7 @@ pub fn load(ac: &ActorCritic, path: &Path) -> anyhow::Result<(Normalizer, Proven
     let mut loaded: Vec<(String, Tensor)> = Vec::new();
     {
         let data = ac.vars.data().lock().expect("var map lock");
-        let mut names: Vec<&String> = data
-            .keys()
-            .filter(|k| k.starts_with("critic.") || *k == "log_std")
-            .collect();
-        names.sort();
-        for n in names {
+        for n in &file_vars(&data) {
             let want = data[n].as_tensor().dims().to_vec();
             let t = st
                 .tensor(n)
