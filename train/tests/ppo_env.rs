@@ -387,6 +387,37 @@ fn the_climbing_columns_stay_at_or_above_the_level_floor() {
     assert_eq!(e.level, 0, "the floor holds only the climbing columns");
 }
 
+/// `--review-share`: a review episode is drawn at or below the curriculum level, moves no level
+/// whatever it gives, and says so in its end; without reviews the same failures demote.
+#[test]
+fn review_episodes_draw_at_or_below_the_frontier_and_move_no_level() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, Column::Down);
+    cfg.settings.stand_share = 0.0;
+    cfg.settings.review_share = 1.0;
+    let mut e = StairEnv::new(cfg, 5, &w).unwrap();
+    e.place(Column::Down, 6).unwrap();
+    let zero = vec![0.0f32; 12];
+    let mut drawn = Vec::new();
+    for _ in 0..12 {
+        for _ in 0..5 {
+            e.step(&zero).unwrap();
+        }
+        e.reset().unwrap();
+        let end = e.last_end.unwrap();
+        assert!(end.review, "every episode reviews at share 1");
+        assert!(!end.success);
+        drawn.push(end.level);
+    }
+    assert_eq!(e.level, 6, "twelve failed reviews moved the level: {drawn:?}");
+    assert!(drawn.iter().all(|&l| l <= 6), "{drawn:?}");
+    assert!(drawn.iter().any(|&l| l < 6), "no review below the frontier: {drawn:?}");
+    let h = e.world().spec.step_height;
+    assert!(h <= train::ppo::env::level_height(6) + 0.0101, "step height {h}");
+}
+
 /// Joystick episodes on flat ground (`--joystick-share`): the command is a constant (vx, vy, wz)
 /// within the documented ranges, whatever the robot's yaw does, as `g1fw sim` without
 /// `--heading` sends it; heading-hold episodes never command a lateral speed. Trained only with

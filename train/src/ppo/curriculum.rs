@@ -129,6 +129,20 @@ pub fn next_level(level: usize, success: bool, walked_half: bool, floor: usize, 
     next.max(floor)
 }
 
+/// The level an episode's staircase is drawn at: the environment's curriculum `level`, or, for a
+/// review episode, a level drawn uniformly from `floor` to `level`. Reviews keep the heights an
+/// environment has already passed in the mix: a column that trains only at its frontier forgets
+/// them (runs 28–30 lost the 12–14 cm descents while their descending columns sat at 21 cm).
+pub fn episode_level(level: usize, floor: usize, review: bool, rng: &mut Rng) -> usize {
+    let level = level.min(LEVELS - 1);
+    let floor = floor.min(level);
+    if review {
+        rng.int(floor as u64, level as u64) as usize
+    } else {
+        level
+    }
+}
+
 /// Draws the next world of `column` at `level`.
 pub fn draw_world(column: Column, level: usize, r: &mut Rng) -> World {
     let (kind, outdoor) = match column {
@@ -198,6 +212,20 @@ mod tests {
         assert_eq!(next_level(2, false, false, 99, &mut rng), LEVELS - 1);
         assert!(Column::Up.climbs() && Column::OutdoorUp.climbs());
         assert!(!Column::Down.climbs() && !Column::OutdoorDown.climbs() && !Column::Flat.climbs());
+    }
+
+    #[test]
+    fn a_review_draws_every_level_from_the_floor_to_the_frontier_and_only_those() {
+        let mut rng = Rng(11);
+        assert_eq!(episode_level(7, 0, false, &mut rng), 7, "no review: the frontier");
+        let drawn: Vec<usize> = (0..600).map(|_| episode_level(7, 2, true, &mut rng)).collect();
+        for l in 2..=7 {
+            assert!(drawn.contains(&l), "level {l} never drawn: {drawn:?}");
+        }
+        assert!(drawn.iter().all(|&l| (2..=7).contains(&l)), "{drawn:?}");
+        // A floor above the level, or a level past the top, stays in range.
+        assert_eq!(episode_level(1, 4, true, &mut rng), 1);
+        assert_eq!(episode_level(99, 0, false, &mut rng), LEVELS - 1);
     }
 
     #[test]

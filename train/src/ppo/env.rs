@@ -213,6 +213,10 @@ pub struct EnvSettings {
     /// (the committed actor's climbing environments sat near level 3.8, 13 cm, while `g1fw`
     /// scores 12–22 cm). 0 (default): no floor.
     pub up_level_floor: usize,
+    /// Share of staircase episodes that review: drawn at a level uniformly from the column's
+    /// floor to its curriculum level, and moving no level ([`curriculum::episode_level`]).
+    /// 0 (default): every episode trains at the frontier.
+    pub review_share: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -237,6 +241,7 @@ impl EnvSettings {
         joystick_vx: None,
         stand_share: STAND_SHARE,
         up_level_floor: 0,
+        review_share: 0.0,
     };
 }
 
@@ -269,7 +274,10 @@ pub struct EpisodeEnd {
     pub standing: bool,
     /// Why it fell: an index into [`FALL_CAUSES`] (meaningful when `fell`).
     pub cause: usize,
+    /// The level this episode's staircase was drawn at.
     pub level: usize,
+    /// A review episode ([`EnvSettings::review_share`]): below the frontier, moving no level.
+    pub review: bool,
     pub success: bool,
     pub fell: bool,
     pub ret: f64,
@@ -293,7 +301,12 @@ pub struct StairEnv {
     rng: Rng,
     world: World,
     pub column: Column,
+    /// The curriculum level: where this environment's column trains.
     pub level: usize,
+    /// The level the current episode's staircase was drawn at ([`curriculum::episode_level`]).
+    episode_level: usize,
+    /// The current episode reviews a level below the frontier and moves no level.
+    review: bool,
     vx_cmd: f32,
     heading: f64,
     /// A joystick episode's constant command (vx, vy, wz), in place of heading hold.
@@ -393,6 +406,8 @@ impl StairEnv {
             world,
             column: Column::draw(&mut rng, cfg.settings.only, cfg.settings.mix),
             level,
+            episode_level: level,
+            review: false,
             vx_cmd: 0.0,
             heading: 0.0,
             joystick: None,
@@ -483,7 +498,8 @@ impl StairEnv {
             self.last_end = Some(EpisodeEnd {
                 column: Some(self.column),
                 standing: self.standing(),
-                level: self.level,
+                level: self.episode_level,
+                review: self.review,
                 success,
                 fell: self.fell,
                 cause: self.cause,
@@ -495,14 +511,20 @@ impl StairEnv {
             });
             if let Some(l) = self.held_level {
                 self.level = l;
-            } else if self.column != Column::Flat && !self.standing() {
+            } else if self.column != Column::Flat && !self.standing() && !self.review {
                 let walked_half = self.progress >= 0.5 * self.last_riser_s();
                 let floor = self.level_floor();
                 self.level = curriculum::next_level(self.level, success, walked_half, floor, &mut self.rng);
             }
             // The column stays: the level is this column's (see `Column::for_env`).
         }
-        self.world = curriculum::draw_world(self.column, self.level, &mut self.rng);
+        // Drawn only when enabled, so runs without reviews keep their random streams.
+        self.review = self.held_level.is_none()
+            && self.column != Column::Flat
+            && self.cfg.settings.review_share > 0.0
+            && self.rng.chance(self.cfg.settings.review_share);
+        self.episode_level = curriculum::episode_level(self.level, self.level_floor(), self.review, &mut self.rng);
+        self.world = curriculum::draw_world(self.column, self.episode_level, &mut self.rng);
         self.sim.set_world(&self.world)?;
         let r = self.cfg.settings.random;
         if r.dynamics {

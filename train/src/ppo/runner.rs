@@ -472,10 +472,10 @@ impl Pipeline {
 fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
     let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
     use super::curriculum::Column;
-    // Stand commands have no success to score.
+    // Stand commands have no success to score; reviews are below the frontier these rates follow.
     let stair_ends: Vec<_> = ends
         .iter()
-        .filter(|e| e.column != Some(Column::Flat) && !e.standing)
+        .filter(|e| e.column != Some(Column::Flat) && !e.standing && !e.review)
         .collect();
     let going_up = |c: Option<Column>| c.is_some_and(Column::climbs);
     let going_down = |c: Option<Column>| matches!(c, Some(Column::Down | Column::OutdoorDown));

@@ -132,6 +132,11 @@ pub struct Args {
     /// fail. 0 (default): no floor.
     #[arg(long, default_value_t = 0, value_name = "LEVEL", value_parser = parse_level)]
     up_level_floor: usize,
+    /// Share of staircase episodes that review a level drawn uniformly from the column's floor to
+    /// its current level; a review moves no level and is left out of the success rates. Keeps
+    /// the heights a column has passed in training. 0 (default): none.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_review_share)]
+    review_share: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -171,6 +176,7 @@ impl Args {
             joystick_vx: self.joystick_vx,
             stand_share: self.stand_share,
             up_level_floor: self.up_level_floor,
+            review_share: self.review_share,
         }
     }
 }
@@ -348,6 +354,14 @@ fn parse_stand_share(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_review_share(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..1.0).contains(&v),
+        "the share of staircase episodes that review lower levels, in [0, 1), e.g. 0.3",
+    )
+}
+
 /// `--up-level-floor LEVEL`: a curriculum level, 0 … 10.
 fn parse_level(s: &str) -> Result<usize, String> {
     let top = train::ppo::curriculum::LEVELS - 1;
@@ -418,6 +432,8 @@ mod tests {
             "0.1",
             "--up-level-floor",
             "4",
+            "--review-share",
+            "0.3",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -433,6 +449,7 @@ mod tests {
             joystick_vx: Some((-0.5, 1.0)),
             stand_share: 0.1,
             up_level_floor: 4,
+            review_share: 0.3,
         };
         assert_eq!(set, want);
     }
