@@ -6,6 +6,7 @@
 //!   against the geometric baseline.
 //! - [`ppo`]: the stair policy, PPO on in-process MuJoCo environments.
 //! - [`plot`]: the learning curves of both.
+//! - [`tensor_file`]: the one writer of the safetensors files the trainer exports.
 //!
 //! Nothing here re-implements the robot side: grids come from `sensor_io::bev` (through the
 //! dataset renderer), outputs are decoded by `estimator::terrain_cnn`, and evaluation runs the
@@ -15,3 +16,4 @@
 pub mod cnn;
 pub mod plot;
 pub mod ppo;
+pub mod tensor_file;

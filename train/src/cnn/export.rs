@@ -11,10 +11,10 @@ use anyhow::{ensure, Context};
 use candle_core::Tensor;
 use candle_nn::VarMap;
 use firmware::nn::{sha256_hex, LayerDesc, NetworkDesc};
-use safetensors::tensor::{Dtype, TensorView};
 
 use crate::cnn::data::GRID;
 use crate::cnn::model::{BN_EPS, CONV_BLOCKS, PADDING, STRIDE};
+use crate::tensor_file::NamedTensor;
 use sensor_io::bev::{BEV_CELLS, BEV_CHANNELS};
 
 /// File names inside an export directory.
@@ -99,24 +99,12 @@ pub fn fold(vm: &VarMap) -> anyhow::Result<Exported> {
 impl Exported {
     /// The safetensors bytes (tensors sorted by name; `metadata` goes into the header).
     pub fn safetensors_bytes(&self, metadata: &BTreeMap<String, String>) -> anyhow::Result<Vec<u8>> {
-        let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = self
+        let tensors: Vec<_> = self
             .tensors
             .iter()
-            .map(|(n, (shape, data))| {
-                (
-                    n.clone(),
-                    shape.clone(),
-                    data.iter().flat_map(|v| v.to_le_bytes()).collect(),
-                )
-            })
+            .map(|(n, (shape, data))| NamedTensor::f32(n.clone(), shape.clone(), data))
             .collect();
-        let views = bytes
-            .iter()
-            .map(|(n, shape, b)| Ok((n.as_str(), TensorView::new(Dtype::F32, shape.clone(), b)?)))
-            .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let meta: std::collections::HashMap<String, String> = metadata.clone().into_iter().collect();
-        safetensors::serialize(views, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))
+        crate::tensor_file::serialize(&tensors, Some(metadata.clone().into_iter().collect()))
     }
 
     /// The description as TOML, with a header saying what it is.
@@ -165,20 +153,11 @@ pub fn write_parity_fixture(
         "parity fixture: {n} outputs but {} grid values",
         grids.len()
     );
-    let gb: Vec<u8> = grids.iter().flat_map(|v| v.to_le_bytes()).collect();
-    let ob: Vec<u8> = outputs.iter().flatten().flat_map(|v| v.to_le_bytes()).collect();
-    let tensors = vec![
-        (
-            "bev",
-            TensorView::new(Dtype::F32, vec![n, BEV_CHANNELS, BEV_CELLS, BEV_CELLS], &gb),
-        ),
-        ("outputs", TensorView::new(Dtype::F32, vec![n, 7], &ob)),
+    let outputs: Vec<f32> = outputs.iter().flatten().copied().collect();
+    let tensors = [
+        NamedTensor::f32("bev", vec![n, BEV_CHANNELS, BEV_CELLS, BEV_CELLS], grids),
+        NamedTensor::f32("outputs", vec![n, 7], &outputs),
     ];
-    let tensors = tensors
-        .into_iter()
-        .map(|(k, v)| v.map(|v| (k, v)))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| anyhow::anyhow!("{e:?}"))?;
     let meta = std::collections::HashMap::from([
         ("weights_sha256".to_string(), weights_sha256.to_string()),
         (
@@ -187,7 +166,7 @@ pub fn write_parity_fixture(
                 .to_string(),
         ),
     ]);
-    let bytes = safetensors::serialize(tensors, &Some(meta)).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let bytes = crate::tensor_file::serialize(&tensors, Some(meta))?;
     std::fs::write(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 

@@ -16,6 +16,7 @@ use candle_core::{DType, Device, Tensor};
 
 use super::algo::Normalizer;
 use super::policy::ActorCritic;
+use crate::tensor_file::NamedTensor;
 
 /// `foo.safetensors` → `foo.critic.safetensors`.
 pub fn beside(actor: &Path) -> PathBuf {
@@ -34,15 +35,6 @@ pub struct Provenance {
     pub env_steps: u64,
 }
 
-fn f32_bytes(t: &Tensor) -> anyhow::Result<Vec<u8>> {
-    let v: Vec<f32> = t.flatten_all()?.to_vec1()?;
-    Ok(v.iter().flat_map(|x| x.to_le_bytes()).collect())
-}
-
-fn f64_bytes(v: &[f64]) -> Vec<u8> {
-    v.iter().flat_map(|x| x.to_le_bytes()).collect()
-}
-
 /// Which of an actor-critic's variables the file holds: the critic's and the action noise, by name.
 fn file_vars(data: &HashMap<String, candle_core::Var>) -> Vec<String> {
     let mut names: Vec<String> = data
@@ -57,42 +49,22 @@ fn file_vars(data: &HashMap<String, candle_core::Var>) -> Vec<String> {
 /// The file's bytes: every `critic.*` tensor and `log_std` (f32), the normaliser's `count`, `mean`
 /// and `m2` (f64, as accumulated), and the provenance as metadata.
 pub fn to_bytes(ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) -> anyhow::Result<Vec<u8>> {
-    let mut tensors: Vec<(String, safetensors::Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
+    let mut tensors = Vec::new();
     {
         let data = ac.vars.data().lock().expect("var map lock");
         for n in &file_vars(&data) {
-            let t = data[n].as_tensor();
-            tensors.push((n.clone(), safetensors::Dtype::F32, t.dims().to_vec(), f32_bytes(t)?));
+            tensors.push(NamedTensor::from_candle(n.clone(), data[n].as_tensor())?);
         }
     }
     let d = normalizer.mean.len();
-    tensors.push((
-        "normalizer.count".into(),
-        safetensors::Dtype::F64,
-        vec![1],
-        f64_bytes(&[normalizer.count]),
-    ));
-    tensors.push((
-        "normalizer.mean".into(),
-        safetensors::Dtype::F64,
-        vec![d],
-        f64_bytes(&normalizer.mean),
-    ));
-    tensors.push((
-        "normalizer.m2".into(),
-        safetensors::Dtype::F64,
-        vec![d],
-        f64_bytes(&normalizer.m2),
-    ));
-    let views = tensors
-        .iter()
-        .map(|(n, dt, shape, b)| Ok((n.clone(), safetensors::tensor::TensorView::new(*dt, shape.clone(), b)?)))
-        .collect::<anyhow::Result<Vec<_>>>()?;
+    tensors.push(NamedTensor::f64("normalizer.count", vec![1], &[normalizer.count]));
+    tensors.push(NamedTensor::f64("normalizer.mean", vec![d], &normalizer.mean));
+    tensors.push(NamedTensor::f64("normalizer.m2", vec![d], &normalizer.m2));
     let meta = HashMap::from([
         ("actor_sha256".to_string(), from.actor_sha256.clone()),
         ("env_steps".to_string(), from.env_steps.to_string()),
     ]);
-    Ok(safetensors::serialize(views, &Some(meta))?)
+    crate::tensor_file::serialize(&tensors, Some(meta))
 }
 
 /// Writes [`to_bytes`] to `path` (write, then rename: a killed run keeps the previous file).

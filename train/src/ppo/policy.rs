@@ -13,7 +13,6 @@
 //!   inputs (asymmetric actor–critic; see `env::CRITIC_EXTRA`). It never leaves the trainer. It
 //!   is small because the update is compute-bound on a CPU: at [256, 128] the critic was ~60 % of
 //!   the learner's FLOPs and the learner ~75 % of wall time.
-use std::collections::HashMap;
 use std::path::Path;
 
 use candle_core::{DType, Device, Result, Tensor, Var};
@@ -475,32 +474,13 @@ impl ActorCritic {
     /// The actor as a safetensors file with the spec's tensor names (what its `[policy.network]`
     /// reads).
     pub fn actor_safetensors(&self) -> anyhow::Result<Vec<u8>> {
-        let mut map: HashMap<String, Tensor> = HashMap::new();
-        for (name, _) in self.arch.shapes() {
-            let t = get(&self.vars, &name);
-            map.insert(name, t);
-        }
-        let mut names: Vec<_> = map.keys().cloned().collect();
-        names.sort();
-        let data: Vec<(String, Vec<u8>, Vec<usize>)> = names
-            .iter()
-            .map(|n| {
-                let t = &map[n];
-                let v: Vec<f32> = t.flatten_all()?.to_vec1()?;
-                let bytes = v.iter().flat_map(|x| x.to_le_bytes()).collect();
-                Ok((n.clone(), bytes, t.dims().to_vec()))
-            })
-            .collect::<anyhow::Result<_>>()?;
-        let views: Vec<(String, safetensors::tensor::TensorView)> = data
-            .iter()
-            .map(|(n, b, s)| {
-                Ok((
-                    n.clone(),
-                    safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?,
-                ))
-            })
-            .collect::<anyhow::Result<_>>()?;
-        Ok(safetensors::serialize(views, &None)?)
+        let tensors = self
+            .arch
+            .shapes()
+            .into_iter()
+            .map(|(name, _)| crate::tensor_file::NamedTensor::from_candle(name.clone(), &get(&self.vars, &name)))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        crate::tensor_file::serialize(&tensors, None)
     }
 
     /// All trainable variables.

@@ -161,29 +161,11 @@ pub fn widen_actor(
             _ => {}
         }
     }
-    let mut names: Vec<&String> = out.keys().collect();
-    names.sort();
-    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = names
+    let tensors: Vec<_> = out
         .iter()
-        .map(|n| {
-            let (shape, v) = &out[*n];
-            (
-                (*n).clone(),
-                shape.clone(),
-                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-            )
-        })
+        .map(|(name, (shape, values))| crate::tensor_file::NamedTensor::f32(name.clone(), shape.clone(), values))
         .collect();
-    let views = bytes
-        .iter()
-        .map(|(n, s, b)| {
-            Ok((
-                n.clone(),
-                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b)?,
-            ))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    Ok(safetensors::serialize(views, &None)?)
+    crate::tensor_file::serialize(&tensors, None)
 }
 
 #[cfg(test)]
