@@ -1,6 +1,6 @@
 //! Writing safetensors files: named tensors in, bytes out. The actor export, the critic file, the
 //! widened actor and the CNN export all write through here, so the layout (little-endian values,
-//! the header's metadata) is decided once.
+//! the header's metadata) is decided once; [`f32_values`] reads an f32 tensor back.
 use std::collections::HashMap;
 
 use candle_core::Tensor;
@@ -52,6 +52,15 @@ pub fn serialize(tensors: &[NamedTensor], metadata: Option<HashMap<String, Strin
     safetensors::serialize(views, &metadata).map_err(|e| anyhow::anyhow!("{e:?}"))
 }
 
+/// An f32 tensor's values; any other element type is an error that names it.
+pub fn f32_values(t: &TensorView<'_>) -> anyhow::Result<Vec<f32>> {
+    anyhow::ensure!(t.dtype() == Dtype::F32, "the tensor is {:?}, need F32", t.dtype());
+    Ok(t.data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().expect("chunks of 4 bytes")))
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -74,6 +83,12 @@ mod tests {
         }
         let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
         assert_eq!(header.metadata().as_ref().unwrap()["k"], "v");
+        assert_eq!(
+            f32_values(&st.tensor("b.weight").unwrap()).unwrap(),
+            [1.0, -2.0, 3.5, f32::MIN_POSITIVE]
+        );
+        let e = f32_values(&st.tensor("a.count").unwrap()).unwrap_err().to_string();
+        assert!(e.contains("F64, need F32"), "{e}");
         let wrong = NamedTensor::f32("w", vec![3], &[1.0]);
         let e = serialize(&[wrong], None).unwrap_err().to_string();
         assert!(e.contains("do not match its shape"), "{e}");

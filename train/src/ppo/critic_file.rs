@@ -114,11 +114,7 @@ pub fn load(ac: &ActorCritic, path: &Path) -> anyhow::Result<(Normalizer, Proven
                 t.dtype(),
                 t.shape()
             );
-            let v: Vec<f32> = t
-                .data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-                .collect();
+            let v = crate::tensor_file::f32_values(&t)?;
             anyhow::ensure!(
                 v.iter().all(|x| x.is_finite()),
                 "{}: {n} holds a non-finite value",

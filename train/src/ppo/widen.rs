@@ -30,45 +30,35 @@ fn read(st: &safetensors::SafeTensors<'_>, name: &str) -> anyhow::Result<Tensor2
     let t = st
         .tensor(name)
         .with_context(|| format!("the actor has no tensor {name}"))?;
-    anyhow::ensure!(
-        t.dtype() == safetensors::Dtype::F32,
-        "{name} is {:?}, need F32",
-        t.dtype()
-    );
     let (rows, cols) = match t.shape() {
         [r] => (*r, 1),
         [r, c] => (*r, *c),
         s => anyhow::bail!("{name} has shape {s:?}"),
     };
-    let v = t
-        .data()
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-        .collect();
+    let v = crate::tensor_file::f32_values(&t).with_context(|| format!("reading {name}"))?;
     Ok(Tensor2 { rows, cols, v })
 }
 
 /// `old` placed in a `rows × cols` matrix: old row `r` lands on `row_map(r)`, old column `c` on
-/// column `c`; every other entry is `fill(new_row, col)`.
+/// column `c`; every other entry, in row-major order, is `fill(new_row)`.
 fn grow(
     old: &Tensor2,
     rows: usize,
     cols: usize,
     row_map: impl Fn(usize) -> usize,
-    mut fill: impl FnMut(bool, usize) -> f32,
+    mut fill: impl FnMut(bool) -> f32,
 ) -> Vec<f32> {
-    let mut is_old_row = vec![false; rows];
-    let mut out = vec![f32::NAN; rows * cols];
+    let mut old_row = vec![None; rows];
     for r in 0..old.rows {
-        let nr = row_map(r);
-        is_old_row[nr] = true;
-        out[nr * cols..nr * cols + old.cols].copy_from_slice(&old.v[r * old.cols..(r + 1) * old.cols]);
+        old_row[row_map(r)] = Some(r);
     }
-    for r in 0..rows {
+    let mut out = Vec::with_capacity(rows * cols);
+    for from in &old_row {
         for c in 0..cols {
-            if out[r * cols + c].is_nan() {
-                out[r * cols + c] = fill(!is_old_row[r], c);
-            }
+            out.push(match from {
+                Some(r) if c < old.cols => old.v[r * old.cols + c],
+                _ => fill(from.is_none()),
+            });
         }
     }
     out
@@ -114,12 +104,12 @@ pub fn widen_actor(
                 let bound = 1.0 / (h2 as f64).sqrt();
                 // Gate g's unit u sits at row g·H + u; in the wider layer at g·H2 + u.
                 let row_map = |r: usize| (r / h) * h2 + r % h;
-                let mut uniform = |_: bool, _: usize| rng.range(-bound, bound) as f32;
+                let mut uniform = |_: bool| rng.range(-bound, bound) as f32;
                 let w_ih = grow(&read(&st, weight_ih)?, 4 * h2, *input, row_map, &mut uniform);
                 // Old units read the new units' h with zero; new units read everything.
-                let w_hh = grow(&read(&st, weight_hh)?, 4 * h2, h2, row_map, |new_row, _| {
+                let w_hh = grow(&read(&st, weight_hh)?, 4 * h2, h2, row_map, |new_row| {
                     if new_row {
-                        uniform(true, 0)
+                        uniform(true)
                     } else {
                         0.0
                     }
@@ -146,7 +136,7 @@ pub fn widen_actor(
                     *out2,
                     *in2,
                     |r| r,
-                    |new_row, _| {
+                    |new_row| {
                         if new_row {
                             uniform()
                         } else {
@@ -154,7 +144,7 @@ pub fn widen_actor(
                         }
                     },
                 );
-                let b = grow(&read(&st, bias)?, *out2, 1, |r| r, |_, _| uniform());
+                let b = grow(&read(&st, bias)?, *out2, 1, |r| r, |_| uniform());
                 out.insert(weight.clone(), (vec![*out2, *in2], w));
                 out.insert(bias.clone(), (vec![*out2], b));
             }
