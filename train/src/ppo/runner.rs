@@ -250,18 +250,15 @@ fn start_or_resume(
                     from.actor_sha256
                 );
             }
-            let s = match cfg.init_std {
-                None => format!(
-                    "{started_from}; critic, normaliser and action noise from {} (written at {} env steps)",
-                    p.display(),
-                    from.env_steps
-                ),
-                Some(std) => format!(
-                    "{started_from}; critic and normaliser from {} (written at {} env steps), action noise {std} (--init-std)",
-                    p.display(),
-                    from.env_steps
-                ),
+            let (what, noise) = match cfg.init_std {
+                None => ("critic, normaliser and action noise", String::new()),
+                Some(std) => ("critic and normaliser", format!(", action noise {std} (--init-std)")),
             };
+            let s = format!(
+                "{started_from}; {what} from {} (written at {} env steps){noise}",
+                p.display(),
+                from.env_steps
+            );
             (normalizer, s)
         }
     };
