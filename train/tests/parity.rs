@@ -64,3 +64,57 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
         "outputs must not be trivially zero"
     );
 }
+
+/// A fine-tune starts from the committed export itself: `fit --init <export> --freeze-bn` unfolds
+/// it, and that network (BatchNorm in inference mode) computes the fixture's outputs, and folds
+/// back to the committed tensors bit for bit.
+#[test]
+fn the_committed_export_unfolds_into_a_network_that_computes_it() {
+    let dev = Device::Cpu;
+    let dir = std::env::temp_dir().join(format!("g1-unfold-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let export = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../control/weights/terrain_cnn.safetensors");
+    assert!(train::cnn::export::is_export(&export).unwrap());
+    let vm = VarMap::new();
+    let model = TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev)).unwrap();
+    train::cnn::fit::load_init(&vm, &export, &dev).unwrap();
+
+    let st = SafeTensors::deserialize(FIXTURE).unwrap();
+    let f32s = |name: &str| -> Vec<f32> {
+        st.tensor(name)
+            .unwrap()
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let grids = f32s("bev");
+    let want = f32s("outputs");
+    let n = grids.len() / GRID;
+    let x = Tensor::from_vec(grids, (n, 6, 60, 60), &dev).unwrap();
+    let got = model
+        .forward_t(&x, false)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(worst <= 1e-4, "unfolded network off the fixture by {worst}");
+
+    // Folding again gives the committed tensors exactly.
+    let again = train::cnn::export::fold(&vm).unwrap();
+    let committed = std::fs::read(&export).unwrap();
+    let committed = SafeTensors::deserialize(&committed).unwrap();
+    for (name, (shape, data)) in &again.tensors {
+        let t = committed.tensor(name).unwrap();
+        assert_eq!(t.shape(), shape.as_slice(), "{name}");
+        let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert!(bytes == t.data(), "{name} changed in the round trip");
+    }
+    // A checkpoint is not an export.
+    let ckpt = dir.join("checkpoint.safetensors");
+    vm.save(&ckpt).unwrap();
+    assert!(!train::cnn::export::is_export(&ckpt).unwrap());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -82,6 +82,44 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
     drop(vars);
     assert!(!out.join("checkpoint.safetensors.partial").exists());
 
+    // A fine-tune of the committed export with BatchNorm frozen: its running statistics stay
+    // what the unfold set (they are not parameters), and the weights move.
+    let export = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../control/weights/terrain_cnn.safetensors");
+    let tune = FitConfig {
+        epochs: 1,
+        batch: 12,
+        lr: 1e-3,
+        mirror: false,
+        max_steps: 2,
+        init: Some(export.clone()),
+        freeze_bn: true,
+        ..FitConfig::default()
+    };
+    let (tuned, _, _) = fit(&tune, &ds, &tr, &val, &Device::Cpu, &mut |_, _, _| {}, &mut |_| {}).unwrap();
+    let committed = candle_core::safetensors::load(&export, &Device::Cpu).unwrap();
+    let tv = tuned.data().lock().unwrap();
+    for (name, var) in tv.iter() {
+        let v = var.as_tensor().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        if name.ends_with("running_mean") {
+            assert!(v.iter().all(|&x| x == 0.0), "{name} moved");
+        } else if name.ends_with("running_var") {
+            assert!(v.iter().all(|&x| x == (1.0 - 1e-5) as f32), "{name} moved");
+        }
+    }
+    let w0 = committed["head.weight"]
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    let w1 = tv["head.weight"]
+        .as_tensor()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap();
+    assert!(w0 != w1, "two steps moved nothing");
+    drop(tv);
+
     // Fold and write; the firmware's loader accepts it and computes a token.
     let sha = train::cnn::export::fold(&vm)
         .unwrap()
@@ -271,6 +309,17 @@ fn fit_refuses_to_overwrite_a_run_or_its_inputs() {
         init.to_str().unwrap(),
     ]);
     assert!(e.contains("would be overwritten"), "{e}");
+    // An exported network is fine-tuned only with BatchNorm frozen.
+    let export = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../control/weights/terrain_cnn.safetensors");
+    let e = fit(&[
+        "--data",
+        "/nonexistent/data",
+        "--out",
+        temp("fit-export").to_str().unwrap(),
+        "--init",
+        export.to_str().unwrap(),
+    ]);
+    assert!(e.contains("--freeze-bn"), "{e}");
     assert_eq!(std::fs::read(&init).unwrap(), b"an earlier run");
     std::fs::remove_dir_all(&out).ok();
 }

@@ -153,7 +153,7 @@ fn dataset_export_reads_back() {
             let seed = first_seed + wi as u64;
             assert_eq!(seeds[i], seed as i64);
             let world = &renderers[wi].world;
-            let p = sample_pose(world, seed, pi, ModeChoice::Mixed);
+            let p = sample_pose(world, seed, pi, ModeChoice::Mixed, &Default::default());
             assert_eq!(mode[i], p.mode as u8);
             // The recorded pose is the sampled one, and the label is the world's truth there.
             assert!((pose[4 * i] as f64 - p.x).abs() < 1e-5 && (pose[4 * i + 1] as f64 - p.y).abs() < 1e-5);

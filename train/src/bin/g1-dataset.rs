@@ -99,6 +99,8 @@ struct Common {
     /// grids). Default: what the firmware's built-in network was trained with.
     #[arg(long, value_parser = sensor_io::bev_memory::parse_keyframes, default_value_t = train::cnn::dataset::MemoryConfig::BUILTIN.keyframes)]
     memory_keyframes: usize,
+    #[command(flatten)]
+    posture: train::cnn::dataset::PostureArgs,
     /// Hide the progress bar.
     #[arg(long)]
     quiet: bool,
@@ -110,6 +112,7 @@ fn dataset_config(mode: ModeChoice, c: &Common) -> DatasetConfig {
         ..DatasetConfig::default()
     };
     d.memory = train::cnn::dataset::MemoryConfig::with_keyframes(c.memory_keyframes);
+    d.posture = c.posture.posture();
     if c.no_pose_noise {
         d.attitude_noise_rad = 0.0;
         d.height_noise_m = 0.0;

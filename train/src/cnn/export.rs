@@ -96,6 +96,55 @@ pub fn fold(vm: &VarMap) -> anyhow::Result<Exported> {
     })
 }
 
+/// Whether the safetensors file at `path` is an export (conv biases, no BatchNorm) rather than a
+/// training checkpoint.
+pub fn is_export(path: &Path) -> anyhow::Result<bool> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let st = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| anyhow::anyhow!("{}: not a safetensors file ({e})", path.display()))?;
+    let names: Vec<String> = st.names().into_iter().cloned().collect();
+    Ok(names.iter().any(|n| n == "conv1.bias") && !names.iter().any(|n| n.starts_with("bn")))
+}
+
+/// The inverse of [`fold`] for a fine-tune: an export's tensors as training variables whose
+/// BatchNorm, in inference mode, is the identity plus the conv's bias: `γ = 1`, `β = b'`, `μ = 0`,
+/// `σ² = 1 − ε`. Folding them again gives the export back bit for bit (`s` is exactly 1).
+pub fn unfold(
+    folded: &std::collections::HashMap<String, Tensor>,
+) -> anyhow::Result<std::collections::HashMap<String, Tensor>> {
+    let get = |name: &str| {
+        folded
+            .get(name)
+            .cloned()
+            .with_context(|| format!("the export has no tensor `{name}`"))
+    };
+    let mut out = std::collections::HashMap::new();
+    for (i, &(_, cout)) in CONV_BLOCKS.iter().enumerate() {
+        let (conv, bn) = (format!("conv{}", i + 1), format!("bn{}", i + 1));
+        let b = get(&format!("{conv}.bias"))?;
+        ensure!(b.dims() == [cout], "{conv}.bias has shape {:?}", b.dims());
+        let dev = b.device().clone();
+        out.insert(format!("{conv}.weight"), get(&format!("{conv}.weight"))?);
+        out.insert(
+            format!("{bn}.weight"),
+            Tensor::ones(cout, candle_core::DType::F32, &dev)?,
+        );
+        out.insert(format!("{bn}.bias"), b);
+        out.insert(
+            format!("{bn}.running_mean"),
+            Tensor::zeros(cout, candle_core::DType::F32, &dev)?,
+        );
+        out.insert(
+            format!("{bn}.running_var"),
+            Tensor::full((1.0 - BN_EPS) as f32, cout, &dev)?,
+        );
+    }
+    for name in ["fc.weight", "fc.bias", "head.weight", "head.bias"] {
+        out.insert(name.to_string(), get(name)?);
+    }
+    Ok(out)
+}
+
 impl Exported {
     /// The safetensors bytes (tensors sorted by name; `metadata` goes into the header).
     pub fn safetensors_bytes(&self, metadata: &BTreeMap<String, String>) -> anyhow::Result<Vec<u8>> {

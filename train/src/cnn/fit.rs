@@ -9,6 +9,7 @@
 //! heading, which a robot-centred grid cannot show). The yaw term's weight is 0.5: the vector
 //! has two components, so 0.5 puts yaw on the same footing as one of h or d.
 use crate::cnn::dataset::EvalStats;
+use anyhow::Context;
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW, VarBuilder, VarMap};
 use labkit::rng::Rng;
@@ -37,6 +38,10 @@ pub struct FitConfig {
     /// Start from this checkpoint (`checkpoint.safetensors` of an earlier `fit`) instead of the
     /// seeded initialisation: continues a run with a fresh schedule.
     pub init: Option<std::path::PathBuf>,
+    /// Train with BatchNorm in inference mode: its running statistics stay fixed and only its
+    /// scale and shift learn. A fine-tune of an exported (folded) network needs it: batch
+    /// statistics would change what the network computes at the first step.
+    pub freeze_bn: bool,
     /// Write the unfolded weights here after every epoch (atomically: a temporary file, then a
     /// rename), so a long run stopped part-way keeps its last finished epoch for `--init`.
     pub checkpoint: Option<std::path::PathBuf>,
@@ -53,6 +58,7 @@ impl Default for FitConfig {
             mirror: true,
             max_steps: 0,
             init: None,
+            freeze_bn: false,
             checkpoint: None,
         }
     }
@@ -151,6 +157,39 @@ pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<(
     Ok(())
 }
 
+/// Loads `--init` into `varmap`: a checkpoint of an earlier `fit`, or an export (the firmware's
+/// `terrain_cnn.safetensors`, BatchNorm folded into the convs), unfolded by
+/// [`crate::cnn::export::unfold`] so that BatchNorm in inference mode computes exactly the
+/// export.
+pub fn load_init(varmap: &VarMap, path: &std::path::Path, dev: &Device) -> anyhow::Result<()> {
+    let loaded = candle_core::safetensors::load(path, dev)
+        .map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
+    let tensors = if loaded.contains_key("conv1.bias") {
+        crate::cnn::export::unfold(&loaded)
+            .with_context(|| format!("--init {}: unfolding the exported network", path.display()))?
+    } else {
+        loaded
+    };
+    let data = varmap
+        .data()
+        .lock()
+        .map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
+    for (name, var) in data.iter() {
+        let t = tensors
+            .get(name)
+            .with_context(|| format!("--init {}: no tensor `{name}`", path.display()))?;
+        anyhow::ensure!(
+            t.dims() == var.dims(),
+            "--init {}: `{name}` has shape {:?}, the network {:?}",
+            path.display(),
+            t.dims(),
+            var.dims()
+        );
+        var.set(t)?;
+    }
+    Ok(())
+}
+
 /// Saves `varmap` to `path` through a temporary file and a rename, so `path` always holds a
 /// complete checkpoint even if the process dies while writing.
 fn save_atomically(varmap: &VarMap, path: &std::path::Path) -> anyhow::Result<()> {
@@ -179,12 +218,21 @@ pub fn fit(
     let model = TerrainCnn::new(vb)?;
     seeded_init(&varmap, cfg.seed, dev)?;
     if let Some(path) = &cfg.init {
-        let mut vm = varmap.clone();
-        vm.load(path)
-            .map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
+        load_init(&varmap, path, dev)?;
     }
+    // The running statistics are estimates, not parameters (with frozen BatchNorm they are in
+    // the graph, and a gradient step could make a variance negative).
+    let params: Vec<candle_core::Var> = {
+        let data = varmap
+            .data()
+            .lock()
+            .map_err(|_| anyhow::anyhow!("variable map lock poisoned"))?;
+        let mut named: Vec<_> = data.iter().filter(|(n, _)| !n.contains(".running_")).collect();
+        named.sort_by(|a, b| a.0.cmp(b.0));
+        named.into_iter().map(|(_, v)| v.clone()).collect()
+    };
     let mut opt = AdamW::new(
-        varmap.all_vars(),
+        params,
         ParamsAdamW {
             lr: cfg.lr,
             weight_decay: cfg.weight_decay,
@@ -223,7 +271,7 @@ pub fn fit(
             opt.set_learning_rate(lr);
             let mirror: Vec<bool> = chunk.iter().map(|_| cfg.mirror && rng.chance(0.5)).collect();
             let b = batch(ds, chunk, &mirror, dev)?;
-            let out = model.forward_t(&b.x, true)?;
+            let out = model.forward_t(&b.x, !cfg.freeze_bn)?;
             let (loss, [ce, h, d, yaw]) = terrain_loss(&out, &b.class, &b.reg, &b.stairs)?;
             opt.backward_step(&loss)?;
             let v = |t: &Tensor| -> candle_core::Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };

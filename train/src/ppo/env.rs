@@ -29,7 +29,7 @@ use mujoco_rs::mujoco_c::_mjtObjBase;
 use super::curriculum;
 pub use super::curriculum::Column;
 pub use super::curriculum::{level_height, LEVELS, MAX_STEPS};
-use super::reward::{self, Terms, WEIGHTS};
+use super::reward::{self, Terms, Weights, WEIGHTS};
 use super::termination;
 pub use super::termination::FALL_CAUSES;
 
@@ -217,6 +217,9 @@ pub struct EnvSettings {
     /// floor to its curriculum level, and moving no level ([`curriculum::episode_level`]).
     /// 0 (default): every episode trains at the frontier.
     pub review_share: f64,
+    /// Weight of the `flat_orientation` penalty ‖g_xy‖² (IsaacLab's G1 −1 by default, mjlab's
+    /// G1 −5). The committed actor walks flat ground leaning 11° sideways at −1.
+    pub flat_orientation_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -242,6 +245,7 @@ impl EnvSettings {
         stand_share: STAND_SHARE,
         up_level_floor: 0,
         review_share: 0.0,
+        flat_orientation_weight: reward::WEIGHTS.flat_orientation,
     };
 }
 
@@ -853,7 +857,11 @@ impl StairEnv {
         if !was_success && !terminated && self.succeeded() {
             terms.success = 1.0 / self.timing.policy_dt;
         }
-        let reward = terms.total(&WEIGHTS, self.timing.policy_dt);
+        let weights = Weights {
+            flat_orientation: self.cfg.settings.flat_orientation_weight,
+            ..WEIGHTS
+        };
+        let reward = terms.total(&weights, self.timing.policy_dt);
         self.ret += reward;
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);

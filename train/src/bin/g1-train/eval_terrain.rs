@@ -29,6 +29,8 @@ pub struct Args {
     /// perfect odometry, the upper bound of what the memory gives).
     #[arg(long, default_value_t = 1.0)]
     odometry_drift: f64,
+    #[command(flatten)]
+    posture: train::cnn::dataset::PostureArgs,
     /// Directory holding terrain_cnn.safetensors + terrain_cnn.toml (default: the weights
     /// built into the firmware).
     #[arg(long)]
@@ -55,6 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mode,
         memory_keyframes,
         odometry_drift,
+        posture,
         weights,
         report,
         plot,
@@ -98,6 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mode,
         memory: train::cnn::dataset::MemoryConfig::with_keyframes(memory_keyframes),
         odometry_drift,
+        posture: posture.posture(),
         ..DatasetConfig::default()
     };
     let pb = bar(set.len() * poses_per_world, quiet, "samples");

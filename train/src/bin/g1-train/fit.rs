@@ -36,9 +36,15 @@ pub struct Args {
     max_steps: usize,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Continue from this checkpoint (checkpoint.safetensors of an earlier fit), with a fresh schedule
+    /// Continue from this checkpoint (checkpoint.safetensors of an earlier fit), with a fresh
+    /// schedule; or fine-tune an exported network (e.g. control/weights/terrain_cnn.safetensors,
+    /// BatchNorm folded), which needs --freeze-bn.
     #[arg(long)]
     init: Option<PathBuf>,
+    /// Keep BatchNorm in inference mode while training (fixed running statistics): for a
+    /// fine-tune, and required with an exported --init.
+    #[arg(long)]
+    freeze_bn: bool,
     /// No left–right mirror augmentation.
     #[arg(long)]
     no_mirror: bool,
@@ -62,11 +68,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_steps,
         seed,
         init,
+        freeze_bn,
         no_mirror,
         force,
         quiet,
     } = args;
     fit_output_is_free(&out, &data, init.as_deref(), force)?;
+    if let Some(path) = &init {
+        anyhow::ensure!(
+            freeze_bn || !train::cnn::export::is_export(path)?,
+            "--init {} is an exported network (BatchNorm folded): fine-tune it with --freeze-bn",
+            path.display()
+        );
+    }
     let t_load = Instant::now();
     let ds = Dataset::load_dirs(&data)?;
     let (mut tr, val) = split_by_world(&ds, val_fraction);
@@ -89,6 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mirror: !no_mirror,
         max_steps,
         init,
+        freeze_bn,
         checkpoint: Some(out.join("checkpoint.safetensors")),
         ..FitConfig::default()
     };

@@ -137,6 +137,10 @@ pub struct Args {
     /// the heights a column has passed in training. 0 (default): none.
     #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_review_share)]
     review_share: f64,
+    /// Weight of the upright penalty ‖g_xy‖² (projected gravity), given as a positive number P
+    /// for a weight of −P: IsaacLab's G1 1 (default), mjlab's G1 5.
+    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.flat_orientation, value_name = "P", value_parser = parse_orientation_penalty)]
+    orientation_penalty: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -177,6 +181,7 @@ impl Args {
             stand_share: self.stand_share,
             up_level_floor: self.up_level_floor,
             review_share: self.review_share,
+            flat_orientation_weight: -self.orientation_penalty,
         }
     }
 }
@@ -362,6 +367,14 @@ fn parse_review_share(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_orientation_penalty(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the upright penalty's size in [0, 50] (the weight is minus it), e.g. 5",
+    )
+}
+
 /// `--up-level-floor LEVEL`: a curriculum level, 0 … 10.
 fn parse_level(s: &str) -> Result<usize, String> {
     let top = train::ppo::curriculum::LEVELS - 1;
@@ -434,6 +447,8 @@ mod tests {
             "4",
             "--review-share",
             "0.3",
+            "--orientation-penalty",
+            "5",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -450,6 +465,7 @@ mod tests {
             stand_share: 0.1,
             up_level_floor: 4,
             review_share: 0.3,
+            flat_orientation_weight: -5.0,
         };
         assert_eq!(set, want);
     }
@@ -491,6 +507,11 @@ mod tests {
         assert_eq!(parse_level("4"), Ok(4));
         for bad in ["11", "-1", "4.5", "high"] {
             assert!(parse_level(bad).unwrap_err().contains("curriculum level"), "{bad}");
+        }
+        assert_eq!(parse_orientation_penalty("5"), Ok(5.0));
+        assert_eq!(parse_orientation_penalty("0"), Ok(0.0));
+        for bad in ["-1", "60", "NaN", "upright"] {
+            assert!(parse_orientation_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
         assert_eq!(parse_stand_share("0.1"), Ok(0.1));
         for bad in ["0.5", "-0.1", "NaN", "some"] {
