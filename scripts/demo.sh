@@ -13,8 +13,8 @@ cargo build --release --workspace --bins
 mkdir -p out
 spec=specs/stairs/g1_stairs_lstm.toml
 status=0
-# The low staircases the committed policy climbs (docs/stair_results.md), then the 15 cm presets it
-# does not climb yet: every run reports what happened.
+# The low staircases, then the 15 cm presets (docs/stair_results.md): every run reports what
+# happened.
 for world in specs/worlds/stairs_up_low.toml specs/worlds/stairs_down_low.toml stairs-up stairs-down; do
   name=$(basename "$world" .toml)
   echo "[demo] $name: 29-dof G1, vx 0.5 m/s with heading hold, the terrain CNN's token" >&2
