@@ -10,6 +10,12 @@ use train::cnn::model::TerrainCnn;
 
 const FIXTURE: &[u8] = include_bytes!("../../control/weights/terrain_cnn_parity.safetensors");
 
+/// A tensor of the parity fixture, as f32 values.
+fn fixture_f32s(name: &str) -> Vec<f32> {
+    let st = SafeTensors::deserialize(FIXTURE).unwrap();
+    train::tensor_file::f32_values(&st.tensor(name).unwrap()).unwrap()
+}
+
 #[test]
 fn candle_and_the_firmware_executor_agree_to_1e_4() {
     let dev = Device::Cpu;
@@ -33,14 +39,7 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
             v.set(&Tensor::from_vec(vals, v.dims(), &dev).unwrap()).unwrap();
         }
     }
-    let st = SafeTensors::deserialize(FIXTURE).unwrap();
-    let grids: Vec<f32> = st
-        .tensor("bev")
-        .unwrap()
-        .data()
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let grids = fixture_f32s("bev");
     let n = grids.len() / GRID;
     let x = Tensor::from_vec(grids.clone(), (n, 6, 60, 60), &dev).unwrap();
     let want = model.forward_t(&x, false).unwrap().to_vec2::<f32>().unwrap();
@@ -79,17 +78,8 @@ fn the_committed_export_unfolds_into_a_network_that_computes_it() {
     let model = TerrainCnn::new(VarBuilder::from_varmap(&vm, DType::F32, &dev)).unwrap();
     train::cnn::fit::load_init(&vm, &export, &dev).unwrap();
 
-    let st = SafeTensors::deserialize(FIXTURE).unwrap();
-    let f32s = |name: &str| -> Vec<f32> {
-        st.tensor(name)
-            .unwrap()
-            .data()
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    };
-    let grids = f32s("bev");
-    let want = f32s("outputs");
+    let grids = fixture_f32s("bev");
+    let want = fixture_f32s("outputs");
     let n = grids.len() / GRID;
     let x = Tensor::from_vec(grids, (n, 6, 60, 60), &dev).unwrap();
     let got = model

@@ -103,7 +103,10 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
         if name.ends_with("running_mean") {
             assert!(v.iter().all(|&x| x == 0.0), "{name} moved");
         } else if name.ends_with("running_var") {
-            assert!(v.iter().all(|&x| x == (1.0 - 1e-5) as f32), "{name} moved");
+            assert!(
+                v.iter().all(|&x| x == (1.0 - train::cnn::model::BN_EPS) as f32),
+                "{name} moved"
+            );
         }
     }
     let w0 = committed["head.weight"]

@@ -102,8 +102,13 @@ pub fn is_export(path: &Path) -> anyhow::Result<bool> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let st = safetensors::SafeTensors::deserialize(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: not a safetensors file ({e})", path.display()))?;
-    let names: Vec<String> = st.names().into_iter().cloned().collect();
-    Ok(names.iter().any(|n| n == "conv1.bias") && !names.iter().any(|n| n.starts_with("bn")))
+    Ok(is_export_layout(&st.names()))
+}
+
+/// Whether these tensor names are an export's: conv biases and no BatchNorm (a training
+/// checkpoint's convs have no bias; its BatchNorm holds the shift).
+pub fn is_export_layout<S: AsRef<str>>(names: &[S]) -> bool {
+    names.iter().any(|n| n.as_ref() == "conv1.bias") && !names.iter().any(|n| n.as_ref().starts_with("bn"))
 }
 
 /// The inverse of [`fold`] for a fine-tune: an export's tensors as training variables whose

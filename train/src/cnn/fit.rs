@@ -164,7 +164,8 @@ pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<(
 pub fn load_init(varmap: &VarMap, path: &std::path::Path, dev: &Device) -> anyhow::Result<()> {
     let loaded = candle_core::safetensors::load(path, dev)
         .map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
-    let tensors = if loaded.contains_key("conv1.bias") {
+    let names: Vec<&String> = loaded.keys().collect();
+    let tensors = if crate::cnn::export::is_export_layout(&names) {
         crate::cnn::export::unfold(&loaded)
             .with_context(|| format!("--init {}: unfolding the exported network", path.display()))?
     } else {
