@@ -4,7 +4,9 @@
 //! nothing. Time comes only from the tick index, so the same states give the same commands.
 use hal::{LowCommand, LowState, MotorCommand, TickTime, MOTOR_MODE_ENABLED, NUM_MOTORS};
 
+use crate::actor::Actor;
 use crate::envelope::{CommandEnvelope, CommandSource, EnvelopeVerdict, Violation};
+use crate::mirror::MirrorError;
 use crate::nn::{Network, NnError};
 use crate::policy_io::PolicyIo;
 use crate::spec::DeploySpec;
@@ -23,6 +25,8 @@ pub enum ControllerError {
         got: usize,
         expected: usize,
     },
+    #[error("deploy spec: [policy] mirror = \"average\"")]
+    Mirror(#[from] MirrorError),
 }
 
 /// What the controller is doing.
@@ -69,7 +73,7 @@ pub struct SlotGains {
 pub struct Controller {
     spec: DeploySpec,
     /// `None`: hold-only mode (no policy loaded; ramp to the default pose and stay there).
-    net: Option<Network>,
+    net: Option<Actor>,
     /// Observation and action rules (shared with the trainer).
     io: PolicyIo,
     action: Vec<f32>,
@@ -142,6 +146,7 @@ impl Controller {
                 startup_kd[slot] = v[i];
             }
         }
+        let net = net.map(|n| Actor::new(&spec, n)).transpose()?;
         let hz = spec.rates.control_hz as f64;
         let ramp_ticks = (spec.startup.ramp_s * hz).round() as u64;
         let engage_tick = ramp_ticks + (spec.startup.hold_s * hz).round() as u64;
@@ -229,7 +234,7 @@ impl Controller {
     pub fn weights_sha256(&self) -> String {
         self.net
             .as_ref()
-            .map_or_else(|| "none".into(), |n| n.weights_sha256().to_string())
+            .map_or_else(|| "none".into(), |n| n.network().weights_sha256().to_string())
     }
 
     /// Latches the damping state (the first reason is kept).

@@ -17,11 +17,15 @@
 //! - [`operator`]: velocity commands, e-stop and reset (constant or from a schedule file).
 //! - [`rt`]: real-time process set-up (SCHED_FIFO, CPU pinning, mlockall).
 //! - [`robot`]: the G1's joint ranges.
+//! - [`mirror`]: the left–right mirror of a spec's observation and action; [`actor`]: the policy
+//!   network as the spec runs it (alone, or averaged with its mirror image).
 //! - [`alloc_probe`]: a counting global allocator that tests install to prove the tick allocates nothing.
+pub mod actor;
 pub mod alloc_probe;
 pub mod controller;
 pub mod envelope;
 pub mod lidar_source;
+pub mod mirror;
 pub mod nn;
 pub mod obs;
 pub mod operator;

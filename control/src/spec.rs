@@ -304,10 +304,24 @@ pub struct Policy {
     /// Clip raw actions to ±this before scaling (none if absent).
     #[serde(default)]
     pub action_clip: Option<f32>,
+    /// `average`: also run the network, with its own recurrent state, on the left–right mirror image
+    /// of every observation, and act on the mean of its action and the mirrored one: a policy with
+    /// no left–right bias by construction ([`crate::mirror`]). Absent or `none`: the network alone.
+    #[serde(default)]
+    pub mirror: MirrorMode,
     /// PD gains of the driven joints, in policy order (`kp[i]` drives slot `joint_ids_map[i]`);
     /// unitree_rl_lab's deploy.yaml lists them in SDK motor order instead (`g1-import` converts).
     pub kp: Vec<f32>,
     pub kd: Vec<f32>,
+}
+
+/// How the policy network's output becomes the action (see [`Policy::mirror`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MirrorMode {
+    #[default]
+    None,
+    Average,
 }
 
 /// Motors the policy does not drive, held at a fixed pose.
@@ -831,7 +845,13 @@ impl DeploySpec {
         let used = self.validate_policy()?;
         self.validate_held(used)?;
         self.validate_commands_and_phase()?;
-        self.validate_observation()
+        self.validate_observation()?;
+        if self.policy.mirror == MirrorMode::Average {
+            if let Err(e) = crate::mirror::PolicyMirror::from_spec(self) {
+                return Err(self.invalid("policy.mirror", format!("\"average\" needs a mirrored policy: {e}")));
+            }
+        }
+        Ok(())
     }
 
     /// The estimator's contact thresholds and noise figures.

@@ -11,7 +11,9 @@
 //!
 //! Failure causes: `safety trip` (with its reason) or `fell`, whichever came first; else `stalled` (the base
 //! gained less than [`STALL_PROGRESS_M`] along the course in the last [`STALL_WINDOW_S`]), `timeout`
-//! (still moving when the time ran out), `short` (flat only: walked too little). Episodes are
+//! (still moving when the time ran out), `short` (flat only: walked too little). Beside the cause,
+//! a failure on a drawn staircase is marked `ended_off_side` when the base ended more than half the
+//! stair width from its axis: it walked off the side (the table's `off side` column). Episodes are
 //! deterministic: episode `i` runs with simulator seed `seed + i` whatever `--jobs` is.
 // Evaluation tooling, never on the robot's control path: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
@@ -187,6 +189,17 @@ pub struct Episode {
     pub reached_end_landing_at_s: Option<f64>,
     /// Progress along the course (staircase axis from the start, or along the heading on flat), m.
     pub progress_m: f64,
+    /// Farthest the base got from the staircase axis, sideways, m (0 on flat): beyond half the
+    /// stair width it has walked off the side.
+    #[serde(default)]
+    pub max_off_axis_m: f64,
+    /// Sideways from the staircase axis where the episode ended (signed, + left), m.
+    #[serde(default)]
+    pub off_axis_at_end_m: f64,
+    /// The episode ended beside the staircase (more than half its width off the axis): it walked
+    /// off the side. Known for drawn staircases (`--heights`), whose width the eval chose.
+    #[serde(default)]
+    pub ended_off_side: Option<bool>,
     pub time_s: f64,
     pub fell_at_s: Option<f64>,
     pub trip: Option<String>,
@@ -204,6 +217,9 @@ pub struct Row {
     pub success_rate: f64,
     /// Episodes per failure cause (`safety trip` merged over reasons).
     pub causes: BTreeMap<String, u64>,
+    /// Failures that ended beside the staircase (walked off its side; drawn staircases only).
+    #[serde(default)]
+    pub failed_off_side: u64,
     pub mean_risers_passed: f64,
 }
 
@@ -330,8 +346,13 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Epi
     // heading is 0), and whether it stalled.
     let mut s0: Option<f64> = None;
     let (mut watch, mut progress) = (StallWatch::default(), 0.0);
+    let (mut max_off_axis, mut off_axis) = (0.0f64, 0.0f64);
     let report = run_sim(spec.clone(), &sim, |v| {
         let Some(t) = v.truth else { return };
+        if let Some(p) = t.stairs {
+            off_axis = p.axis_t;
+            max_off_axis = max_off_axis.max(p.axis_t.abs());
+        }
         let s = t.stairs.map_or(t.base_pos[0], |p| p.axis_s);
         progress = s - *s0.get_or_insert(s);
         watch.observe(s, t.sim_time_s);
@@ -390,6 +411,9 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Epi
         risers_passed: passed,
         reached_end_landing_at_s: reached_at,
         progress_m: progress,
+        max_off_axis_m: max_off_axis,
+        off_axis_at_end_m: off_axis,
+        ended_off_side: w.drawn.map(|d| off_axis.abs() > 0.5 * d.width),
         time_s: report.time_s,
         fell_at_s: report.fell_at_s,
         trip,
@@ -425,6 +449,7 @@ fn summarise(opts: &EvalOptions, results: Vec<Episode>, wall_s: f64) -> EvalRepo
         row.successes += e.success as u64;
         *passed += e.risers_passed as u64;
         if let Some(c) = &e.cause {
+            row.failed_off_side += (e.ended_off_side == Some(true)) as u64;
             *row.causes.entry(cause_key(c)).or_insert(0) += 1;
             *causes.entry(c.clone()).or_insert(0) += 1;
         }
@@ -475,11 +500,11 @@ impl EvalReport {
         for (c, k) in &self.causes {
             s += &format!("  {k:>5} × {c}\n");
         }
-        s += "\nkind  height  episodes  success  fell  trip  stalled  timeout  short  risers passed (mean)\n";
+        s += "\nkind  height  episodes  success  fell  trip  stalled  timeout  short  off side  risers passed (mean)\n";
         for r in &self.table {
             let c = |k: &str| r.causes.get(k).copied().unwrap_or(0);
             s += &format!(
-                "{:<5} {:>4} cm  {:>8}  {:>6.1}%  {:>4}  {:>4}  {:>7}  {:>7}  {:>5}  {:.2}\n",
+                "{:<5} {:>4} cm  {:>8}  {:>6.1}%  {:>4}  {:>4}  {:>7}  {:>7}  {:>5}  {:>8}  {:.2}\n",
                 r.kind,
                 r.step_height_cm,
                 r.episodes,
@@ -489,6 +514,7 @@ impl EvalReport {
                 c("stalled"),
                 c("timeout"),
                 c("short"),
+                r.failed_off_side,
                 r.mean_risers_passed
             );
         }
@@ -577,5 +603,66 @@ mod tests {
         assert_ne!(key(&a), key(&c));
         assert!(random_sweep(&[0.5], &[true], 1, 0, &tmp).is_err());
         let _ = std::fs::remove_dir_all(&tmp);
+    }
+
+    #[test]
+    fn the_table_counts_failures_that_ended_off_the_side() {
+        let ep = |success: bool, off: Option<bool>| Episode {
+            index: 0,
+            world: "w.toml".into(),
+            drawn: None,
+            seed: 0,
+            kind: "up".into(),
+            step_height_m: 0.14,
+            success,
+            cause: (!success).then(|| "safety trip: tilt".to_string()),
+            risers: 5,
+            risers_passed: 3,
+            reached_end_landing_at_s: None,
+            progress_m: 1.0,
+            max_off_axis_m: 1.2,
+            off_axis_at_end_m: 1.1,
+            ended_off_side: off,
+            time_s: 5.0,
+            fell_at_s: None,
+            trip: None,
+            end: String::new(),
+            state_trace_sha256: String::new(),
+        };
+        let opts = EvalOptions {
+            spec: "s.toml".into(),
+            weights: None,
+            model: "g1-12dof".into(),
+            terrain_source: None,
+            vx: 0.5,
+            time_limit_s: 20.0,
+            jobs: 1,
+            seed: 0,
+            episodes: Vec::new(),
+            stop_after_landing_s: None,
+            sim_bin: None,
+            physics: None,
+            progress: false,
+            stop: Arc::default(),
+        };
+        // A success that ended off the side (it left after the landing) is no failure; a
+        // failure with an unknown width is not counted.
+        let r = summarise(
+            &opts,
+            vec![
+                ep(true, Some(true)),
+                ep(false, Some(true)),
+                ep(false, Some(false)),
+                ep(false, None),
+            ],
+            1.0,
+        );
+        assert_eq!(r.table.len(), 1);
+        assert_eq!(r.table[0].failed_off_side, 1);
+        assert_eq!(r.table[0].causes["safety trip"], 3);
+        let text = r.text();
+        assert!(text.contains("off side"), "{text}");
+        let row = text.lines().find(|l| l.starts_with("up")).unwrap();
+        assert!(row.split_whitespace().any(|c| c == "1"), "{row}");
     }
 }

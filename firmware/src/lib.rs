@@ -7,8 +7,8 @@
 //! - [`sim_run`]: `g1fw sim`, the loop against the MuJoCo simulator over the lock-stepped bridge.
 // The control core (what runs every tick) is its own crate; its modules keep their paths here.
 pub use control::{
-    alloc_probe, controller, envelope, lidar_source, nn, obs, operator, perception, perception_worker, policy_io,
-    robot, rt, runtime, spec, supervisor, terrain_net,
+    actor, alloc_probe, controller, envelope, lidar_source, mirror, nn, obs, operator, perception, perception_worker,
+    policy_io, robot, rt, runtime, spec, supervisor, terrain_net,
 };
 // So is the run's record (MCAP logs, their reader, bit-exact replay).
 pub use runlog::{log, replay};

@@ -72,6 +72,14 @@ fn eval_peer_walker_succeeds_on_flat_fails_on_stairs_and_says_why() {
     );
     assert!(stairs["reached_end_landing_at_s"].is_null());
     assert!(stairs["risers_passed"].as_u64().unwrap() < 6, "{stairs}");
+    // Sideways from the staircase axis: the farthest is at least where it ended; a preset's width
+    // is not the eval's to know, so whether it ended off the side is left open.
+    let (off_max, off_end) = (
+        stairs["max_off_axis_m"].as_f64().unwrap(),
+        stairs["off_axis_at_end_m"].as_f64().unwrap(),
+    );
+    assert!(off_max >= off_end.abs() && off_max < 2.0, "{stairs}");
+    assert!(stairs["ended_off_side"].is_null(), "{stairs}");
     let table = r["table"].as_array().unwrap();
     assert_eq!(table.len(), 2, "one row per (kind, height): {table:?}");
     assert_eq!(table[1]["kind"], "up");

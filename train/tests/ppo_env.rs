@@ -171,6 +171,64 @@ fn candle_actor_matches_the_firmware_executor() {
     assert!(worst < 1e-5, "actor mismatch {worst}");
 }
 
+/// With `[policy] mirror = "average"` the rollout's actor is the firmware's `Actor` (network and
+/// mirrored twin); the update's replay (`policy_sequence`, from the state `Actor::read_state`
+/// stored, with a reset mid-way) must give the same means, and they must differ from the network's alone.
+#[test]
+fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
+    use candle_core::{Device, Tensor};
+    let mut spec = stair_spec();
+    spec.policy.mirror = firmware::spec::MirrorMode::Average;
+    let w = std::fs::read(spec.weights_path()).unwrap();
+    let obs_dim = spec.observation_dim();
+    let mut ac = ActorCritic::new(
+        obs_dim,
+        obs_dim + train::ppo::env::CRITIC_EXTRA,
+        spec.num_joints(),
+        0.3,
+        0,
+    )
+    .unwrap();
+    ac.load_actor_widened(&spec.weights_path()).unwrap();
+    ac.mirror = Some(firmware::mirror::PolicyMirror::from_spec(&spec).unwrap());
+    let mut e = env(spec.clone(), &w, 5, Column::Flat);
+    let mut mean = vec![0.0; 12];
+    // Start the replayed window mid-episode, from a non-zero state of both networks.
+    for _ in 0..15 {
+        e.observe_and_act(&mut mean).unwrap();
+        e.step(&mean.clone()).unwrap();
+    }
+    let mut state0 = vec![0.0; ac.state_len()];
+    assert_eq!(e.net.state_len(), ac.state_len());
+    e.net.read_state(&mut state0);
+    let (t, h) = (30, 64);
+    let (mut obs, mut means, mut masks) = (Vec::new(), Vec::new(), vec![1.0f32; t]);
+    for (s, mask) in masks.iter_mut().enumerate() {
+        if s == 20 {
+            e.net.reset();
+            *mask = 0.0;
+        }
+        obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
+        means.extend_from_slice(&mean);
+        e.step(&mean.clone()).unwrap();
+    }
+    let dev = Device::Cpu;
+    let part = |at: usize| Tensor::from_vec(state0[at..at + h].to_vec(), (1, h), &dev).unwrap();
+    let (h0, c0, h1, c1) = (part(0), part(h), part(2 * h), part(3 * h));
+    let obs = Tensor::from_vec(obs, (t, 1, obs_dim), &dev).unwrap();
+    let masks = Tensor::from_vec(masks, (t, 1, 1), &dev).unwrap();
+    let flat = |x: Tensor| -> Vec<f32> { x.flatten_all().unwrap().to_vec1().unwrap() };
+    let got = flat(
+        ac.policy_sequence(&obs, Some((&h0, &c0)), Some((&h1, &c1)), &masks)
+            .unwrap(),
+    );
+    let alone = flat(ac.actor_sequence(&obs, Some((&h0, &c0)), &masks).unwrap());
+    let diff = |x: &[f32]| x.iter().zip(&means).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    eprintln!("mirror-averaged replay vs firmware Actor over {t} steps: max |Δ| = {:.2e}; the network alone differs by {:.2e}", diff(&got), diff(&alone));
+    assert!(diff(&got) < 1e-5, "replay mismatch {}", diff(&got));
+    assert!(diff(&alone) > 1e-3, "the twin changed nothing ({})", diff(&alone));
+}
+
 /// Limits, rates and the token scale reach the trainer only through the spec, as they reach the
 /// firmware: change them in the spec and both follow (issue 29: nothing hard-coded in `train/`).
 #[test]

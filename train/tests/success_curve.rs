@@ -13,6 +13,7 @@ fn row(kind: &str, cm: u32, successes: u64, episodes: u64) -> Row {
         successes,
         success_rate: successes as f64 / episodes as f64,
         causes: BTreeMap::new(),
+        failed_off_side: 0,
         mean_risers_passed: 0.0,
     }
 }

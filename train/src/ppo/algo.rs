@@ -243,6 +243,10 @@ impl Learner {
             mirror.is_none() || ac.arch.lstm_hidden() == 0,
             "symmetry augmentation needs a feed-forward actor (a mirrored LSTM state is not defined)"
         );
+        anyhow::ensure!(
+            mirror.is_none() || ac.mirror.is_none(),
+            "symmetry augmentation and a spec with [policy] mirror = \"average\" do not go together: that policy is symmetric by construction"
+        );
         Ok(Self {
             opt: adam(ac.all_vars(), cfg.lr)?,
             critic_opt: adam(ac.critic_vars(), 1e-3)?,
@@ -341,7 +345,7 @@ impl Learner {
                 let ret = Tensor::from_vec(gather(&|r| &r.returns, 1, None), t * b2, &dev)?;
                 let old_v = Tensor::from_vec(gather(&|r| &r.values, 1, None), t * b2, &dev)?;
                 let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c, m_critic)), (t * b2, c), &dev)?;
-                let state0 = lstm_state0(rolls, chunk, ac.arch.lstm_hidden())?;
+                let (state0, twin0) = lstm_states0(ac, rolls, chunk)?;
 
                 // Value loss (clipped around the rollout's values).
                 let v = ac.value(&cobs)?;
@@ -355,7 +359,7 @@ impl Learner {
                     continue;
                 }
 
-                let mean = ac.actor_sequence(&obs, state0.as_ref().map(|(h, c)| (h, c)), &masks)?;
+                let mean = ac.policy_sequence(&obs, pair(&state0), pair(&twin0), &masks)?;
                 let log_std = ac.log_std();
                 // KL(old || new) on this minibatch (before the step) drives the learning rate.
                 let new_mean: Vec<f32> = mean.flatten_all()?.to_vec1()?;
@@ -423,7 +427,6 @@ impl Learner {
     fn reference_means(&self, ac: &ActorCritic, rolls: &[EnvRollout], mb: usize) -> candle_core::Result<Vec<Vec<f32>>> {
         let (t, o, a) = (self.cfg.steps, ac.obs_dim, ac.act_dim);
         let dev = Device::Cpu;
-        let hidden = ac.arch.lstm_hidden();
         let mut out = vec![Vec::new(); rolls.len()];
         let idx: Vec<usize> = (0..rolls.len()).collect();
         for chunk in idx.chunks(mb.max(1)) {
@@ -438,9 +441,9 @@ impl Learner {
             }
             let obs = Tensor::from_vec(obs, (t, b, o), &dev)?;
             let masks = Tensor::from_vec(masks, (t, b, 1), &dev)?;
-            let state0 = lstm_state0(rolls, chunk, hidden)?;
+            let (state0, twin0) = lstm_states0(ac, rolls, chunk)?;
             let mean: Vec<f32> = ac
-                .actor_sequence(&obs, state0.as_ref().map(|(h, c)| (h, c)), &masks)?
+                .policy_sequence(&obs, pair(&state0), pair(&twin0), &masks)?
                 .detach()
                 .flatten_all()?
                 .to_vec1()?;
@@ -457,23 +460,35 @@ impl Learner {
     }
 }
 
-/// The LSTM state each of `chunk`'s rollouts started from, as `(h0, c0)` of `[B, hidden]`; `None`
-/// for a feed-forward actor.
-fn lstm_state0(rolls: &[EnvRollout], chunk: &[usize], hidden: usize) -> candle_core::Result<Option<(Tensor, Tensor)>> {
+/// The LSTM state each of `chunk`'s rollouts started from, as `(h0, c0)` of `[B, hidden]`, for the
+/// network and for its mirrored twin (`None` for a feed-forward actor, and for a policy without a
+/// twin). `state0` is laid out as the firmware's `Actor::read_state`: `h`, `c`, then the twin's.
+type State0 = Option<(Tensor, Tensor)>;
+fn lstm_states0(ac: &ActorCritic, rolls: &[EnvRollout], chunk: &[usize]) -> candle_core::Result<(State0, State0)> {
+    let hidden = ac.arch.lstm_hidden();
     if hidden == 0 {
-        return Ok(None);
+        return Ok((None, None));
     }
-    let b = chunk.len();
-    let mut h0 = Vec::with_capacity(b * hidden);
-    let mut c0 = Vec::with_capacity(b * hidden);
-    for &k in chunk {
-        h0.extend_from_slice(&rolls[k].state0[..hidden]);
-        c0.extend_from_slice(&rolls[k].state0[hidden..]);
-    }
-    Ok(Some((
-        Tensor::from_vec(h0, (b, hidden), &Device::Cpu)?,
-        Tensor::from_vec(c0, (b, hidden), &Device::Cpu)?,
-    )))
+    let at = |offset: usize| -> candle_core::Result<State0> {
+        let b = chunk.len();
+        let mut h0 = Vec::with_capacity(b * hidden);
+        let mut c0 = Vec::with_capacity(b * hidden);
+        for &k in chunk {
+            let s = &rolls[k].state0[offset..offset + 2 * hidden];
+            h0.extend_from_slice(&s[..hidden]);
+            c0.extend_from_slice(&s[hidden..]);
+        }
+        Ok(Some((
+            Tensor::from_vec(h0, (b, hidden), &Device::Cpu)?,
+            Tensor::from_vec(c0, (b, hidden), &Device::Cpu)?,
+        )))
+    };
+    let twin = if ac.mirror.is_some() { at(2 * hidden)? } else { None };
+    Ok((at(0)?, twin))
+}
+
+fn pair(s: &State0) -> Option<(&Tensor, &Tensor)> {
+    s.as_ref().map(|(h, c)| (h, c))
 }
 
 fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[Var], max: f64) -> candle_core::Result<()> {

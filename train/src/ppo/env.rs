@@ -15,6 +15,7 @@
 //! same for the same seed whatever the thread count.
 use std::sync::Arc;
 
+use firmware::actor::Actor;
 use firmware::nn::Network;
 use firmware::policy_io::PolicyIo;
 use firmware::sim_run::LandingHold;
@@ -301,7 +302,9 @@ pub struct StairEnv {
     token_scale: [f32; 4],
     sim: Simulator,
     io: PolicyIo,
-    pub net: Network,
+    /// The actor as the spec runs it (the firmware's [`firmware::actor::Actor`]: the network, and
+    /// its mirrored twin with `[policy] mirror = "average"`).
+    pub net: Actor,
     rng: Rng,
     world: World,
     pub column: Column,
@@ -380,7 +383,7 @@ impl StairEnv {
             .and_then(|t| t.scale.expand(4))
             .map_or([1.0; 4], |v| [v[0], v[1], v[2], v[3]]);
         let io = PolicyIo::new(spec);
-        let net = Network::from_safetensors_bytes(&spec.policy.network, weights)?;
+        let net = Actor::new(spec, Network::from_safetensors_bytes(&spec.policy.network, weights)?)?;
         // Driven and held motors exactly as the firmware commands them; slots the model lacks off.
         let firmware::spec::MotorTable {
             mut enabled,
@@ -774,10 +777,7 @@ impl StairEnv {
 
     /// A new actor (loaded once by the caller, cloned here); the LSTM state carries over.
     pub fn set_actor(&mut self, net: &Network) {
-        let mut state = vec![0.0; self.net.state_len()];
-        self.net.read_state(&mut state);
-        self.net = net.clone();
-        self.net.write_state(&state);
+        self.net = self.net.with_weights(net);
     }
 
     /// The mirror image (left ↔ right, y → −y; see [`super::symmetry`]) of [`StairEnv::critic_extra`]'s

@@ -17,6 +17,7 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{Init, VarMap};
+use firmware::mirror::{PolicyMirror, SignedPermutation};
 use firmware::nn::{LayerDesc, NetworkDesc};
 
 pub const CRITIC_HIDDEN: [usize; 2] = [128, 64];
@@ -256,6 +257,9 @@ pub struct ActorCritic {
     pub obs_dim: usize,
     pub critic_dim: usize,
     pub act_dim: usize,
+    /// With the spec's `[policy] mirror = "average"`: the mirror the firmware's `Actor` averages
+    /// with; [`ActorCritic::policy_sequence`] replays the same. `None`: the network alone.
+    pub mirror: Option<PolicyMirror>,
 }
 
 fn get(vars: &VarMap, name: &str) -> Tensor {
@@ -264,6 +268,15 @@ fn get(vars: &VarMap, name: &str) -> Tensor {
 
 fn elu(x: &Tensor, alpha: f64) -> Result<Tensor> {
     super::elu_op::Elu { alpha: alpha as f32 }.apply(&x.contiguous()?)
+}
+
+/// `out[.., i] = factor[i] · x[.., source[i]]` over the last dimension of `x` (differentiable).
+fn signed_permute(x: &Tensor, p: &SignedPermutation) -> Result<Tensor> {
+    let last = x.rank() - 1;
+    let idx: Vec<u32> = p.source.iter().map(|&s| s as u32).collect();
+    let idx = Tensor::from_vec(idx, p.len(), x.device())?;
+    let factor = Tensor::from_vec(p.factor.clone(), p.len(), x.device())?;
+    x.contiguous()?.index_select(&idx, last)?.broadcast_mul(&factor)
 }
 
 /// How [`ActorCritic::actor_sequence`] runs an LSTM's recurrence.
@@ -356,12 +369,30 @@ impl ActorCritic {
             arch,
             critic_dim,
             act_dim,
+            mirror: None,
         })
     }
 
-    /// Length of the actor's recurrent state (`h` then `c`; 0 for an MLP).
+    /// Length of the policy's recurrent state, as the firmware's `Actor::read_state` lays it out:
+    /// the network's `h` then `c`, then the mirrored twin's (0 for an MLP).
     pub fn state_len(&self) -> usize {
-        2 * self.arch.lstm_hidden()
+        2 * self.arch.lstm_hidden() * if self.mirror.is_some() { 2 } else { 1 }
+    }
+
+    /// The policy's action means over sequences, as the spec runs it (the firmware's `Actor`):
+    /// [`ActorCritic::actor_sequence`], or with a mirror the mean of that and the mirror image of
+    /// the network's means on the mirrored sequence, which starts from the twin's own state.
+    pub fn policy_sequence(
+        &self,
+        obs: &Tensor,
+        state0: Option<(&Tensor, &Tensor)>,
+        twin_state0: Option<(&Tensor, &Tensor)>,
+        masks: &Tensor,
+    ) -> Result<Tensor> {
+        let mean = self.actor_sequence(obs, state0, masks)?;
+        let Some(m) = &self.mirror else { return Ok(mean) };
+        let mirrored = self.actor_sequence(&signed_permute(obs, &m.obs)?, twin_state0, masks)?;
+        (mean + signed_permute(&mirrored, &m.action)?)? * 0.5
     }
 
     /// Overwrites actor tensors from a safetensors file with the spec's names. An input matrix
