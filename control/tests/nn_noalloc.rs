@@ -150,3 +150,24 @@ fn conv_step_does_not_allocate() {
     assert_eq!(after - before, 0, "conv step allocated {} times", after - before);
     assert!(y.iter().all(|v| v.is_finite()));
 }
+
+/// The mirror-averaged policy (`[policy] mirror = "average"`) steps its twin from buffers made once.
+#[test]
+fn a_mirror_averaged_actor_step_does_not_allocate() {
+    use control::spec::{DeploySpec, MirrorMode};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/stairs/g1_stairs_lstm.toml");
+    let mut spec = DeploySpec::load(&path).unwrap();
+    spec.policy.mirror = MirrorMode::Average;
+    let net = Network::load(&spec.policy.network, &spec.weights_path()).unwrap();
+    let mut actor = control::actor::Actor::new(&spec, net).unwrap();
+    let obs: Vec<f32> = (0..spec.observation_dim()).map(|i| (i % 5) as f32 * 0.1).collect();
+    let mut act = vec![0.0; spec.num_joints()];
+    actor.step(&obs, &mut act).unwrap();
+    let before = ALLOCS.with(Cell::get);
+    for _ in 0..100 {
+        actor.step(&obs, &mut act).unwrap();
+    }
+    actor.reset();
+    let after = ALLOCS.with(Cell::get);
+    assert_eq!(after, before, "allocations during 100 averaged steps");
+}
