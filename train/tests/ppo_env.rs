@@ -135,7 +135,9 @@ fn trainer_and_firmware_build_identical_observations() {
 fn candle_actor_matches_the_firmware_executor() {
     use candle_core::{Device, Tensor};
     let Some(peer) = peer_weights() else { return };
-    let spec = stair_spec();
+    // The network alone (the averaged policy has its own test below).
+    let mut spec = stair_spec();
+    spec.policy.mirror = firmware::spec::MirrorMode::None;
     let (ac, w) = warm_start(&spec, &peer);
     let mut e = env(spec.clone(), &w, 5, Column::Flat);
     let (t, o) = (40, spec.observation_dim());
