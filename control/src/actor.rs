@@ -4,7 +4,7 @@
 //! step this type, so what trains is what runs.
 use crate::mirror::{MirrorError, PolicyMirror};
 use crate::nn::{Network, NnError};
-use crate::spec::{DeploySpec, MirrorMode};
+use crate::spec::DeploySpec;
 
 /// The network run a second time on the mirror image of each observation; buffers allocated once,
 /// so a step allocates nothing.
@@ -28,20 +28,16 @@ impl Actor {
     /// The policy `spec` describes, with `net` as its network (its input and output sizes are the
     /// caller's to check against the spec).
     pub fn new(spec: &DeploySpec, net: Network) -> Result<Self, MirrorError> {
-        let twin = match spec.policy.mirror {
-            MirrorMode::None => None,
-            MirrorMode::Average => {
-                let mirror = PolicyMirror::from_spec(spec)?;
-                let n = mirror.action.len();
-                Some(MirroredTwin {
-                    obs: vec![0.0; mirror.obs.len()],
-                    raw: vec![0.0; n],
-                    action: vec![0.0; n],
-                    net: net.clone(),
-                    mirror,
-                })
+        let twin = PolicyMirror::averaged_with(spec)?.map(|mirror| {
+            let n = mirror.action.len();
+            MirroredTwin {
+                obs: vec![0.0; mirror.obs.len()],
+                raw: vec![0.0; n],
+                action: vec![0.0; n],
+                net: net.clone(),
+                mirror,
             }
-        };
+        });
         Ok(Self { net, twin })
     }
 
@@ -108,16 +104,14 @@ impl Actor {
         }
     }
 
-    /// The same policy with other weights (same description), keeping the recurrent state.
-    pub fn with_weights(&self, net: &Network) -> Self {
-        let mut out = self.clone();
-        let mut state = vec![0.0; out.state_len()];
-        out.read_state(&mut state);
-        out.net = net.clone();
-        if let Some(t) = out.twin.as_mut() {
+    /// Swaps in other weights (same description), keeping the recurrent state.
+    pub fn set_weights(&mut self, net: &Network) {
+        let mut state = vec![0.0; self.state_len()];
+        self.read_state(&mut state);
+        self.net = net.clone();
+        if let Some(t) = self.twin.as_mut() {
             t.net = net.clone();
         }
-        out.write_state(&state);
-        out
+        self.write_state(&state);
     }
 }

@@ -110,6 +110,15 @@ fn term_mirror(kind: ObsKind, joints: &[(usize, f32)], e: usize) -> (usize, f32)
 }
 
 impl PolicyMirror {
+    /// The mirror `spec`'s policy is averaged with (`[policy] mirror = "average"`), or `None` when
+    /// the network runs alone: the one place that reads the setting.
+    pub fn averaged_with(spec: &DeploySpec) -> Result<Option<Self>, MirrorError> {
+        match spec.policy.mirror {
+            crate::spec::MirrorMode::None => Ok(None),
+            crate::spec::MirrorMode::Average => Self::from_spec(spec).map(Some),
+        }
+    }
+
     /// The mirrors of `spec`'s observation and action.
     pub fn from_spec(spec: &DeploySpec) -> Result<Self, MirrorError> {
         let p = &spec.policy;

@@ -846,10 +846,8 @@ impl DeploySpec {
         self.validate_held(used)?;
         self.validate_commands_and_phase()?;
         self.validate_observation()?;
-        if self.policy.mirror == MirrorMode::Average {
-            if let Err(e) = crate::mirror::PolicyMirror::from_spec(self) {
-                return Err(self.invalid("policy.mirror", format!("\"average\" needs a mirrored policy: {e}")));
-            }
+        if let Err(e) = crate::mirror::PolicyMirror::averaged_with(self) {
+            return Err(self.invalid("policy.mirror", format!("\"average\" needs a mirrored policy: {e}")));
         }
         Ok(())
     }

@@ -129,6 +129,23 @@ fn trainer_and_firmware_build_identical_observations() {
     );
 }
 
+/// `t` policy steps of `e` acting on its actor's mean, with the actor reset before step `reset_at`
+/// (mask 0 there, as a rollout marks an episode start): observations, means and masks.
+fn record(e: &mut StairEnv, t: usize, reset_at: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (mut obs, mut means, mut masks) = (Vec::new(), Vec::new(), vec![1.0f32; t]);
+    let mut mean = vec![0.0; e.net.output_dim()];
+    for (s, mask) in masks.iter_mut().enumerate() {
+        if s == reset_at {
+            e.net.reset();
+            *mask = 0.0;
+        }
+        obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
+        means.extend_from_slice(&mean);
+        e.step(&mean.clone()).unwrap();
+    }
+    (obs, means, masks)
+}
+
 /// The PPO update replays rollouts through candle; its actor must match the firmware's executor
 /// (which produced the rollout's actions) across a sequence, including an LSTM reset mid-way.
 #[test]
@@ -141,19 +158,7 @@ fn candle_actor_matches_the_firmware_executor() {
     let (ac, w) = warm_start(&spec, &peer);
     let mut e = env(spec.clone(), &w, 5, Column::Flat);
     let (t, o) = (40, spec.observation_dim());
-    let mut obs = Vec::new();
-    let mut means = Vec::new();
-    let mut masks = vec![1.0f32; t];
-    let mut mean = vec![0.0; 12];
-    for (s, mask) in masks.iter_mut().enumerate() {
-        if s == 25 {
-            e.net.reset();
-            *mask = 0.0;
-        }
-        obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
-        means.extend_from_slice(&mean);
-        e.step(&mean.clone()).unwrap();
-    }
+    let (obs, means, masks) = record(&mut e, t, 25);
     let dev = Device::Cpu;
     let zeros = Tensor::zeros((1, 64), candle_core::DType::F32, &dev).unwrap();
     let got = ac
@@ -204,16 +209,7 @@ fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
     assert_eq!(e.net.state_len(), ac.state_len());
     e.net.read_state(&mut state0);
     let (t, h) = (30, 64);
-    let (mut obs, mut means, mut masks) = (Vec::new(), Vec::new(), vec![1.0f32; t]);
-    for (s, mask) in masks.iter_mut().enumerate() {
-        if s == 20 {
-            e.net.reset();
-            *mask = 0.0;
-        }
-        obs.extend_from_slice(e.observe_and_act(&mut mean).unwrap());
-        means.extend_from_slice(&mean);
-        e.step(&mean.clone()).unwrap();
-    }
+    let (obs, means, masks) = record(&mut e, t, 20);
     let dev = Device::Cpu;
     let part = |at: usize| Tensor::from_vec(state0[at..at + h].to_vec(), (1, h), &dev).unwrap();
     let (h0, c0, h1, c1) = (part(0), part(h), part(2 * h), part(3 * h));

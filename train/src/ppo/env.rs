@@ -777,7 +777,7 @@ impl StairEnv {
 
     /// A new actor (loaded once by the caller, cloned here); the LSTM state carries over.
     pub fn set_actor(&mut self, net: &Network) {
-        self.net = self.net.with_weights(net);
+        self.net.set_weights(net);
     }
 
     /// The mirror image (left ↔ right, y → −y; see [`super::symmetry`]) of [`StairEnv::critic_extra`]'s

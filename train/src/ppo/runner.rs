@@ -210,10 +210,7 @@ fn start_or_resume(
     let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std.unwrap_or(DEFAULT_INIT_STD), cfg.seed)?;
     ac.recurrence = cfg.ppo.recurrence;
     // The policy as the spec runs it: with `mirror = "average"` the update replays the twin too.
-    ac.mirror = match spec.policy.mirror {
-        firmware::spec::MirrorMode::None => None,
-        firmware::spec::MirrorMode::Average => Some(firmware::mirror::PolicyMirror::from_spec(spec)?),
-    };
+    ac.mirror = firmware::mirror::PolicyMirror::averaged_with(spec)?;
     if resuming {
         ac.load(&ckpt)?;
         let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
