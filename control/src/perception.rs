@@ -19,7 +19,9 @@
 use estimator::terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};
 use hal::LIDAR_FRAME_CAP;
 use hal::{PointFrame, TerrainToken};
-use sensor_io::bev::{rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter};
+use sensor_io::bev::{
+    rpy_rotation, BevBuilder, BevGrid, BevStats, MountPose, PointClass, RobotFrame, SelfFilter, WaistChain,
+};
 use sensor_io::bev_memory::{BevMemory, MemoryStats, OdomPose};
 
 /// The state estimate of one tick (attitude, base velocity and height, foot contacts).
@@ -146,10 +148,14 @@ struct PoseSample {
     rot: [[f32; 3]; 3],
     pos: [f32; 3],
     height: f32,
+    /// The waist joints (yaw, roll, pitch) the torso-mounted sensor sat on.
+    waist: [f32; 3],
 }
 
 pub struct Perception {
     mount: MountPose,
+    /// `Some` when the sensor rides on the torso (`[perception] mount_on_torso`).
+    waist_chain: Option<WaistChain>,
     history: Box<[PoseSample; HISTORY]>,
     history_len: usize,
     history_next: usize,
@@ -194,6 +200,7 @@ impl Perception {
         };
         Self {
             mount,
+            waist_chain: spec.mount_on_torso.then_some(WaistChain::G1),
             history: Box::new([PoseSample::default(); HISTORY]),
             history_len: 0,
             history_next: 0,
@@ -247,6 +254,7 @@ impl Perception {
             rot: rpy_rows(roll, pitch, yaw),
             pos,
             height,
+            waist: est.waist,
         };
         self.history_next = (self.history_next + 1) % HISTORY;
         self.history_len = (self.history_len + 1).min(HISTORY);
@@ -277,7 +285,8 @@ impl Perception {
             // No odometry: remembered frames cannot be placed.
             self.memory.clear();
         }
-        let (bev, memory) = self.grid_frame(now_ns, &RobotFrame::new(&self.mount, roll, pitch, height));
+        let current = self.sensor_frame(est.waist, roll, pitch, height);
+        let (bev, memory) = self.grid_frame(now_ns, &current);
         let heading = if est.rpy[2].is_finite() { est.rpy[2] } else { 0.0 };
         let (source, estimate, confidence, geometric) = match self.cnn.as_deref_mut() {
             Some(net) => {
@@ -344,18 +353,19 @@ impl Perception {
         let yaw_now = libm::atan2f(now.rot[1][0], now.rot[0][0]);
         let (s, c) = libm::sincosf(yaw_now);
         let unyaw = [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]];
-        let mount = RobotFrame::new(&self.mount, 0.0, 0.0, 0.0);
         let (mut n, mut self_hits, mut non_finite) = (0usize, 0usize, 0usize);
-        let mut cached: Option<(u64, PoseSample)> = None;
+        let mut cached: Option<(u64, PoseSample, RobotFrame)> = None;
         for p in self.frame.as_slice() {
             let t = self.frame.timestamp_ns.saturating_add(p.offset_ns as u64);
             // Points come in firing order: one pose lookup per tick, not per point.
-            let pose = match cached {
-                Some((tick_t, pose)) if t >= tick_t && t < tick_t + 2_000_000 => pose,
+            let (pose, mount) = match cached {
+                Some((tick_t, pose, mount)) if t >= tick_t && t < tick_t + 2_000_000 => (pose, mount),
                 _ => {
                     let pose = self.pose_at(t).copied().unwrap_or(now);
-                    cached = Some((pose.time_ns, pose));
-                    pose
+                    // Sensor → base at that tick: the torso's pose on the pelvis then.
+                    let mount = self.sensor_frame(pose.waist, 0.0, 0.0, 0.0);
+                    cached = Some((pose.time_ns, pose, mount));
+                    (pose, mount)
                 }
             };
             let base = mount.apply(p.xyz);
@@ -390,6 +400,14 @@ impl Perception {
         stats.self_hits = self_hits;
         stats.non_finite += non_finite;
         (stats, memory)
+    }
+
+    /// Sensor → robot frame with the waist at `waist` (when the sensor rides on the torso).
+    fn sensor_frame(&self, waist: [f32; 3], roll: f32, pitch: f32, height: f32) -> RobotFrame {
+        match &self.waist_chain {
+            Some(chain) => RobotFrame::on_waist(&self.mount, chain, waist, roll, pitch, height),
+            None => RobotFrame::new(&self.mount, roll, pitch, height),
+        }
     }
 
     /// The frame's points in the robot frame of the last step (self-hits removed), for logs.

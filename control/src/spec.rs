@@ -70,6 +70,11 @@ pub struct PerceptionSpec {
     pub mount_xyz: [f32; 3],
     /// Sensor roll, pitch, yaw in the pelvis frame, rad (R = Rz·Ry·Rx).
     pub mount_rpy: [f32; 3],
+    /// The sensor sits on the torso (the G1's MID-360): the mount above holds with the waist at
+    /// zero, and each point is placed through the waist joints as measured
+    /// (`sensor_io::bev::WaistChain::G1`). `false`: the sensor is fixed to the pelvis. On a robot
+    /// without waist joints (the 12-dof G1) both read the same.
+    pub mount_on_torso: bool,
     /// Robot-body boxes in the gravity-aligned robot frame, `[xmin, ymin, zmin, xmax, ymax, zmax]`
     /// (m, z from the ground under the robot); points inside are self-hits. At most 8.
     pub self_filter: Vec<[f32; 6]>,
@@ -104,6 +109,7 @@ impl Default for PerceptionSpec {
         Self {
             mount_xyz: m.xyz,
             mount_rpy: m.rpy,
+            mount_on_torso: true,
             self_filter: sensor_io::bev::SelfFilter::G1_DEFAULT
                 .boxes()
                 .iter()

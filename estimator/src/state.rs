@@ -73,6 +73,25 @@ pub struct BaseEstimate {
     pub contact_force: [f32; 2],
     /// Height of each sole's lowest point above the ground (flat-ground estimate), m.
     pub sole_height: [f32; 2],
+    /// Waist yaw, roll and pitch as measured (rad; 0 where the robot has no such joint or it read
+    /// non-finite): the torso's pose on the pelvis, which the torso-mounted lidar follows.
+    pub waist: [f32; 3],
+}
+
+/// The waist's motor slots (yaw, roll, pitch) in the G1's SDK order.
+pub const WAIST_SLOTS: [usize; 3] = [12, 13, 14];
+
+/// The waist joints of `state` (see [`BaseEstimate::waist`]).
+pub fn waist_joints(state: &LowState) -> [f32; 3] {
+    let missing = hal::g1_variant(state.mode_machine).map_or(&[][..], |v| v.missing);
+    WAIST_SLOTS.map(|slot| {
+        let q = state.motors[slot].q;
+        if missing.contains(&slot) || !q.is_finite() {
+            0.0
+        } else {
+            q
+        }
+    })
 }
 
 fn f32x3(v: &Vector3<f64>) -> [f32; 3] {
@@ -171,6 +190,7 @@ impl StateEstimator {
         let rot = self.attitude.attitude();
         self.out.attitude_source = source;
         self.write_attitude(&rot);
+        self.out.waist = waist_joints(state);
 
         let Some(kin) = &self.kinematics else {
             self.out.valid = false;
@@ -279,6 +299,21 @@ mod tests {
             m[3].tau_est = -60.0; // the knee holds the robot up
         }
         s
+    }
+
+    #[test]
+    fn the_waist_is_read_as_measured_except_where_the_robot_has_none() {
+        let mut s = standing();
+        s.mode_machine = hal::mode_machine::G1_29DOF_REV_1_0;
+        s.motors[12].q = 0.1;
+        s.motors[13].q = -0.03;
+        s.motors[14].q = f32::NAN;
+        let mut e = StateEstimator::new(None, EstimatorConfig::default(), 0.002);
+        assert_eq!(e.update(0, &s).waist, [0.1, -0.03, 0.0]);
+        // A locked waist reports whatever its slots hold: roll and pitch are zero.
+        s.mode_machine = hal::mode_machine::LOCK_WAIST_REV_1_0;
+        s.motors[14].q = 0.2;
+        assert_eq!(e.update(1, &s).waist, [0.1, 0.0, 0.0]);
     }
 
     #[test]

@@ -162,14 +162,73 @@ pub struct RobotFrame {
     pub trans: [f32; 3],
 }
 
+/// A torso-mounted sensor's chain on the G1: waist yaw about z at the pelvis origin, then waist
+/// roll about x and pitch about y at `roll_pitch_origin` (Unitree's g1_29dof_rev_1_0 MJCF and URDF:
+/// `waist_roll_link` at (-0.0039635, 0, 0.044) on `waist_yaw_link`, `torso_link` at its origin).
+/// A [`MountPose`] is given with the waist at zero; the waist's PD holds it there only up to its
+/// compliance (±0.035 rad of roll with the gait on the 29-dof G1), which tilts the whole cloud.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WaistChain {
+    /// m, waist-yaw frame.
+    pub roll_pitch_origin: [f32; 3],
+}
+
+impl WaistChain {
+    pub const G1: WaistChain = WaistChain {
+        roll_pitch_origin: [-0.0039635, 0.0, 0.044],
+    };
+
+    /// The sensor's rotation and position on the pelvis with the waist at `[yaw, roll, pitch]`
+    /// (rad), for a `mount` given with the waist at zero.
+    fn mount_at(&self, mount: &MountPose, waist: [f32; 3]) -> (M3, [f64; 3]) {
+        let [yaw, roll, pitch] = waist.map(f64::from);
+        let r_yaw = rot_z(yaw);
+        let r_waist = mat_mul(&mat_mul(&r_yaw, &rot_x(roll)), &rot_y(pitch));
+        let origin = self.roll_pitch_origin.map(f64::from);
+        let xyz = mount.xyz.map(f64::from);
+        let on_torso = [xyz[0] - origin[0], xyz[1] - origin[1], xyz[2] - origin[2]];
+        let a = mat_vec(&r_yaw, origin);
+        let b = mat_vec(&r_waist, on_torso);
+        let rot = mat_mul(&r_waist, &rpy_rotation(mount.rpy.map(f64::from)));
+        (rot, [a[0] + b[0], a[1] + b[1], a[2] + b[2]])
+    }
+}
+
 impl RobotFrame {
     /// `roll`, `pitch`: the base's attitude (rad, ZYX Euler angles, yaw left out); `base_height`:
     /// height of the base origin above the ground under the robot, m. Composed in f64.
     pub fn new(mount: &MountPose, roll: f32, pitch: f32, base_height: f32) -> Self {
-        let r_mount = rpy_rotation(mount.rpy.map(f64::from));
+        Self::compose(
+            rpy_rotation(mount.rpy.map(f64::from)),
+            mount.xyz.map(f64::from),
+            roll,
+            pitch,
+            base_height,
+        )
+    }
+
+    /// As [`RobotFrame::new`] for a sensor on the torso: `mount` holds with the waist at zero, and
+    /// `waist` (yaw, roll, pitch, rad, as measured) moves it along `chain`.
+    pub fn on_waist(
+        mount: &MountPose,
+        chain: &WaistChain,
+        waist: [f32; 3],
+        roll: f32,
+        pitch: f32,
+        base_height: f32,
+    ) -> Self {
+        if waist == [0.0; 3] {
+            // Exactly `new`'s bits (the chain's round trip through the waist origin is not).
+            return Self::new(mount, roll, pitch, base_height);
+        }
+        let (rot, xyz) = chain.mount_at(mount, waist);
+        Self::compose(rot, xyz, roll, pitch, base_height)
+    }
+
+    fn compose(r_mount: M3, xyz: [f64; 3], roll: f32, pitch: f32, base_height: f32) -> Self {
         let r_level = mat_mul(&rot_y(pitch as f64), &rot_x(roll as f64));
         let rot = mat_mul(&r_level, &r_mount);
-        let mut trans = mat_vec(&r_level, mount.xyz.map(f64::from));
+        let mut trans = mat_vec(&r_level, xyz);
         trans[2] += base_height as f64;
         Self {
             rot: rot.map(|row| row.map(|v| v as f32)),

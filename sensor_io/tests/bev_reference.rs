@@ -405,3 +405,18 @@ fn self_filter_drops_the_robots_body() {
     .unwrap();
     assert!(two.contains([-1.5; 3]) && two.contains([0.5; 3]) && !two.contains([-0.5; 3]));
 }
+
+/// With the waist at zero the torso chain is the fixed mount, bit for bit (logs recorded before
+/// the chain replay unchanged); a waist angle moves the points.
+#[test]
+fn waist_at_zero_is_the_fixed_mount_bit_for_bit() {
+    use sensor_io::bev::WaistChain;
+    let m = MountPose::G1_MID360_DEFAULT;
+    let p = [1.3, -0.4, 0.2];
+    let fixed = RobotFrame::new(&m, 0.04, -0.07, 0.75);
+    let chained = RobotFrame::on_waist(&m, &WaistChain::G1, [0.0; 3], 0.04, -0.07, 0.75);
+    assert_eq!(fixed, chained);
+    let rolled = RobotFrame::on_waist(&m, &WaistChain::G1, [0.0, 0.03, 0.0], 0.04, -0.07, 0.75);
+    let (a, b) = (fixed.apply(p), rolled.apply(p));
+    assert!((a[2] - b[2]).abs() > 0.005, "{a:?} {b:?}");
+}

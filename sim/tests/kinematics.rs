@@ -177,3 +177,76 @@ fn both_models_share_the_leg_chain() {
         assert!((a.ankle - b.ankle).norm() < 1e-9, "{side:?}: the ankles differ");
     }
 }
+
+/// The firmware places lidar points through the waist joints as measured
+/// (`sensor_io::bev::WaistChain::G1`, `[perception] mount_on_torso`); MuJoCo carries the simulated
+/// MID-360 on `torso_link`. Random waist angles and base poses: the same sensor points must land on
+/// the same pelvis-frame points.
+#[test]
+fn the_lidar_on_the_torso_follows_the_waist_as_in_mujoco() {
+    use sensor_io::bev::{MountPose, RobotFrame, WaistChain};
+    require_deps();
+    let xml = deps_dir().join("g1_29dof/g1.xml");
+    let model = MjModel::from_xml(&xml).unwrap_or_else(|e| panic!("{}: {e}", xml.display()));
+    let mut d = MjData::new(Box::new(model));
+    let m = d.model();
+    let body = |n: &str| m.name_to_id(MjtObjBase::mjOBJ_BODY, n).expect(n) as usize;
+    let (pelvis, torso) = (body("pelvis"), body("torso_link"));
+    let free_adr = m.jnt_qposadr()[m.body_jntadr()[pelvis] as usize] as usize;
+    let waist: Vec<(usize, f64, f64)> = ["waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint"]
+        .iter()
+        .map(|n| {
+            let id = m.name_to_id(MjtObjBase::mjOBJ_JOINT, n).expect(n) as usize;
+            let [lo, hi] = m.jnt_range()[id];
+            (m.jnt_qposadr()[id] as usize, lo, hi)
+        })
+        .collect();
+    let lidar = g1_sim::lidar::LidarConfig::default();
+    let (xyz, rpy) = lidar.mount_in_pelvis();
+    let mount = MountPose {
+        xyz: xyz.map(|v| v as f32),
+        rpy: rpy.map(|v| v as f32),
+    };
+    let on_torso = UnitQuaternion::from_euler_angles(lidar.mount_rpy[0], lidar.mount_rpy[1], lidar.mount_rpy[2]);
+    let points = [[2.0, 0.0, 0.0], [0.0, -1.5, 0.3], [1.0, 1.0, -2.0], [0.0, 0.0, 0.0]];
+    let mut rng = Rng(7);
+    let (mut worst, mut worst_fixed) = (0.0f64, 0.0f64);
+    for _ in 0..200 {
+        let mut q = [0.0f32; 3];
+        {
+            let qpos = d.qpos_mut();
+            for a in 0..3 {
+                qpos[free_adr + a] = rng.uniform(-2.0, 2.0);
+            }
+            let r = UnitQuaternion::from_euler_angles(
+                rng.uniform(-0.5, 0.5),
+                rng.uniform(-0.5, 0.5),
+                rng.uniform(-3.0, 3.0),
+            );
+            let rq = r.quaternion();
+            qpos[free_adr + 3..free_adr + 7].copy_from_slice(&[rq.w, rq.i, rq.j, rq.k]);
+            for (k, &(adr, lo, hi)) in waist.iter().enumerate() {
+                q[k] = rng.uniform(lo.max(-0.5), hi.min(0.5)) as f32;
+                qpos[adr] = q[k] as f64;
+            }
+        }
+        d.kinematics();
+        let (xp, xq) = (d.xpos(), d.xquat());
+        let (base_p, base_r) = (v3(xp[pelvis]), uq(xq[pelvis]));
+        let (torso_p, torso_r) = (v3(xp[torso]), uq(xq[torso]));
+        let ours = RobotFrame::on_waist(&mount, &WaistChain::G1, q, 0.0, 0.0, 0.0);
+        let fixed = RobotFrame::new(&mount, 0.0, 0.0, 0.0);
+        for p in points {
+            let sensor = torso_p + torso_r * (v3(lidar.mount_xyz) + on_torso * v3(p));
+            let want = base_r.inverse() * (sensor - base_p);
+            let got = ours.apply(p.map(|v| v as f32)).map(f64::from);
+            worst = worst.max((v3(got) - want).norm());
+            let at_zero = fixed.apply(p.map(|v| v as f32)).map(f64::from);
+            worst_fixed = worst_fixed.max((v3(at_zero) - want).norm());
+        }
+    }
+    println!("lidar points through the waist: worst {worst:.2e} m (a mount fixed to the pelvis: {worst_fixed:.3} m)");
+    assert!(worst < 2e-5, "the waist chain is off MuJoCo's by {worst} m");
+    // The check can fail: ignoring the waist misplaces the same points by decimetres.
+    assert!(worst_fixed > 0.1, "{worst_fixed}");
+}
