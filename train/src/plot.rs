@@ -539,7 +539,18 @@ pub fn success_curve_png(
         Ok(())
     }
 
-    let x1 = points.last().map_or(1.0, |p| p.env_steps / 1e6) * 1.08 + 1.0;
+    // From 0 when the points span most of the chain; zoomed onto them when they are the last
+    // stretch of a long one (the whole chain would squeeze them into one column).
+    let (first, last) = (
+        points.first().map_or(0.0, |p| p.env_steps / 1e6),
+        points.last().map_or(1.0, |p| p.env_steps / 1e6),
+    );
+    let (x0, x1) = if first > 0.5 * last {
+        let pad = 0.08 * (last - first) + 1.0;
+        (first - pad, last + pad)
+    } else {
+        (0.0, last * 1.08 + 1.0)
+    };
     let r0 = &points[0].report;
     let heights: Vec<u32> = by_height(r0).keys().copied().collect();
     let caption = format!(
@@ -553,13 +564,13 @@ pub fn success_curve_png(
     let mut chart = success_axes(
         &left,
         caption,
-        0.0..x1,
+        x0..x1,
         "env steps of training (M, the whole warm-start chain)",
     )
     .map_err(|e| err(&e))?;
     chart
         .draw_series(DashedLineSeries::new(
-            [(0.0, paper_mean), (x1, paper_mean)],
+            [(x0, paper_mean), (x1, paper_mean)],
             8,
             6,
             LIMIT.stroke_width(2),
@@ -567,7 +578,7 @@ pub fn success_curve_png(
         .map_err(|e| err(&e))?
         .label(format!("paper, mean of 12–22 cm ({paper_mean:.1} %)"))
         .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], LIMIT.stroke_width(2)));
-    let dx = 0.006 * x1;
+    let dx = 0.006 * (x1 - x0);
     for (kind, c, name, off) in [
         (Some("up"), UP, "up", -dx),
         (Some("down"), DOWN, "down", dx),
