@@ -21,5 +21,5 @@ pub mod terrain_cnn;
 
 pub use attitude::{projected_gravity, rpy, tilt_rad};
 pub use kinematics::{KinematicsError, LegKinematics, Side};
-pub use state::{waist_joints, AttitudeSource, BaseEstimate, EstimatorConfig, StateEstimator, WAIST_SLOTS};
+pub use state::{AttitudeSource, BaseEstimate, EstimatorConfig, StateEstimator};
 pub use terrain::{plausible, GeometricTerrainConfig, GeometricTerrainEstimator, TerrainEstimate};

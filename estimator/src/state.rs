@@ -79,10 +79,10 @@ pub struct BaseEstimate {
 }
 
 /// The waist's motor slots (yaw, roll, pitch) in the G1's SDK order.
-pub const WAIST_SLOTS: [usize; 3] = [12, 13, 14];
+const WAIST_SLOTS: [usize; 3] = [12, 13, 14];
 
 /// The waist joints of `state` (see [`BaseEstimate::waist`]).
-pub fn waist_joints(state: &LowState) -> [f32; 3] {
+fn waist_joints(state: &LowState) -> [f32; 3] {
     let missing = hal::g1_variant(state.mode_machine).map_or(&[][..], |v| v.missing);
     WAIST_SLOTS.map(|slot| {
         let q = state.motors[slot].q;

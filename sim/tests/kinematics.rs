@@ -28,6 +28,21 @@ fn uq(a: [f64; 4]) -> UnitQuaternion<f64> {
     UnitQuaternion::from_quaternion(Quaternion::new(a[0], a[1], a[2], a[3]))
 }
 
+/// Puts the free joint at `free_adr` at a random position (±2 m) and attitude (roll and pitch
+/// ±`tilt` rad, any heading).
+fn random_base_pose(qpos: &mut [f64], free_adr: usize, rng: &mut Rng, tilt: f64) {
+    for a in 0..3 {
+        qpos[free_adr + a] = rng.uniform(-2.0, 2.0);
+    }
+    let r = UnitQuaternion::from_euler_angles(
+        rng.uniform(-tilt, tilt),
+        rng.uniform(-tilt, tilt),
+        rng.uniform(-3.0, 3.0),
+    );
+    let rq = r.quaternion();
+    qpos[free_adr + 3..free_adr + 7].copy_from_slice(&[rq.w, rq.i, rq.j, rq.k]);
+}
+
 struct Errors {
     ankle_pos_m: f64,
     ankle_rot_rad: f64,
@@ -70,16 +85,7 @@ fn compare(mjcf: &std::path::Path, kin: &LegKinematics, n: usize, seed: u64) -> 
         {
             let qpos = d.qpos_mut();
             // A random base pose: the comparison happens in the pelvis frame.
-            for a in 0..3 {
-                qpos[free_adr + a] = rng.uniform(-2.0, 2.0);
-            }
-            let r = UnitQuaternion::from_euler_angles(
-                rng.uniform(-1.0, 1.0),
-                rng.uniform(-1.0, 1.0),
-                rng.uniform(-3.0, 3.0),
-            );
-            let rq = r.quaternion();
-            qpos[free_adr + 3..free_adr + 7].copy_from_slice(&[rq.w, rq.i, rq.j, rq.k]);
+            random_base_pose(qpos, free_adr, &mut rng, 1.0);
             for l in 0..2 {
                 for j in 0..6 {
                     let (adr, lo, hi) = joints[l][j];
@@ -215,16 +221,7 @@ fn the_lidar_on_the_torso_follows_the_waist_as_in_mujoco() {
         let mut q = [0.0f32; 3];
         {
             let qpos = d.qpos_mut();
-            for a in 0..3 {
-                qpos[free_adr + a] = rng.uniform(-2.0, 2.0);
-            }
-            let r = UnitQuaternion::from_euler_angles(
-                rng.uniform(-0.5, 0.5),
-                rng.uniform(-0.5, 0.5),
-                rng.uniform(-3.0, 3.0),
-            );
-            let rq = r.quaternion();
-            qpos[free_adr + 3..free_adr + 7].copy_from_slice(&[rq.w, rq.i, rq.j, rq.k]);
+            random_base_pose(qpos, free_adr, &mut rng, 0.5);
             for (k, &(adr, lo, hi)) in waist.iter().enumerate() {
                 q[k] = rng.uniform(lo.max(-0.5), hi.min(0.5)) as f32;
                 qpos[adr] = q[k] as f64;
