@@ -78,8 +78,12 @@ pub struct BaseEstimate {
     pub waist: [f32; 3],
 }
 
-/// The waist's motor slots (yaw, roll, pitch) in the G1's SDK order.
-const WAIST_SLOTS: [usize; 3] = [12, 13, 14];
+/// The waist's motor slots (yaw, roll, pitch), looked up by name in `hal`'s slot table.
+const WAIST_SLOTS: [usize; 3] = [
+    hal::g1_motor_slot_const("waist_yaw"),
+    hal::g1_motor_slot_const("waist_roll"),
+    hal::g1_motor_slot_const("waist_pitch"),
+];
 
 /// The waist joints of `state` (see [`BaseEstimate::waist`]).
 fn waist_joints(state: &LowState) -> [f32; 3] {

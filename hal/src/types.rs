@@ -189,6 +189,35 @@ pub fn g1_motor_slot(name: &str) -> Option<usize> {
     G1_MOTOR_NAMES.iter().position(|n| *n == base)
 }
 
+/// [`g1_motor_slot`] for constant slot tables, evaluated at compile time: a name that is not in
+/// [`G1_MOTOR_NAMES`] (no `_joint` suffix here) fails the build instead of naming a wrong slot.
+pub const fn g1_motor_slot_const(name: &str) -> usize {
+    let mut slot = 0;
+    while slot < G1_MOTOR_NAMES.len() {
+        if const_str_eq(G1_MOTOR_NAMES[slot], name) {
+            return slot;
+        }
+        slot += 1;
+    }
+    panic!("not a G1 motor name (hal::G1_MOTOR_NAMES)")
+}
+
+/// `a == b` in a const context (`str`'s `PartialEq` is not const).
+const fn const_str_eq(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    let mut i = 0;
+    while i < a.len() {
+        if a[i] != b[i] {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
+
 /// Velocity limit of a G1 joint's motor, rad/s (`<limit velocity>` in Unitree's
 /// g1_29dof_rev_1_0.urdf), by slot name with or without its side. This is the physical bound the
 /// supervisor and the trainer use by default; a deploy spec may only be stricter
@@ -292,4 +321,21 @@ pub fn g1_rotor_inertia(slot_name: &str) -> Option<f64> {
         "wrist_pitch" | "wrist_yaw" => 0.00425,
         _ => return None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_const_slot_lookup_agrees_with_the_runtime_one() {
+        for (slot, name) in G1_MOTOR_NAMES.iter().enumerate() {
+            assert_eq!(g1_motor_slot_const(name), slot, "{name}");
+            assert_eq!(g1_motor_slot(name), Some(slot), "{name}");
+        }
+        const WAIST_PITCH: usize = g1_motor_slot_const("waist_pitch");
+        assert_eq!(WAIST_PITCH, 14);
+        assert!(!const_str_eq("waist_pitch", "waist_pitc"));
+        assert!(!const_str_eq("waist_roll", "waist_yawl"));
+    }
 }
