@@ -331,7 +331,11 @@ where
     } else {
         chart
             .draw_series(std::iter::once(Text::new(
-                "no checkpoint judged yet (g1-train ppo --judge-every)",
+                if points_only {
+                    "no checkpoint judged yet (g1-train ppo --judge-every)"
+                } else {
+                    "no episode has ended yet"
+                },
                 (x0 + 0.05 * (x1 - x0), lo + 0.5 * (hi - lo)),
                 ("sans-serif", 16),
             )))
@@ -342,7 +346,8 @@ where
 
 /// The PPO run at a glance (`curves.png`): reward, stair success and falls, curriculum level,
 /// episode return (raw faint, smoothed solid), and the checkpoints judged through `g1fw` (success
-/// per kind and step height, points on their own axis); x: env steps and wall time.
+/// per kind and step height, points on their own axis, and the flat run's mean speed against its
+/// command); x: env steps and wall time.
 pub fn ppo_curves_png(
     path: &Path,
     log: &[crate::ppo::iter_log::IterLog],
@@ -469,6 +474,20 @@ pub fn ppo_curves_png(
         &wall,
         true,
         Some((-5.0, 105.0)),
+    )?;
+    let flat_speed: Vec<(f64, f64)> = judged
+        .iter()
+        .filter_map(|j| j.flat_speed_mps.map(|v| (j.env_steps as f64 / 1e6, v)))
+        .collect();
+    let vx = f64::from(crate::ppo::judge::JUDGE_VX);
+    ppo_panel(
+        &areas[5],
+        &format!("g1fw eval, flat run: mean speed (m/s; command {vx})"),
+        x,
+        &[("flat speed", CNN, flat_speed)],
+        &wall,
+        true,
+        Some((0.0, 2.0 * vx)),
     )?;
     root.present().with_context(|| format!("writing {}", path.display()))?;
     Ok(())

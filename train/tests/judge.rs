@@ -61,6 +61,12 @@ fn the_committed_stair_policy_is_judged_through_g1fw() {
     assert_eq!(kinds, [("down", 12, 1), ("flat", 0, 1), ("up", 12, 1)], "{j:?}");
     // docs/stair_results.md: the committed policy walks on flat ground (it climbs 5-8 cm, not 12).
     assert!(j.flat_ok, "the committed policy failed its flat run: {j:?}");
+    // It walks, and near the commanded 0.5 m/s (it overshoots by up to a third: README).
+    let v = j.flat_speed_mps.expect("the flat run's speed");
+    assert!(
+        (0.3..0.8).contains(&v),
+        "flat run at {v} m/s for a command of 0.5: {j:?}"
+    );
     assert_eq!(
         j.score,
         j.rows.iter().filter(|r| r.0 != "flat").map(|r| r.2).sum::<u64>() as f64 + 1.0

@@ -52,10 +52,17 @@ pub struct Judgement {
     pub stair_success: f64,
     /// The flat run ended without a fall or trip.
     pub flat_ok: bool,
+    /// The flat run's mean speed along its heading, m/s, for a command of [`JUDGE_VX`]: a policy
+    /// that overshoots the command on flat ground shows here (issue 29's tracking criterion).
+    #[serde(default)]
+    pub flat_speed_mps: Option<f64>,
     /// Ranking: stair successes, plus one for a clean flat run.
     pub score: f64,
     pub eval_wall_s: f64,
 }
+
+/// The forward speed every judged episode is commanded, m/s.
+pub const JUDGE_VX: f32 = 0.5;
 
 /// Runs the judged set on `actor` (weights for `spec`).
 pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_s: f64) -> anyhow::Result<Judgement> {
@@ -75,7 +82,7 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
         weights: Some(actor.to_path_buf()),
         model: cfg.model.clone(),
         terrain_source: None,
-        vx: 0.5,
+        vx: JUDGE_VX,
         time_limit_s: 20.0,
         jobs: 1,
         seed: cfg.seed,
@@ -102,6 +109,11 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
             n += e;
         }
     }
+    let flat_speed_mps = report
+        .results
+        .iter()
+        .find(|e| e.kind == "flat" && e.time_s > 0.0)
+        .map(|e| e.progress_m / e.time_s);
     let stair_success = if n > 0 { ok as f64 / n as f64 } else { 0.0 };
     Ok(Judgement {
         env_steps,
@@ -110,6 +122,7 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
         rows,
         stair_success,
         flat_ok,
+        flat_speed_mps,
         score: ok as f64 + flat_ok as u8 as f64,
         eval_wall_s: report.wall_s,
     })
