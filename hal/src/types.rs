@@ -185,21 +185,28 @@ pub const G1_MOTOR_NAMES: [&str; crate::NUM_MOTORS] = [
 
 /// Index of the slot whose joint is `name` (with or without the `_joint` suffix).
 pub fn g1_motor_slot(name: &str) -> Option<usize> {
-    let base = name.strip_suffix("_joint").unwrap_or(name);
-    G1_MOTOR_NAMES.iter().position(|n| *n == base)
+    slot_of(name.strip_suffix("_joint").unwrap_or(name))
 }
 
 /// [`g1_motor_slot`] for constant slot tables, evaluated at compile time: a name that is not in
 /// [`G1_MOTOR_NAMES`] (no `_joint` suffix here) fails the build instead of naming a wrong slot.
 pub const fn g1_motor_slot_const(name: &str) -> usize {
+    match slot_of(name) {
+        Some(slot) => slot,
+        None => panic!("not a G1 motor name (hal::G1_MOTOR_NAMES)"),
+    }
+}
+
+/// The one search of [`G1_MOTOR_NAMES`], usable at compile time and at run time.
+const fn slot_of(base: &str) -> Option<usize> {
     let mut slot = 0;
     while slot < G1_MOTOR_NAMES.len() {
-        if const_str_eq(G1_MOTOR_NAMES[slot], name) {
-            return slot;
+        if const_str_eq(G1_MOTOR_NAMES[slot], base) {
+            return Some(slot);
         }
         slot += 1;
     }
-    panic!("not a G1 motor name (hal::G1_MOTOR_NAMES)")
+    None
 }
 
 /// `a == b` in a const context (`str`'s `PartialEq` is not const).
