@@ -18,9 +18,11 @@
 //! - [`in_env`]: an actor evaluated in the training environment itself, one level at a time.
 //! - [`judge`]: checkpoints judged through `g1fw eval` (a fixed set of staircases and a flat run).
 //! - [`widen`]: a wider actor that computes what the narrow one did (`g1-train widen-actor`).
+//! - [`average`]: the weighted average of snapshots of one fine-tune (`g1-train average-actors`).
 //! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
 //!   against the paper (`g1-train success-curve`).
 pub mod algo;
+pub mod average;
 pub mod critic_file;
 pub mod curriculum;
 pub mod elu_op;

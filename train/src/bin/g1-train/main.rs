@@ -2,6 +2,7 @@
 //! subcommand beside this one. See the crate docs and `--help`.
 // The trainer never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
+mod average_actors;
 mod eval_terrain;
 mod export;
 mod fit;
@@ -63,6 +64,9 @@ enum Cmd {
     /// Widen an actor's hidden layers so that it still computes what it did (new units start
     /// unread), to fine-tune it with more capacity: `g1-train ppo --init-actor` takes the result.
     WidenActor(widen_actor::Args),
+    /// Average snapshots of one fine-tune, tensor by tensor (a "model soup"): weights a user can
+    /// run with `g1fw --weights`. Only actors fine-tuned from one start average into a working one.
+    AverageActors(average_actors::Args),
 }
 
 /// glibc hands every freed block over 128 KiB back to the kernel and maps it again on the next
@@ -104,5 +108,6 @@ fn main() -> anyhow::Result<()> {
         Cmd::PpoExport(args) => ppo_export::run(args),
         Cmd::SuccessCurve(args) => success_curve::run(args),
         Cmd::WidenActor(args) => widen_actor::run(args),
+        Cmd::AverageActors(args) => average_actors::run(args),
     }
 }
