@@ -32,12 +32,15 @@ pub fn average_actors(actors: &[(&[u8], f64)]) -> anyhow::Result<Vec<u8>> {
                 .map_err(|e| anyhow::anyhow!("actor {} is not a safetensors file: {e:?}", i + 1))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let mut names: Vec<String> = files[0].names().into_iter().cloned().collect();
-    names.sort();
+    let sorted_names = |f: &safetensors::SafeTensors<'_>| {
+        let mut names: Vec<String> = f.names().into_iter().cloned().collect();
+        names.sort();
+        names
+    };
+    let names = sorted_names(&files[0]);
     let mut out = Vec::with_capacity(names.len());
     for (i, f) in files.iter().enumerate().skip(1) {
-        let mut other: Vec<String> = f.names().into_iter().cloned().collect();
-        other.sort();
+        let other = sorted_names(f);
         anyhow::ensure!(
             other == names,
             "actor {} holds the tensors {other:?}, actor 1 holds {names:?}: only actors of one \

@@ -19,13 +19,11 @@ pub struct Args {
 }
 
 /// `FILE` or `FILE:WEIGHT`; a path that itself holds a ':' keeps it unless what follows parses.
-fn parse_actor(s: &str) -> anyhow::Result<(PathBuf, f64)> {
-    if let Some((path, w)) = s.rsplit_once(':') {
-        if let Ok(w) = w.parse::<f64>() {
-            return Ok((PathBuf::from(path), w));
-        }
+fn parse_actor(s: &str) -> (PathBuf, f64) {
+    match s.rsplit_once(':').map(|(path, w)| (path, w.parse::<f64>())) {
+        Some((path, Ok(w))) => (PathBuf::from(path), w),
+        _ => (PathBuf::from(s), 1.0),
     }
-    Ok((PathBuf::from(s), 1.0))
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -33,7 +31,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .with_context(|| format!("loading the deploy spec {}", args.spec.display()))?;
     let mut files = Vec::with_capacity(args.actors.len());
     for a in &args.actors {
-        let (path, w) = parse_actor(a)?;
+        let (path, w) = parse_actor(a);
         let bytes = std::fs::read(&path).with_context(|| format!("reading the actor {}", path.display()))?;
         files.push((path, bytes, w));
     }
@@ -63,16 +61,13 @@ mod tests {
 
     #[test]
     fn an_actor_takes_an_optional_weight_after_its_last_colon() {
+        assert_eq!(parse_actor("a.safetensors"), (PathBuf::from("a.safetensors"), 1.0));
         assert_eq!(
-            parse_actor("a.safetensors").unwrap(),
-            (PathBuf::from("a.safetensors"), 1.0)
-        );
-        assert_eq!(
-            parse_actor("run/a.safetensors:2.5").unwrap(),
+            parse_actor("run/a.safetensors:2.5"),
             (PathBuf::from("run/a.safetensors"), 2.5)
         );
         assert_eq!(
-            parse_actor("c:/x.safetensors").unwrap(),
+            parse_actor("c:/x.safetensors"),
             (PathBuf::from("c:/x.safetensors"), 1.0)
         );
     }
