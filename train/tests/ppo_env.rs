@@ -687,6 +687,49 @@ fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
     );
 }
 
+/// `--drift-penalty` changes only what a drift across the target heading's line costs: the same
+/// heading-hold walk (same seed, same actions, the same motion) earns less at every step it has
+/// drifted, never more, and at most the cap's worth less; a joystick episode, which has no line,
+/// earns exactly the same.
+#[test]
+fn drift_penalty_charges_heading_hold_walks_for_leaving_their_line_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let run = |penalty: f64, joystick_share: f64| {
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
+        cfg.settings.drift_weight = -penalty;
+        cfg.settings.joystick_share = joystick_share;
+        rewards_and_joint(cfg, 3, &weights, 150, 0)
+    };
+    let (r_off, q_off) = run(0.0, 0.0);
+    let (r_on, q_on) = run(2.0, 0.0);
+    assert_eq!(q_off, q_on, "the penalty changed the motion, not only the reward");
+    assert_eq!(r_off.len(), 150, "the committed actor fell on flat ground");
+    let dt = 1.0 / spec.rates.policy_hz as f64;
+    let cap = 2.0 * train::ppo::reward::MAX_DRIFT_M * dt;
+    for (i, (off, on)) in r_off.iter().zip(&r_on).enumerate() {
+        let cost = (off - on) as f64;
+        assert!(
+            (-1e-6..=cap + 1e-6).contains(&cost),
+            "step {i}: the drift cost {cost}, outside 0 … {cap}"
+        );
+    }
+    let total: f32 = r_off.iter().zip(&r_on).map(|(a, b)| a - b).sum();
+    assert!(
+        total > 1e-4,
+        "a 3 s walk with heading hold never left its line: cost {total}"
+    );
+    let (j_off, _) = run(0.0, 1.0);
+    let (j_on, _) = run(2.0, 1.0);
+    assert_eq!(
+        j_off, j_on,
+        "a joystick episode paid for drifting from a line it does not have"
+    );
+}
+
 /// `--end-stalled`: a robot that makes no progress towards a staircase (Unitree's walker, trained on
 /// backward commands, told to back away at 0.3 m/s; the stair policies never saw one and walk on)
 /// fails once it has gained less than

@@ -221,6 +221,9 @@ pub struct EnvSettings {
     /// Weight of the `flat_orientation` penalty ‖g_xy‖² (IsaacLab's G1 −1 by default, mjlab's
     /// G1 −5). The committed actor walks flat ground leaning 11° sideways at −1.
     pub flat_orientation_weight: f64,
+    /// Weight of the `drift` penalty (m across the target heading's line; `reward::drift`).
+    /// 0 (default): off.
+    pub drift_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -247,6 +250,7 @@ impl EnvSettings {
         up_level_floor: 0,
         review_share: 0.0,
         flat_orientation_weight: reward::WEIGHTS.flat_orientation,
+        drift_weight: reward::WEIGHTS.drift,
     };
 }
 
@@ -859,6 +863,7 @@ impl StairEnv {
         }
         let weights = Weights {
             flat_orientation: self.cfg.settings.flat_orientation_weight,
+            drift: self.cfg.settings.drift_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -926,6 +931,11 @@ impl StairEnv {
                     hc * v[0] + hs * v[1]
                 };
                 along.clamp(0.0, (cmd[0]).max(0.0))
+            },
+            drift: if self.joystick.is_some() {
+                0.0
+            } else {
+                reward::drift(self.heading, t.base_pos[0], t.base_pos[1])
             },
             ..Terms::default()
         };

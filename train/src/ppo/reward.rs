@@ -25,6 +25,7 @@
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) at any physics step, as `g1fw` checks every 2 ms tick, or with `--end-stalled` a stall on a staircase (< 0.1 m in 3 s, `g1fw eval`'s; not on time-out or success) | −200 |
 //! | `progress` | speed along the target heading, clamped to 0 … the commanded forward speed, m/s | +2.0 |
+//! | `drift` | \|distance of the base across the target heading's line through the start\|, m, capped at 1 m; heading-hold episodes only (a joystick episode has no line) | 0 unless `--drift-penalty` sets it |
 //! | `success` | 1 / dt on the step the base has stood on the end landing for `LANDING_HOLD_S` (1 s) without a fall: `g1fw eval`'s success (a one-off +3) | +3 |
 //!
 //! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
@@ -44,6 +45,13 @@
 //! carries the base past the landing earned the bonus and a promotion before; now it earns neither.
 //! And the bonus waits until the base has stood on the landing for 1 s, as `g1fw eval` scores a
 //! climb: paid on crossing a line, it taught run 14 to dive across the line and fall just after.
+//!
+//! Why `drift`: heading hold turns the robot back to the staircase axis but nothing brought it
+//! back to the line, and a drift across the axis cost nothing until the base left the staircase.
+//! A third of the committed actor's failed climbs up 12–22 cm through `g1fw eval` ended off the
+//! side of the staircase (the soup x1s: 100 of 360, 12-dof), and successes drifted 0.29 m
+//! (median of the largest offset) on stairs 1.6 m wide. The policy cannot see the offset; the
+//! penalty teaches it not to build one.
 //!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
@@ -71,6 +79,7 @@ pub const WEIGHTS: Weights = Weights {
     body_contact: -1.0,
     termination: -200.0,
     progress: 2.0,
+    drift: 0.0,
     success: 3.0,
 };
 
@@ -86,6 +95,15 @@ pub const CLEARANCE_LOOKAHEAD: f64 = 0.12;
 /// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
 /// `firmware::supervisor::MotionLimits`.)
 pub const MIN_BASE_HEIGHT: f64 = 0.4;
+
+/// Largest drift the `drift` term counts, m: past it the base is off any staircase we draw.
+pub const MAX_DRIFT_M: f64 = 1.0;
+
+/// The `drift` term: the distance of `(x, y)` from the line through the start `(0, 0)` along
+/// `heading` (rad), capped at [`MAX_DRIFT_M`].
+pub fn drift(heading: f64, x: f64, y: f64) -> f64 {
+    (-heading.sin() * x + heading.cos() * y).abs().min(MAX_DRIFT_M)
+}
 
 /// Raw term values of one step (before weights and dt); `Terms::total` applies them.
 #[derive(Clone, Copy, Debug, Default)]
@@ -107,6 +125,7 @@ pub struct Terms {
     pub body_contact: f64,
     pub termination: f64,
     pub progress: f64,
+    pub drift: f64,
     pub success: f64,
 }
 
@@ -129,6 +148,7 @@ impl Terms {
             + w.body_contact * self.body_contact
             + w.termination * self.termination
             + w.progress * self.progress
+            + w.drift * self.drift
             + w.success * self.success)
     }
 }
@@ -146,5 +166,20 @@ mod tests {
         };
         assert!((t.total(&WEIGHTS, 0.02) - 0.02 * (1.0 - 200.0)).abs() < 1e-12);
         assert_eq!(Terms::default().total(&WEIGHTS, 0.02), 0.0);
+    }
+
+    #[test]
+    fn drift_is_the_distance_across_the_heading_line_and_capped() {
+        // Along the line, at any heading: no drift.
+        assert!(drift(0.0, 3.0, 0.0).abs() < 1e-12);
+        let h = 25f64.to_radians();
+        assert!(drift(h, 2.0 * h.cos(), 2.0 * h.sin()).abs() < 1e-12);
+        // Across it: the perpendicular distance, either side.
+        assert!((drift(0.0, 1.0, 0.3) - 0.3).abs() < 1e-12);
+        assert!((drift(0.0, 1.0, -0.3) - 0.3).abs() < 1e-12);
+        assert!((drift(h, 2.0 * h.cos() - 0.4 * h.sin(), 2.0 * h.sin() + 0.4 * h.cos()) - 0.4).abs() < 1e-12);
+        assert_eq!(drift(0.0, 0.0, 5.0), MAX_DRIFT_M);
+        // Off by default: the committed recipe's reward is unchanged.
+        assert_eq!(WEIGHTS.drift, 0.0);
     }
 }

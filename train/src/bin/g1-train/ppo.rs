@@ -141,6 +141,11 @@ pub struct Args {
     /// for a weight of −P: IsaacLab's G1 1 (default), mjlab's G1 5.
     #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.flat_orientation, value_name = "P", value_parser = parse_orientation_penalty)]
     orientation_penalty: f64,
+    /// Weight of the drift penalty (metres across the line through the start along the target
+    /// heading, per second; heading-hold episodes), given as a positive number P for a weight
+    /// of −P. 0 (default): off.
+    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.drift, value_name = "P", value_parser = parse_drift_penalty)]
+    drift_penalty: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -182,6 +187,7 @@ impl Args {
             up_level_floor: self.up_level_floor,
             review_share: self.review_share,
             flat_orientation_weight: -self.orientation_penalty,
+            drift_weight: -self.drift_penalty,
         }
     }
 }
@@ -375,6 +381,14 @@ fn parse_orientation_penalty(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_drift_penalty(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the drift penalty's size in [0, 50] (the weight is minus it), e.g. 2",
+    )
+}
+
 /// `--up-level-floor LEVEL`: a curriculum level, 0 … 10.
 fn parse_level(s: &str) -> Result<usize, String> {
     let top = train::ppo::curriculum::LEVELS - 1;
@@ -449,6 +463,8 @@ mod tests {
             "0.3",
             "--orientation-penalty",
             "5",
+            "--drift-penalty",
+            "2",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -466,6 +482,7 @@ mod tests {
             up_level_floor: 4,
             review_share: 0.3,
             flat_orientation_weight: -5.0,
+            drift_weight: -2.0,
         };
         assert_eq!(set, want);
     }
@@ -512,6 +529,10 @@ mod tests {
         assert_eq!(parse_orientation_penalty("0"), Ok(0.0));
         for bad in ["-1", "60", "NaN", "upright"] {
             assert!(parse_orientation_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
+        }
+        assert_eq!(parse_drift_penalty("2"), Ok(2.0));
+        for bad in ["-1", "60", "NaN", "sideways"] {
+            assert!(parse_drift_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
         assert_eq!(parse_stand_share("0.1"), Ok(0.1));
         for bad in ["0.5", "-0.1", "NaN", "some"] {
