@@ -36,6 +36,25 @@ pub fn heading_command(vx: f32, target_yaw: f32, yaw: f32) -> [f32; 3] {
     [vx, 0.0, if err.is_nan() { f32::NAN } else { wz }]
 }
 
+/// Gain of the line hold: heading offset (rad) per metre across the line.
+pub const LINE_K: f32 = 1.0;
+/// Largest heading offset the line hold asks for, rad (≈ 29°).
+pub const LINE_MAX_RAD: f32 = 0.5;
+
+/// The heading that steers back to the line through the start (0, 0) along `target_yaw`, from
+/// the robot's position `(x, y)` in the same frame: the target turned toward the line by
+/// `LINE_K` rad per metre across it, at most [`LINE_MAX_RAD`]. What an operator does who keeps
+/// the robot on a staircase's centre line; heading hold alone lets a sideways drift grow.
+/// A non-finite position gives the plain target (heading hold as before).
+pub fn line_heading(target_yaw: f32, x: f32, y: f32) -> f32 {
+    let (s, c) = (libm::sinf(target_yaw), libm::cosf(target_yaw));
+    let left_of_line = -s * x + c * y;
+    if !left_of_line.is_finite() {
+        return target_yaw;
+    }
+    target_yaw - (LINE_K * left_of_line).clamp(-LINE_MAX_RAD, LINE_MAX_RAD)
+}
+
 /// Yaw (rad) of the IMU's quaternion (w, x, y, z) as the firmware reads it.
 pub fn imu_yaw(state: &LowState) -> f32 {
     let [w, x, y, z] = state.imu.quaternion;
@@ -59,6 +78,11 @@ pub trait OperatorSource {
     fn at_state(&mut self, tick: TickTime, _state: &LowState) -> OperatorInput {
         self.at(tick)
     }
+    /// [`OperatorSource::at_state`] with the estimator's newest base estimate (from the previous
+    /// tick), for operators that close a loop on where the robot is (the line hold).
+    fn at_estimate(&mut self, tick: TickTime, state: &LowState, _estimate: &estimator::BaseEstimate) -> OperatorInput {
+        self.at_state(tick, state)
+    }
 }
 
 /// A schedule's commands with the heading correction applied every tick: the schedule's vx (its vy
@@ -69,6 +93,9 @@ pub struct HeadingSource<S> {
     /// Target heading, rad, in the IMU's yaw frame (the world frame in simulation: the robot starts
     /// at yaw 0).
     pub target_yaw: f32,
+    /// Also steer back to the line through the start along `target_yaw` ([`line_heading`]), from
+    /// the estimator's base position (leg odometry; never ground truth).
+    pub hold_line: bool,
 }
 
 impl<S: OperatorSource> OperatorSource for HeadingSource<S> {
@@ -78,6 +105,20 @@ impl<S: OperatorSource> OperatorSource for HeadingSource<S> {
     fn at_state(&mut self, tick: TickTime, state: &LowState) -> OperatorInput {
         let mut op = self.inner.at_state(tick, state);
         op.velocity = heading_command(op.velocity[0], self.target_yaw, imu_yaw(state));
+        op
+    }
+    fn at_estimate(&mut self, tick: TickTime, state: &LowState, estimate: &estimator::BaseEstimate) -> OperatorInput {
+        if !self.hold_line {
+            return self.at_state(tick, state);
+        }
+        let mut op = self.inner.at_estimate(tick, state, estimate);
+        let [x, y, _] = estimate.position;
+        let target = if estimate.valid {
+            line_heading(self.target_yaw, x, y)
+        } else {
+            self.target_yaw
+        };
+        op.velocity = heading_command(op.velocity[0], target, imu_yaw(state));
         op
     }
 }
@@ -323,6 +364,7 @@ mod tests {
         let mut h = HeadingSource {
             inner: s.source(2_000_000),
             target_yaw: 0.2,
+            hold_line: false,
         };
         let mut st = LowState::default();
         // Yaw 0.6 rad about z.
@@ -332,6 +374,53 @@ mod tests {
         assert!(op.velocity[0] == 0.4 && op.velocity[1] == 0.0, "{op:?}");
         assert!((op.velocity[2] + HEADING_K * 0.4).abs() < 1e-6, "{op:?}");
         assert!(h.at_state(tick(5), &st).estop);
+    }
+
+    #[test]
+    fn line_heading_turns_back_towards_the_line_and_saturates() {
+        // On the line (anywhere along it): the target itself.
+        assert_eq!(line_heading(0.0, 2.0, 0.0), 0.0);
+        let h = 0.4f32;
+        assert!((line_heading(h, 3.0 * libm::cosf(h), 3.0 * libm::sinf(h)) - h).abs() < 1e-6);
+        // 0.2 m left of a line along +x: turn right by K · 0.2; right of it, left.
+        assert!((line_heading(0.0, 1.0, 0.2) + LINE_K * 0.2).abs() < 1e-6);
+        assert!((line_heading(0.0, 1.0, -0.2) - LINE_K * 0.2).abs() < 1e-6);
+        // Across a line at 90°, "left" is −x.
+        assert!(
+            (line_heading(std::f32::consts::FRAC_PI_2, -0.1, 1.0) - (std::f32::consts::FRAC_PI_2 - LINE_K * 0.1)).abs()
+                < 1e-6
+        );
+        // Far off: at most LINE_MAX_RAD. A non-finite position: the plain target.
+        assert_eq!(line_heading(0.0, 0.0, 5.0), -LINE_MAX_RAD);
+        assert_eq!(line_heading(0.0, 0.0, -5.0), LINE_MAX_RAD);
+        assert_eq!(line_heading(0.3, f32::NAN, 0.0), 0.3);
+    }
+
+    #[test]
+    fn heading_source_holds_the_line_from_the_estimate_only_when_asked() {
+        let s = CommandSchedule::parse("0 0.5 0 0\n", Path::new("x")).unwrap();
+        let st = LowState::default(); // yaw 0
+        let mut est = estimator::BaseEstimate {
+            valid: true,
+            ..Default::default()
+        };
+        est.position = [1.0, 0.4, 0.0]; // 0.4 m left of the line along +x
+        let mut plain = HeadingSource {
+            inner: s.source(2_000_000),
+            target_yaw: 0.0,
+            hold_line: false,
+        };
+        assert_eq!(plain.at_estimate(tick(0), &st, &est).velocity, [0.5, 0.0, 0.0]);
+        let mut line = HeadingSource {
+            inner: s.source(2_000_000),
+            target_yaw: 0.0,
+            hold_line: true,
+        };
+        let wz = line.at_estimate(tick(0), &st, &est).velocity[2];
+        assert!((wz + HEADING_K * LINE_K * 0.4).abs() < 1e-6, "{wz}");
+        // An estimate the estimator marks invalid is not steered on.
+        est.valid = false;
+        assert_eq!(line.at_estimate(tick(0), &st, &est).velocity, [0.5, 0.0, 0.0]);
     }
 
     #[test]

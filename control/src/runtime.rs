@@ -819,7 +819,7 @@ where
             }
         };
         *at = (k, state.mode_machine);
-        let op = operator.at_state(tick, &state);
+        let op = operator.at_estimate(tick, &state, rt.estimate());
         if rt.terrain_source() == TerrainSource::Truth {
             // The documented evaluation ablation: ground truth into the policy's token.
             rt.set_truth_token(hal.truth().and_then(|t| t.terrain));

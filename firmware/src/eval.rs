@@ -164,6 +164,8 @@ pub struct EvalOptions {
     pub sim_bin: Option<PathBuf>,
     /// The simulator's physics profile (`g1-sim --physics`; `None`: deploy).
     pub physics: Option<String>,
+    /// The operator also steers back to the staircase's centre line (`g1fw sim --hold-line`).
+    pub hold_line: bool,
     pub progress: bool,
     /// Set by SIGINT/SIGTERM: running episodes stop at their next tick (their simulators are
     /// stopped and reaped) and are not scored; no new one starts; the report covers what finished.
@@ -338,6 +340,7 @@ fn episode(spec: &DeploySpec, opts: &EvalOptions, i: usize) -> Result<Option<Epi
         world: Some(w.world.clone()),
         terrain_source: opts.terrain_source,
         heading: Some(Heading::StairAxis),
+        hold_line: opts.hold_line,
         stop_after_landing_s: opts.stop_after_landing_s,
         stop: opts.stop.clone(),
         ..SimOptions::default()
@@ -642,6 +645,7 @@ mod tests {
             stop_after_landing_s: None,
             sim_bin: None,
             physics: None,
+            hold_line: false,
             progress: false,
             stop: Arc::default(),
         };

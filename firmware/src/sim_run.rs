@@ -66,6 +66,9 @@ pub struct SimOptions {
     /// Heading correction: the schedule's vx with [`crate::operator::heading_command`] towards
     /// this target every tick (`None`: the schedule's commands as they are).
     pub heading: Option<Heading>,
+    /// With a heading: also steer back to the line through the start along it, from the
+    /// estimator's position ([`crate::operator::line_heading`]).
+    pub hold_line: bool,
     /// Stop once the base has stood on the staircase's end landing this long (s), with no fall
     /// and no safety trip: the run has succeeded (saves time in evaluations).
     pub stop_after_landing_s: Option<f64>,
@@ -104,6 +107,17 @@ impl OperatorSource for SimOperator<'_> {
             SimOperator::Heading(h) => h.at_state(tick, state),
         }
     }
+    fn at_estimate(
+        &mut self,
+        tick: hal::TickTime,
+        state: &hal::LowState,
+        estimate: &estimator::BaseEstimate,
+    ) -> OperatorInput {
+        match self {
+            SimOperator::Plain(s) => s.at_estimate(tick, state, estimate),
+            SimOperator::Heading(h) => h.at_estimate(tick, state, estimate),
+        }
+    }
 }
 
 impl Default for SimOptions {
@@ -131,6 +145,7 @@ impl Default for SimOptions {
             terrain_source: None,
             perception: crate::perception_worker::PerceptionExec::Inline,
             heading: None,
+            hold_line: false,
             stop: Arc::new(AtomicBool::new(false)),
             stop_after_landing_s: None,
         }
@@ -497,6 +512,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         Some(target_yaw) => SimOperator::Heading(HeadingSource {
             inner: opts.schedule.source(welcome.control_dt_ns),
             target_yaw,
+            hold_line: opts.hold_line,
         }),
     };
     let (mut landed, mut interrupted, mut log_failed) = (false, false, false);

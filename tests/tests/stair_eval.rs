@@ -173,6 +173,60 @@ fn heading_command_turns_the_robot_to_the_target() {
     assert!(r["distance_y_m"].as_f64().unwrap() > 0.1, "{}", r["distance_y_m"]);
 }
 
+/// `--hold-line`: heading hold alone leaves the robot beside the line it was pointed along (it
+/// walked off at its start heading while turning), the line hold brings it back, from the
+/// estimator's position.
+#[test]
+fn hold_line_brings_the_robot_back_to_the_line_heading_hold_leaves_it_beside() {
+    if shared_dir().is_none() {
+        return skip_or_fail("hold_line_brings_the_robot_back_to_the_line_heading_hold_leaves_it_beside");
+    }
+    let dir = scratch_dir("hold-line");
+    let spec = peer_spec_path();
+    let off_line = |extra: &[&str], name: &str| {
+        let report = dir.join(name);
+        let mut args = vec![
+            "sim",
+            "--spec",
+            spec.to_str().unwrap(),
+            "--model",
+            "g1-12dof",
+            "--cmd",
+            "0.3,0,0",
+            "--heading",
+            "30",
+            "--duration",
+            "14",
+            "--quiet",
+            "--report",
+            report.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let out = g1fw(&args);
+        ok(&out, &format!("g1fw sim --heading 30 {extra:?}"));
+        let r = read_json(&report);
+        assert_eq!(r["fell"], false, "{extra:?}");
+        let (x, y) = (r["distance_x_m"].as_f64().unwrap(), r["distance_y_m"].as_f64().unwrap());
+        let h = 30f64.to_radians();
+        // Signed distance to the left of the line through the start along 30°.
+        -h.sin() * x + h.cos() * y
+    };
+    let heading_only = off_line(&[], "heading.json");
+    let held = off_line(&["--hold-line"], "line.json");
+    assert!(
+        heading_only < -0.15,
+        "heading hold alone should leave the robot right of the line (it starts facing 0°): {heading_only:.3} m"
+    );
+    assert!(
+        held.abs() < 0.5 * heading_only.abs(),
+        "the line hold left the robot {held:.3} m off the line, heading hold alone {heading_only:.3} m"
+    );
+    // --hold-line without --heading has no line to hold: refused.
+    let out = g1fw(&["sim", "--hold-line", "--duration", "1"]);
+    assert!(!ran(&out), "--hold-line without --heading ran");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--heading"));
+}
+
 const TOKEN_OBS: std::ops::Range<usize> = 33..45;
 
 /// The token part of every logged observation (rl_lab_terrain.toml: 3 frames of class, h, d, yaw).

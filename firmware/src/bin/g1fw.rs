@@ -213,6 +213,12 @@ struct SimArgs {
     /// --cmd-schedule (whose vy and wz it then ignores).
     #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
     heading: Option<f64>,
+    /// With --heading: also steer back to the line through the start along that heading, from
+    /// the estimator's position: the target heading turns toward the line by 1 rad per metre
+    /// across it, at most 0.5 rad (`firmware::operator::line_heading`). Heading hold alone lets a
+    /// sideways drift grow until the robot leaves a staircase's side.
+    #[arg(long, requires = "heading")]
+    hold_line: bool,
     /// Draw base height and the ground under the base against distance along the staircase axis
     /// (along x on flat ground) to this PNG.
     #[arg(long, value_name = "FILE.png")]
@@ -298,6 +304,10 @@ struct EvalArgs {
     /// iterations, no joint friction), to measure how much of a policy's result is the physics.
     #[arg(long, value_name = "deploy|training", value_parser = ["deploy", "training"])]
     sim_physics: Option<String>,
+    /// The operator also steers back to the staircase's centre line (the line through the start
+    /// along the axis), from the estimator's position, as `g1fw sim --hold-line`.
+    #[arg(long)]
+    hold_line: bool,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -663,6 +673,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         heading: a
             .heading
             .map(|d| firmware::sim_run::Heading::Fixed(d.to_radians() as f32)),
+        hold_line: a.hold_line,
         stop_after_landing_s: a.stop_after_landing,
         stop: stop_on_signals()?,
     };
@@ -870,6 +881,7 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
         stop_after_landing_s: (a.stop_after_landing > 0.0).then_some(a.stop_after_landing),
         sim_bin: a.sim_bin,
         physics: a.sim_physics,
+        hold_line: a.hold_line,
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         stop: stop_on_signals()?,
     };

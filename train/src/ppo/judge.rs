@@ -90,6 +90,7 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
         stop_after_landing_s: Some(1.0),
         sim_bin: cfg.sim_bin.clone(),
         physics: None,
+        hold_line: false,
         progress: false,
         stop: Arc::new(AtomicBool::new(false)),
     };
