@@ -48,10 +48,11 @@
 //!
 //! Why `drift`: heading hold turns the robot back to the staircase axis but nothing brought it
 //! back to the line, and a drift across the axis cost nothing until the base left the staircase.
-//! A third of the committed actor's failed climbs up 12–22 cm through `g1fw eval` ended off the
-//! side of the staircase (the soup x1s: 100 of 360, 12-dof), and successes drifted 0.29 m
-//! (median of the largest offset) on stairs 1.6 m wide. The policy cannot see the offset; the
-//! penalty teaches it not to build one.
+//! A quarter of the committed actor's failed climbs up 12–22 cm through `g1fw eval` ended off
+//! the side of the staircase (12-dof 99 of 372, 29-dof 66 of 179), and successes drifted 0.29 m
+//! (median of the largest offset) on stairs 1.2–2.0 m wide. The policy cannot see the offset, and
+//! run 39 (P = 2 from the committed actor) drifted more and climbed worse (docs/stair_policy.md,
+//! session 17): off by default.
 //!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
