@@ -730,6 +730,60 @@ fn drift_penalty_charges_heading_hold_walks_for_leaving_their_line_and_nothing_e
     );
 }
 
+/// `--hold-line`: the trainer's operator steers back to the line through the start by the
+/// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
+/// closer to it, and the command differs only by turning back toward the line.
+#[test]
+fn hold_line_steers_training_walks_back_to_their_line() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let walk = |hold_line: bool| {
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
+        cfg.settings.hold_line = hold_line;
+        let mut e = StairEnv::new(cfg, 3, &weights).unwrap();
+        let mut mean = vec![0.0f32; 12];
+        let mut turned_back = 0;
+        for _ in 0..450 {
+            let [x, y, _] = e.base_position();
+            let h = e.target_heading();
+            let left = -h.sin() * x + h.cos() * y;
+            let yaw = firmware::operator::imu_yaw(e.low_state());
+            let plain = firmware::operator::heading_command(0.5, h as f32, yaw)[2];
+            let cmd = e.operator_command()[2];
+            if hold_line && left.abs() > 0.02 {
+                // Left of the line: turn right of what heading hold asks (and the reverse).
+                assert!(
+                    (cmd - plain) * left as f32 <= 0.0,
+                    "{left} m off: {cmd} vs heading hold's {plain}"
+                );
+                turned_back += ((cmd - plain).abs() > 1e-4) as usize;
+            } else if !hold_line {
+                assert_eq!(cmd, plain);
+            }
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            assert!(!out.terminated, "fell on flat ground");
+            if out.truncated {
+                break;
+            }
+        }
+        let [x, y, _] = e.base_position();
+        let h = e.target_heading();
+        ((-h.sin() * x + h.cos() * y).abs(), turned_back)
+    };
+    let (plain_off, _) = walk(false);
+    let (held_off, turned_back) = walk(true);
+    eprintln!("off the line after the walk: {plain_off:.3} m with heading hold, {held_off:.3} m with the line hold ({turned_back} commands turned back)");
+    assert!(turned_back > 0, "the line hold never changed a command");
+    assert!(
+        held_off < plain_off,
+        "the line hold ended {held_off:.3} m off the line, heading hold alone {plain_off:.3} m"
+    );
+}
+
 /// `--end-stalled`: a robot that makes no progress towards a staircase (Unitree's walker, trained on
 /// backward commands, told to back away at 0.3 m/s; the stair policies never saw one and walk on)
 /// fails once it has gained less than

@@ -224,6 +224,10 @@ pub struct EnvSettings {
     /// Weight of the `drift` penalty (m across the target heading's line; `reward::drift`).
     /// 0 (default): off.
     pub drift_weight: f64,
+    /// Heading-hold episodes also steer back to the line through the start along the target
+    /// heading, by `g1fw sim|eval --hold-line`'s rule (`firmware::operator::line_heading`), from
+    /// the simulator's base position (the firmware reads its estimator's). false (default): off.
+    pub hold_line: bool,
 }
 
 /// The default share of episodes commanded to stand.
@@ -251,6 +255,7 @@ impl EnvSettings {
         review_share: 0.0,
         flat_orientation_weight: reward::WEIGHTS.flat_orientation,
         drift_weight: reward::WEIGHTS.drift,
+        hold_line: false,
     };
 }
 
@@ -739,17 +744,30 @@ impl StairEnv {
     }
 
     /// The operator's command now: forward speed with heading hold toward the staircase axis,
-    /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval`, or a
-    /// joystick episode's constant command.
+    /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval` (with
+    /// `hold_line`, as `--hold-line`), or a joystick episode's constant command.
     pub fn operator_command(&self) -> [f32; 3] {
         if let Some(cmd) = self.joystick {
             return cmd;
         }
-        firmware::operator::heading_command(
-            self.vx_cmd,
-            self.heading as f32,
-            firmware::operator::imu_yaw(&self.state),
-        )
+        let target = if self.cfg.settings.hold_line {
+            let [x, y, _] = self.base_position();
+            firmware::operator::line_heading(self.heading as f32, x as f32, y as f32)
+        } else {
+            self.heading as f32
+        };
+        firmware::operator::heading_command(self.vx_cmd, target, firmware::operator::imu_yaw(&self.state))
+    }
+
+    /// The base's position in the world (the simulator's; the robot starts at the origin), m.
+    pub fn base_position(&self) -> [f64; 3] {
+        self.sim.truth().base_pos
+    }
+
+    /// The target heading of a heading-hold episode (the staircase axis, or 0 on flat ground, with
+    /// a little noise), rad in the world frame.
+    pub fn target_heading(&self) -> f64 {
+        self.heading
     }
 
     /// The actor's observation of the current state, built by the firmware's `PolicyIo`.

@@ -146,6 +146,11 @@ pub struct Args {
     /// of −P. 0 (default): off.
     #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.drift, value_name = "P", value_parser = parse_drift_penalty)]
     drift_penalty: f64,
+    /// Heading-hold episodes also steer back to the line through the start along the target
+    /// heading (a staircase's centre line), by `g1fw sim|eval --hold-line`'s rule, from the
+    /// simulator's base position.
+    #[arg(long)]
+    hold_line: bool,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -188,6 +193,7 @@ impl Args {
             review_share: self.review_share,
             flat_orientation_weight: -self.orientation_penalty,
             drift_weight: -self.drift_penalty,
+            hold_line: self.hold_line,
         }
     }
 }
@@ -465,6 +471,7 @@ mod tests {
             "5",
             "--drift-penalty",
             "2",
+            "--hold-line",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -483,6 +490,7 @@ mod tests {
             review_share: 0.3,
             flat_orientation_weight: -5.0,
             drift_weight: -2.0,
+            hold_line: true,
         };
         assert_eq!(set, want);
     }
