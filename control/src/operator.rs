@@ -41,18 +41,24 @@ pub const LINE_K: f32 = 1.0;
 /// Largest heading offset the line hold asks for, rad (≈ 29°).
 pub const LINE_MAX_RAD: f32 = 0.5;
 
+/// Signed distance (m, left positive) of `(x, y)` from the line through the start (0, 0) along
+/// `target_yaw`: the one definition of "the line" (the line hold steers by it, the trainer's
+/// drift penalty charges it).
+pub fn left_of_line(target_yaw: f32, x: f32, y: f32) -> f32 {
+    -libm::sinf(target_yaw) * x + libm::cosf(target_yaw) * y
+}
+
 /// The heading that steers back to the line through the start (0, 0) along `target_yaw`, from
 /// the robot's position `(x, y)` in the same frame: the target turned toward the line by
-/// `LINE_K` rad per metre across it, at most [`LINE_MAX_RAD`]. What an operator does who keeps
-/// the robot on a staircase's centre line; heading hold alone lets a sideways drift grow.
-/// A non-finite position gives the plain target (heading hold as before).
+/// `LINE_K` rad per metre across it ([`left_of_line`]), at most [`LINE_MAX_RAD`]. What an
+/// operator does who keeps the robot on a staircase's centre line; heading hold alone lets a
+/// sideways drift grow. A non-finite position gives the plain target (heading hold as before).
 pub fn line_heading(target_yaw: f32, x: f32, y: f32) -> f32 {
-    let (s, c) = (libm::sinf(target_yaw), libm::cosf(target_yaw));
-    let left_of_line = -s * x + c * y;
-    if !left_of_line.is_finite() {
+    let left = left_of_line(target_yaw, x, y);
+    if !left.is_finite() {
         return target_yaw;
     }
-    target_yaw - (LINE_K * left_of_line).clamp(-LINE_MAX_RAD, LINE_MAX_RAD)
+    target_yaw - (LINE_K * left).clamp(-LINE_MAX_RAD, LINE_MAX_RAD)
 }
 
 /// Yaw (rad) of the IMU's quaternion (w, x, y, z) as the firmware reads it.

@@ -1,6 +1,5 @@
 //! The PPO environment against the firmware: the warm start walks in it, and trainer and firmware
 //! build identical observations and actions for the same states (parity by construction, checked).
-#![allow(clippy::disallowed_methods)] // a test: never runs on the robot
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -750,7 +749,7 @@ fn hold_line_steers_training_walks_back_to_their_line() {
         for _ in 0..450 {
             let [x, y, _] = e.base_position();
             let h = e.target_heading();
-            let left = -h.sin() * x + h.cos() * y;
+            let left = firmware::operator::left_of_line(h as f32, x as f32, y as f32);
             let yaw = firmware::operator::imu_yaw(e.low_state());
             let plain = firmware::operator::heading_command(0.5, h as f32, yaw)[2];
             let cmd = e.operator_command()[2];
@@ -773,7 +772,10 @@ fn hold_line_steers_training_walks_back_to_their_line() {
         }
         let [x, y, _] = e.base_position();
         let h = e.target_heading();
-        ((-h.sin() * x + h.cos() * y).abs(), turned_back)
+        (
+            firmware::operator::left_of_line(h as f32, x as f32, y as f32).abs(),
+            turned_back,
+        )
     };
     let (plain_off, _) = walk(false);
     let (held_off, turned_back) = walk(true);

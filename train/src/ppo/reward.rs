@@ -101,9 +101,12 @@ pub const MIN_BASE_HEIGHT: f64 = 0.4;
 pub const MAX_DRIFT_M: f64 = 1.0;
 
 /// The `drift` term: the distance of `(x, y)` from the line through the start `(0, 0)` along
-/// `heading` (rad), capped at [`MAX_DRIFT_M`].
+/// `heading` (rad; `firmware::operator::left_of_line`, the line `--hold-line` steers to), capped
+/// at [`MAX_DRIFT_M`].
 pub fn drift(heading: f64, x: f64, y: f64) -> f64 {
-    (-heading.sin() * x + heading.cos() * y).abs().min(MAX_DRIFT_M)
+    (firmware::operator::left_of_line(heading as f32, x as f32, y as f32) as f64)
+        .abs()
+        .min(MAX_DRIFT_M)
 }
 
 /// Raw term values of one step (before weights and dt); `Terms::total` applies them.
@@ -172,13 +175,13 @@ mod tests {
     #[test]
     fn drift_is_the_distance_across_the_heading_line_and_capped() {
         // Along the line, at any heading: no drift.
-        assert!(drift(0.0, 3.0, 0.0).abs() < 1e-12);
+        assert!(drift(0.0, 3.0, 0.0).abs() < 1e-6);
         let h = 25f64.to_radians();
-        assert!(drift(h, 2.0 * h.cos(), 2.0 * h.sin()).abs() < 1e-12);
+        assert!(drift(h, 2.0 * h.cos(), 2.0 * h.sin()).abs() < 1e-6);
         // Across it: the perpendicular distance, either side.
-        assert!((drift(0.0, 1.0, 0.3) - 0.3).abs() < 1e-12);
-        assert!((drift(0.0, 1.0, -0.3) - 0.3).abs() < 1e-12);
-        assert!((drift(h, 2.0 * h.cos() - 0.4 * h.sin(), 2.0 * h.sin() + 0.4 * h.cos()) - 0.4).abs() < 1e-12);
+        assert!((drift(0.0, 1.0, 0.3) - 0.3).abs() < 1e-6);
+        assert!((drift(0.0, 1.0, -0.3) - 0.3).abs() < 1e-6);
+        assert!((drift(h, 2.0 * h.cos() - 0.4 * h.sin(), 2.0 * h.sin() + 0.4 * h.cos()) - 0.4).abs() < 1e-6);
         assert_eq!(drift(0.0, 0.0, 5.0), MAX_DRIFT_M);
         // Off by default: the committed recipe's reward is unchanged.
         assert_eq!(WEIGHTS.drift, 0.0);
