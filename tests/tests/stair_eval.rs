@@ -144,26 +144,7 @@ fn heading_command_turns_the_robot_to_the_target() {
     if shared_dir().is_none() {
         return skip_or_fail("heading_command_turns_the_robot_to_the_target");
     }
-    let dir = scratch_dir("heading");
-    let report = dir.join("r.json");
-    let out = g1fw(&[
-        "sim",
-        "--spec",
-        peer_spec_path().to_str().unwrap(),
-        "--model",
-        "g1-12dof",
-        "--cmd",
-        "0.3,0,0",
-        "--heading",
-        "30",
-        "--duration",
-        "9",
-        "--quiet",
-        "--report",
-        report.to_str().unwrap(),
-    ]);
-    ok(&out, "g1fw sim --heading 30");
-    let r = read_json(&report);
+    let r = peer_walks_towards_30_degrees(&scratch_dir("heading"), "9", &[]);
     assert_eq!(r["fell"], false);
     assert!((r["heading_target_deg"].as_f64().unwrap() - 30.0).abs() < 1e-4);
     // Time constant 1/K = 2 s over ~7 s under policy: within a few degrees of 30°.
@@ -171,6 +152,32 @@ fn heading_command_turns_the_robot_to_the_target() {
     assert!((turned - 30.0).abs() < 6.0, "turned {turned:.1}° towards 30°");
     // It walked off towards the target, i.e. to the left.
     assert!(r["distance_y_m"].as_f64().unwrap() > 0.1, "{}", r["distance_y_m"]);
+}
+
+/// The peer walker (12-dof) at 0.3 m/s with heading hold towards 30° for `duration` s, plus
+/// `extra` flags; its report.
+fn peer_walks_towards_30_degrees(dir: &Path, duration: &str, extra: &[&str]) -> serde_json::Value {
+    let report = dir.join(format!("heading{}.json", extra.join("")));
+    let spec = peer_spec_path();
+    let mut args = vec![
+        "sim",
+        "--spec",
+        spec.to_str().unwrap(),
+        "--model",
+        "g1-12dof",
+        "--cmd",
+        "0.3,0,0",
+        "--heading",
+        "30",
+        "--duration",
+        duration,
+        "--quiet",
+        "--report",
+        report.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    ok(&g1fw(&args), &format!("g1fw sim --heading 30 {extra:?}"));
+    read_json(&report)
 }
 
 /// `--hold-line`: heading hold alone leaves the robot beside the line it was pointed along (it
@@ -182,37 +189,15 @@ fn hold_line_brings_the_robot_back_to_the_line_heading_hold_leaves_it_beside() {
         return skip_or_fail("hold_line_brings_the_robot_back_to_the_line_heading_hold_leaves_it_beside");
     }
     let dir = scratch_dir("hold-line");
-    let spec = peer_spec_path();
-    let off_line = |extra: &[&str], name: &str| {
-        let report = dir.join(name);
-        let mut args = vec![
-            "sim",
-            "--spec",
-            spec.to_str().unwrap(),
-            "--model",
-            "g1-12dof",
-            "--cmd",
-            "0.3,0,0",
-            "--heading",
-            "30",
-            "--duration",
-            "14",
-            "--quiet",
-            "--report",
-            report.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        let out = g1fw(&args);
-        ok(&out, &format!("g1fw sim --heading 30 {extra:?}"));
-        let r = read_json(&report);
+    let off_line = |extra: &[&str]| {
+        let r = peer_walks_towards_30_degrees(&dir, "14", extra);
         assert_eq!(r["fell"], false, "{extra:?}");
         let (x, y) = (r["distance_x_m"].as_f64().unwrap(), r["distance_y_m"].as_f64().unwrap());
-        let h = 30f64.to_radians();
         // Signed distance to the left of the line through the start along 30°.
-        -h.sin() * x + h.cos() * y
+        firmware::operator::left_of_line(30f32.to_radians(), x as f32, y as f32)
     };
-    let heading_only = off_line(&[], "heading.json");
-    let held = off_line(&["--hold-line"], "line.json");
+    let heading_only = off_line(&[]);
+    let held = off_line(&["--hold-line"]);
     assert!(
         heading_only < -0.15,
         "heading hold alone should leave the robot right of the line (it starts facing 0°): {heading_only:.3} m"
