@@ -787,6 +787,72 @@ fn hold_line_steers_training_walks_back_to_their_line() {
     );
 }
 
+/// `--stair-turns`: a staircase episode's target heading leaves the axis once and comes back, so
+/// the command differs from holding the axis only for a while, and always to one side; flat
+/// episodes and runs without the flag hold the axis at every step.
+#[test]
+fn stair_turns_command_one_turn_off_the_axis_on_staircases_only() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    // Per step: the command's turn rate minus heading hold's toward the axis.
+    let walk = |share: f64, only: Column, seed: u64| {
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), only);
+        cfg.settings.stair_turn_share = share;
+        let mut e = StairEnv::new(cfg, seed, &weights).unwrap();
+        let mut mean = vec![0.0f32; 12];
+        let mut diffs = Vec::new();
+        for _ in 0..450 {
+            let yaw = firmware::operator::imu_yaw(e.low_state());
+            let cmd = e.operator_command();
+            let axis = firmware::operator::heading_command(cmd[0], e.target_heading() as f32, yaw);
+            assert_eq!(cmd[..2], axis[..2], "a turn changed the speed command");
+            diffs.push(cmd[2] - axis[2]);
+            e.observe_and_act(&mut mean).unwrap();
+            let out = e.step(&mean).unwrap();
+            if out.terminated || out.truncated {
+                break;
+            }
+        }
+        diffs
+    };
+    let mut turned_episodes = 0;
+    for seed in 0..3 {
+        let diffs = walk(1.0, Column::Up, seed);
+        let turned: Vec<f32> = diffs.iter().copied().filter(|d| d.abs() > 1e-6).collect();
+        let (left, right) = (
+            turned.iter().filter(|&&d| d > 0.0).count(),
+            turned.iter().filter(|&&d| d < 0.0).count(),
+        );
+        eprintln!("seed {seed}: {} steps, {left} turned left, {right} right", diffs.len());
+        assert!(
+            left == 0 || right == 0,
+            "seed {seed}: one turn went both ways ({left} left, {right} right)"
+        );
+        // A turn lasts 1–2.5 s (50–125 policy steps) once the episode reaches it; heading hold
+        // saturates at the same limit on both sides now and then, so a few steps may match.
+        if !turned.is_empty() {
+            turned_episodes += 1;
+            assert!(
+                turned.len() <= 126,
+                "seed {seed}: off the axis for {} steps",
+                turned.len()
+            );
+        }
+        assert!(turned.len() < diffs.len(), "seed {seed}: never on the axis");
+    }
+    assert!(turned_episodes > 0, "no staircase episode turned");
+    for (share, only) in [(1.0, Column::Flat), (0.0, Column::Up)] {
+        let diffs = walk(share, only, 0);
+        assert!(
+            diffs.iter().all(|&d| d == 0.0),
+            "share {share} on {only:?}: the command left the axis"
+        );
+    }
+}
+
 /// `--end-stalled`: a robot that makes no progress towards a staircase (Unitree's walker, trained on
 /// backward commands, told to back away at 0.3 m/s; the stair policies never saw one and walk on)
 /// fails once it has gained less than

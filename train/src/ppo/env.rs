@@ -31,6 +31,7 @@ use super::curriculum;
 pub use super::curriculum::Column;
 pub use super::curriculum::{level_height, LEVELS, MAX_STEPS};
 use super::reward::{self, Terms, Weights, WEIGHTS};
+use super::stair_turn::StairTurn;
 use super::termination;
 pub use super::termination::FALL_CAUSES;
 
@@ -228,6 +229,10 @@ pub struct EnvSettings {
     /// heading, by `g1fw sim|eval --hold-line`'s rule (`firmware::operator::line_heading`), from
     /// the simulator's base position (the firmware reads its estimator's). false (default): off.
     pub hold_line: bool,
+    /// Share of heading-hold staircase episodes whose target heading leaves the axis once and
+    /// comes back ([`StairTurn`]), so the policy is asked to turn while it climbs.
+    /// 0 (default): every staircase episode holds the axis.
+    pub stair_turn_share: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -256,6 +261,7 @@ impl EnvSettings {
         flat_orientation_weight: reward::WEIGHTS.flat_orientation,
         drift_weight: reward::WEIGHTS.drift,
         hold_line: false,
+        stair_turn_share: 0.0,
     };
 }
 
@@ -327,6 +333,8 @@ pub struct StairEnv {
     heading: f64,
     /// A joystick episode's constant command (vx, vy, wz), in place of heading hold.
     joystick: Option<[f32; 3]>,
+    /// This episode's commanded turn off the staircase's axis (none: `StairTurn::default()`).
+    turn: StairTurn,
     token: TerrainToken,
     token_phase: u32,
     latency: usize,
@@ -427,6 +435,7 @@ impl StairEnv {
             vx_cmd: 0.0,
             heading: 0.0,
             joystick: None,
+            turn: StairTurn::default(),
             token: TerrainToken::FLAT,
             token_phase: 0,
             latency: 0,
@@ -579,6 +588,15 @@ impl StairEnv {
                 self.vx_cmd = self.rng.range(lo, hi) as f32;
             }
             self.joystick = Some([self.vx_cmd, vy as f32, wz as f32]);
+        }
+        self.turn = StairTurn::default();
+        // Drawn only when enabled, so runs without turns keep their random streams.
+        if self.column != Column::Flat
+            && self.held_vx.is_none()
+            && self.cfg.settings.stair_turn_share > 0.0
+            && self.rng.chance(self.cfg.settings.stair_turn_share)
+        {
+            self.turn = StairTurn::draw(&mut self.rng);
         }
         self.step = 0;
         self.fell = false;
@@ -745,17 +763,19 @@ impl StairEnv {
 
     /// The operator's command now: forward speed with heading hold toward the staircase axis,
     /// by the same rule and from the same IMU yaw as `g1fw sim --heading` / `g1fw eval` (with
-    /// `hold_line`, as `--hold-line`), or a joystick episode's constant command.
+    /// `hold_line`, as `--hold-line`; off the axis during a commanded turn, `stair_turn_share`),
+    /// or a joystick episode's constant command.
     pub fn operator_command(&self) -> [f32; 3] {
         if let Some(cmd) = self.joystick {
             return cmd;
         }
-        let target = if self.cfg.settings.hold_line {
+        let axis = if self.cfg.settings.hold_line {
             let [x, y, _] = self.base_position();
             firmware::operator::line_heading(self.heading as f32, x as f32, y as f32)
         } else {
             self.heading as f32
         };
+        let target = axis + self.turn.offset_at(self.time_s()) as f32;
         firmware::operator::heading_command(self.vx_cmd, target, firmware::operator::imu_yaw(&self.state))
     }
 

@@ -11,6 +11,7 @@
 //! - [`elu_op`]: ELU as one op with a one-loop backward.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
+//! - [`stair_turn`]: commanded turns off a staircase's axis (`--stair-turns`).
 //! - [`rollout`]: environments stepping the actor with exploration noise.
 //! - [`algo`]: rollout storage, GAE and the PPO update.
 //! - [`runner`]: the loop (a pipeline of rollout and update on worker threads), checkpoints, curves.
@@ -35,6 +36,7 @@ pub mod policy;
 pub mod reward;
 pub mod rollout;
 pub mod runner;
+pub mod stair_turn;
 pub mod success_curve;
 pub mod symmetry;
 pub mod termination;

@@ -151,6 +151,11 @@ pub struct Args {
     /// simulator's base position.
     #[arg(long)]
     hold_line: bool,
+    /// Share of heading-hold staircase episodes whose target heading leaves the staircase's
+    /// axis once, by 0.15–0.45 rad for 1–2.5 s during the approach or the flight, and comes back
+    /// (`train::ppo::stair_turn`): turn-rate commands where the robot climbs. 0 (default): none.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_stair_turns)]
+    stair_turns: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -194,6 +199,7 @@ impl Args {
             flat_orientation_weight: -self.orientation_penalty,
             drift_weight: -self.drift_penalty,
             hold_line: self.hold_line,
+            stair_turn_share: self.stair_turns,
         }
     }
 }
@@ -387,6 +393,14 @@ fn parse_orientation_penalty(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_stair_turns(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=1.0).contains(&v),
+        "the share of staircase episodes with a commanded turn in [0, 1], e.g. 0.5",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -472,6 +486,8 @@ mod tests {
             "--drift-penalty",
             "2",
             "--hold-line",
+            "--stair-turns",
+            "0.5",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -491,6 +507,7 @@ mod tests {
             flat_orientation_weight: -5.0,
             drift_weight: -2.0,
             hold_line: true,
+            stair_turn_share: 0.5,
         };
         assert_eq!(set, want);
     }
@@ -539,6 +556,10 @@ mod tests {
             assert!(parse_orientation_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
         assert_eq!(parse_drift_penalty("2"), Ok(2.0));
+        assert_eq!(parse_stair_turns("0.5"), Ok(0.5));
+        for bad in ["-0.1", "1.5", "NaN", "some"] {
+            assert!(parse_stair_turns(bad).unwrap_err().contains("[0, 1]"), "{bad}");
+        }
         for bad in ["-1", "60", "NaN", "sideways"] {
             assert!(parse_drift_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
