@@ -730,6 +730,43 @@ fn drift_penalty_charges_heading_hold_walks_for_leaving_their_line_and_nothing_e
     );
 }
 
+/// `--yaw-error-penalty`: the same staircase walk (same seed, same actions, the same motion) earns
+/// less at a step by P times its squared turn-rate error: never more, twice as much less at twice
+/// the penalty, and less in all over a walk whose turn rate never matches the command exactly.
+#[test]
+fn yaw_error_penalty_charges_the_squared_turn_rate_error_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let run = |penalty: f64| {
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
+        cfg.settings.yaw_error_weight = -penalty;
+        rewards_and_joint(cfg, 5, &weights, 150, 0)
+    };
+    let (r0, q0) = run(0.0);
+    let (r1, q1) = run(1.0);
+    let (r2, q2) = run(2.0);
+    assert_eq!(q0, q1, "the penalty changed the motion, not only the reward");
+    assert_eq!(q0, q2);
+    assert!(r0.len() > 50, "the committed actor fell within {} steps", r0.len());
+    let mut total = 0.0;
+    for i in 0..r0.len() {
+        let (c1, c2) = ((r0[i] - r1[i]) as f64, (r0[i] - r2[i]) as f64);
+        assert!(c1 >= -1e-6, "step {i}: the penalty paid {c1}");
+        assert!(
+            (c2 - 2.0 * c1).abs() <= 1e-5 + 1e-3 * c1.abs(),
+            "step {i}: P 1 cost {c1}, P 2 cost {c2}"
+        );
+        total += c1;
+    }
+    assert!(
+        total > 1e-4,
+        "a staircase walk never missed its turn rate: cost {total}"
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

@@ -233,6 +233,9 @@ pub struct EnvSettings {
     /// comes back ([`StairTurn`]), so the policy is asked to turn while it climbs.
     /// 0 (default): every staircase episode holds the axis.
     pub stair_turn_share: f64,
+    /// Weight of the `yaw_rate_error` penalty (the squared turn-rate error, `reward`).
+    /// 0 (default): off.
+    pub yaw_error_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -262,6 +265,7 @@ impl EnvSettings {
         drift_weight: reward::WEIGHTS.drift,
         hold_line: false,
         stair_turn_share: 0.0,
+        yaw_error_weight: reward::WEIGHTS.yaw_rate_error,
     };
 }
 
@@ -902,6 +906,7 @@ impl StairEnv {
         let weights = Weights {
             flat_orientation: self.cfg.settings.flat_orientation_weight,
             drift: self.cfg.settings.drift_weight,
+            yaw_rate_error: self.cfg.settings.yaw_error_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -956,6 +961,7 @@ impl StairEnv {
                 / self.cfg.settings.tracking_std.powi(2))
             .exp(),
             track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / self.cfg.settings.tracking_std.powi(2)).exp(),
+            yaw_rate_error: (cmd[2] - w[2]).powi(2),
             flat_orientation: (g[0] as f64).powi(2) + (g[1] as f64).powi(2),
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
             // Speed along the target heading, up to the commanded speed: standing at a riser earns

@@ -26,6 +26,7 @@
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) at any physics step, as `g1fw` checks every 2 ms tick, or with `--end-stalled` a stall on a staircase (< 0.1 m in 3 s, `g1fw eval`'s; not on time-out or success) | −200 |
 //! | `progress` | speed along the target heading, clamped to 0 … the commanded forward speed, m/s | +2.0 |
 //! | `drift` | \|distance of the base across the target heading's line through the start\|, m, capped at 1 m; heading-hold episodes only (a joystick episode has no line) | 0 unless `--drift-penalty` sets it |
+//! | `yaw_rate_error` | (ω_cmd,z − ω_z)², rad²/s², every episode | 0 unless `--yaw-error-penalty` sets it |
 //! | `success` | 1 / dt on the step the base has stood on the end landing for `LANDING_HOLD_S` (1 s) without a fall: `g1fw eval`'s success (a one-off +3) | +3 |
 //!
 //! Why `foot_clearance` differs from mjlab's (−2 · (clearance − 0.1)² · speed): in metres squared
@@ -54,6 +55,13 @@
 //! run 39 (P = 2 from the committed actor) drifted more and climbed worse (docs/stair_policy.md,
 //! session 17): off by default.
 //!
+//! Why `yaw_rate_error`: on a flight the robot turns in bursts of 0.7–1.6 rad/s (a foot meeting
+//! a riser pivots the base) against heading hold's ±0.1, and these end climbs off the side of the
+//! staircase or in base angular-speed trips. `track_ang_vel_z`'s kernel is flat there: at σ = 0.35
+//! an error of 0.6 rad/s already earns 5 % of the term and 1 rad/s 0.03 %, so the policy gains
+//! nothing by making a burst smaller. A squared error keeps a gradient at any size (a burst of
+//! 1.5 rad/s costs 2.25 P per second, the kernel's whole term is worth 2).
+//!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
 //! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
@@ -81,6 +89,7 @@ pub const WEIGHTS: Weights = Weights {
     termination: -200.0,
     progress: 2.0,
     drift: 0.0,
+    yaw_rate_error: 0.0,
     success: 3.0,
 };
 
@@ -130,6 +139,7 @@ pub struct Terms {
     pub termination: f64,
     pub progress: f64,
     pub drift: f64,
+    pub yaw_rate_error: f64,
     pub success: f64,
 }
 
@@ -153,6 +163,7 @@ impl Terms {
             + w.termination * self.termination
             + w.progress * self.progress
             + w.drift * self.drift
+            + w.yaw_rate_error * self.yaw_rate_error
             + w.success * self.success)
     }
 }
@@ -185,5 +196,6 @@ mod tests {
         assert_eq!(drift(0.0, 0.0, 5.0), MAX_DRIFT_M);
         // Off by default: the committed recipe's reward is unchanged.
         assert_eq!(WEIGHTS.drift, 0.0);
+        assert_eq!(WEIGHTS.yaw_rate_error, 0.0);
     }
 }

@@ -156,6 +156,11 @@ pub struct Args {
     /// (`train::ppo::stair_turn`): turn-rate commands where the robot climbs. 0 (default): none.
     #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_stair_turns)]
     stair_turns: f64,
+    /// Weight of a squared turn-rate error penalty, (commanded − measured yaw rate)², given as a
+    /// positive number P for a weight of −P: unlike the tracking kernel it still pays to make a
+    /// large turn-rate error smaller. 0 (default): off.
+    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.yaw_rate_error, value_name = "P", value_parser = parse_yaw_error_penalty)]
+    yaw_error_penalty: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -200,6 +205,7 @@ impl Args {
             drift_weight: -self.drift_penalty,
             hold_line: self.hold_line,
             stair_turn_share: self.stair_turns,
+            yaw_error_weight: -self.yaw_error_penalty,
         }
     }
 }
@@ -401,6 +407,14 @@ fn parse_stair_turns(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_yaw_error_penalty(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the turn-rate error penalty's size in [0, 50] (the weight is minus it), e.g. 1",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -488,6 +502,8 @@ mod tests {
             "--hold-line",
             "--stair-turns",
             "0.5",
+            "--yaw-error-penalty",
+            "1",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -508,6 +524,7 @@ mod tests {
             drift_weight: -2.0,
             hold_line: true,
             stair_turn_share: 0.5,
+            yaw_error_weight: -1.0,
         };
         assert_eq!(set, want);
     }
@@ -557,6 +574,10 @@ mod tests {
         }
         assert_eq!(parse_drift_penalty("2"), Ok(2.0));
         assert_eq!(parse_stair_turns("0.5"), Ok(0.5));
+        assert_eq!(parse_yaw_error_penalty("1"), Ok(1.0));
+        for bad in ["-1", "60", "NaN", "strong"] {
+            assert!(parse_yaw_error_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
+        }
         for bad in ["-0.1", "1.5", "NaN", "some"] {
             assert!(parse_stair_turns(bad).unwrap_err().contains("[0, 1]"), "{bad}");
         }
