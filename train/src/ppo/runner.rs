@@ -170,6 +170,14 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         }
     }
     bar.finish();
+    if state.iteration >= cfg.iterations {
+        // The default count (1000) ends a run long before most `--max-wall` limits.
+        tracing::info!(
+            "stopped at --iterations {} ({} env steps); checkpoint written, resume with a larger --iterations",
+            cfg.iterations,
+            state.env_steps
+        );
+    }
     Ok(history)
 }
 
