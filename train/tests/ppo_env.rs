@@ -616,10 +616,21 @@ fn supervisor_walls_hold_at_every_physics_step() {
     );
 }
 
-/// The committed actor's mean action for up to `steps` policy steps: each step's reward and joint
-/// `slot`'s position (to show that a reward-only change leaves the motion as it was).
-fn rewards_and_joint(cfg: EnvConfig, seed: u64, weights: &[u8], steps: usize, slot: usize) -> (Vec<f32>, Vec<f32>) {
-    let mut e = StairEnv::new(cfg, seed, weights).unwrap();
+/// The committed actor's mean action for up to `steps` policy steps on the 12-dof model, on one
+/// column, under the tests' settings changed by `set`: each step's reward and joint `slot`'s
+/// position (the reward tests compare two settings: a reward-only change leaves the motion as it was).
+fn rewards_and_joint(
+    only: Column,
+    seed: u64,
+    steps: usize,
+    slot: usize,
+    set: impl FnOnce(&mut EnvSettings),
+) -> (Vec<f32>, Vec<f32>) {
+    let spec = stair_spec();
+    let weights = std::fs::read(spec.weights_path()).unwrap();
+    let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, only);
+    set(&mut cfg.settings);
+    let mut e = StairEnv::new(cfg, seed, &weights).unwrap();
     let mut mean = vec![0.0f32; 12];
     let (mut rewards, mut q) = (Vec::new(), Vec::new());
     for _ in 0..steps {
@@ -642,13 +653,7 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
     if peer_weights().is_none() {
         return;
     }
-    let spec = stair_spec();
-    let weights = std::fs::read(spec.weights_path()).unwrap();
-    let run = |share: f32| {
-        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
-        cfg.settings.soft_joint_speed = share;
-        rewards_and_joint(cfg, 5, &weights, 60, 3)
-    };
+    let run = |share: f32| rewards_and_joint(Column::Up, 5, 60, 3, |s| s.soft_joint_speed = share);
     let (r_default, q_default) = run(train::ppo::env::SOFT_JOINT_SPEED);
     let (r_low, q_low) = run(0.05);
     assert_eq!(q_default, q_low, "the share changed the motion, not only the reward");
@@ -668,13 +673,7 @@ fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
     if peer_weights().is_none() {
         return;
     }
-    let spec = stair_spec();
-    let weights = std::fs::read(spec.weights_path()).unwrap();
-    let run = |std: f64| {
-        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
-        cfg.settings.tracking_std = std;
-        rewards_and_joint(cfg, 3, &weights, 100, 0)
-    };
+    let run = |std: f64| rewards_and_joint(Column::Flat, 3, 100, 0, |s| s.tracking_std = std);
     let (r_default, q_default) = run(train::ppo::reward::TRACKING_STD);
     let (r_tight, q_tight) = run(0.1);
     assert_eq!(q_default, q_tight, "the kernel changed the motion, not only the reward");
@@ -696,19 +695,17 @@ fn drift_penalty_charges_heading_hold_walks_for_leaving_their_line_and_nothing_e
     if peer_weights().is_none() {
         return;
     }
-    let spec = stair_spec();
-    let weights = std::fs::read(spec.weights_path()).unwrap();
     let run = |penalty: f64, joystick_share: f64| {
-        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Flat);
-        cfg.settings.drift_weight = -penalty;
-        cfg.settings.joystick_share = joystick_share;
-        rewards_and_joint(cfg, 3, &weights, 150, 0)
+        rewards_and_joint(Column::Flat, 3, 150, 0, |s| {
+            s.drift_weight = -penalty;
+            s.joystick_share = joystick_share;
+        })
     };
     let (r_off, q_off) = run(0.0, 0.0);
     let (r_on, q_on) = run(2.0, 0.0);
     assert_eq!(q_off, q_on, "the penalty changed the motion, not only the reward");
     assert_eq!(r_off.len(), 150, "the committed actor fell on flat ground");
-    let dt = 1.0 / spec.rates.policy_hz as f64;
+    let dt = 1.0 / stair_spec().rates.policy_hz as f64;
     let cap = 2.0 * train::ppo::reward::MAX_DRIFT_M * dt;
     for (i, (off, on)) in r_off.iter().zip(&r_on).enumerate() {
         let cost = (off - on) as f64;
@@ -738,13 +735,7 @@ fn yaw_error_penalty_charges_the_squared_turn_rate_error_and_nothing_else() {
     if peer_weights().is_none() {
         return;
     }
-    let spec = stair_spec();
-    let weights = std::fs::read(spec.weights_path()).unwrap();
-    let run = |penalty: f64| {
-        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
-        cfg.settings.yaw_error_weight = -penalty;
-        rewards_and_joint(cfg, 5, &weights, 150, 0)
-    };
+    let run = |penalty: f64| rewards_and_joint(Column::Up, 5, 150, 0, |s| s.yaw_error_weight = -penalty);
     let (r0, q0) = run(0.0);
     let (r1, q1) = run(1.0);
     let (r2, q2) = run(2.0);

@@ -956,12 +956,13 @@ impl StairEnv {
         let cmd = self.operator_command().map(|x| x as f64);
         let w = t.base_ang_vel_body;
         let g = estimator::projected_gravity(t.base_quat.map(|x| x as f32));
+        let yaw_rate_error = (cmd[2] - w[2]).powi(2);
         let mut r = Terms {
             track_lin_vel_xy: (-((cmd[0] - vx).powi(2) + (cmd[1] - vy).powi(2))
                 / self.cfg.settings.tracking_std.powi(2))
             .exp(),
-            track_ang_vel_z: (-(cmd[2] - w[2]).powi(2) / self.cfg.settings.tracking_std.powi(2)).exp(),
-            yaw_rate_error: (cmd[2] - w[2]).powi(2),
+            track_ang_vel_z: (-yaw_rate_error / self.cfg.settings.tracking_std.powi(2)).exp(),
+            yaw_rate_error,
             flat_orientation: (g[0] as f64).powi(2) + (g[1] as f64).powi(2),
             ang_vel_xy: w[0] * w[0] + w[1] * w[1],
             // Speed along the target heading, up to the commanded speed: standing at a riser earns
