@@ -758,6 +758,33 @@ fn yaw_error_penalty_charges_the_squared_turn_rate_error_and_nothing_else() {
     );
 }
 
+/// `--clearance-lookahead`: the same climb (same seed, same actions, the same motion) costs at
+/// least as much at every step when the clearance term looks further ahead, and more in all on a
+/// staircase, where a riser ahead of the toe now counts before the toe is over it.
+#[test]
+fn a_longer_clearance_lookahead_charges_risers_before_the_toe_reaches_them() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let run = |la: f64| rewards_and_joint(Column::Up, 5, 250, 0, |s| s.clearance_lookahead = la);
+    let (r_toe, q_toe) = run(train::ppo::reward::CLEARANCE_LOOKAHEAD);
+    let (r_far, q_far) = run(0.24);
+    assert_eq!(q_toe, q_far, "the look-ahead changed the motion, not only the reward");
+    assert!(
+        r_toe.len() > 100,
+        "the committed actor fell within {} steps",
+        r_toe.len()
+    );
+    for (i, (t, f)) in r_toe.iter().zip(&r_far).enumerate() {
+        assert!(f <= t, "step {i}: looking further paid {f} against {t}");
+    }
+    let (sum_t, sum_f): (f32, f32) = (r_toe.iter().sum(), r_far.iter().sum());
+    assert!(
+        sum_f < sum_t - 1e-3,
+        "a climb cost nothing more with the riser seen 0.12 m earlier: {sum_f} vs {sum_t}"
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

@@ -236,6 +236,10 @@ pub struct EnvSettings {
     /// Weight of the `yaw_rate_error` penalty (the squared turn-rate error, `reward`).
     /// 0 (default): off.
     pub yaw_error_weight: f64,
+    /// How far ahead of the swing foot, along its travel, the terrain counts for the
+    /// `foot_clearance` term, m ([`reward::CLEARANCE_LOOKAHEAD`], the toe, by default). Longer,
+    /// the term asks for the lift before the toe reaches a riser, not as it meets it.
+    pub clearance_lookahead: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -266,6 +270,7 @@ impl EnvSettings {
         hold_line: false,
         stair_turn_share: 0.0,
         yaw_error_weight: reward::WEIGHTS.yaw_rate_error,
+        clearance_lookahead: reward::CLEARANCE_LOOKAHEAD,
     };
 }
 
@@ -1031,10 +1036,12 @@ impl StairEnv {
                 } else {
                     (c, s)
                 };
-                let la = reward::CLEARANCE_LOOKAHEAD;
-                let terrain = self
-                    .ground(feet[f][0], feet[f][1])
-                    .max(self.ground(feet[f][0] + ux * la, feet[f][1] + uy * la));
+                let terrain = reward::clearance_terrain(
+                    |x, y| self.ground(x, y),
+                    (feet[f][0], feet[f][1]),
+                    (ux, uy),
+                    self.cfg.settings.clearance_lookahead,
+                );
                 let clearance = feet[f][2] - self.sole_offset - terrain;
                 r.foot_clearance += (reward::CLEARANCE_TARGET - clearance).max(0.0) * speed.min(1.0);
             }

@@ -20,7 +20,7 @@
 //! | `joint_deviation` | Σ \|q − q_default\| over hip yaw and hip roll | −0.1 |
 //! | `joint_speed` | Σ max(\|q̇\| − s × the joint's limit, 0)² with s = 0.9 unless `--soft-joint-speed` sets it, \|q̇\| the fastest over the policy step's physics steps (legged_gym's `soft_dof_vel_limit`; limits from the spec, as the supervisor's) | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
-//! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under and 0.12 m ahead of the foot | −10 |
+//! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under the foot and along its travel up to 0.12 m ahead (the toe; `--clearance-lookahead` sets it) | −10 |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) at any physics step, as `g1fw` checks every 2 ms tick, or with `--end-stalled` a stall on a staircase (< 0.1 m in 3 s, `g1fw eval`'s; not on time-out or success) | −200 |
@@ -102,8 +102,30 @@ pub const TRACKING_STD: f64 = 0.5;
 pub const AIR_TIME_THRESHOLD: f64 = 0.4;
 /// Target swing-foot clearance above the terrain, m (sole; mjlab's 0.1).
 pub const CLEARANCE_TARGET: f64 = 0.10;
-/// How far ahead of the swing foot the terrain counts for clearance, m.
+/// How far ahead of the swing foot the terrain counts for clearance, m, by default
+/// (`--clearance-lookahead` sets it). The foot's point is the ankle-roll body's origin and the
+/// G1's toe contacts sit 0.12 m ahead of it, so by default the look-ahead reaches the toe and no
+/// further: a riser enters the term when the toe is over it.
 pub const CLEARANCE_LOOKAHEAD: f64 = 0.12;
+/// Spacing of the terrain samples between the foot and the end of the look-ahead, m: below the
+/// shallowest tread drawn (0.22 m), so no riser falls between two samples.
+pub const CLEARANCE_SAMPLE_M: f64 = 0.12;
+
+/// The highest terrain under the swing foot at `(x, y)` and along its direction of travel
+/// `(ux, uy)` (a unit vector) up to `lookahead` m ahead, sampled every [`CLEARANCE_SAMPLE_M`] or
+/// closer: the terrain the `foot_clearance` term measures the foot against.
+pub fn clearance_terrain(
+    ground: impl Fn(f64, f64) -> f64,
+    (x, y): (f64, f64),
+    (ux, uy): (f64, f64),
+    lookahead: f64,
+) -> f64 {
+    let n = (lookahead / CLEARANCE_SAMPLE_M).ceil().max(1.0) as usize;
+    (1..=n).fold(ground(x, y), |high, k| {
+        let ahead = lookahead * k as f64 / n as f64;
+        high.max(ground(x + ux * ahead, y + uy * ahead))
+    })
+}
 /// Base height above the ground under it below which the episode ends, m. (Tilt, joint-speed and
 /// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
 /// `firmware::supervisor::MotionLimits`.)
@@ -174,6 +196,44 @@ impl Terms {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A riser 0.2 m high at x = 0.3 m.
+    fn riser(x: f64, _y: f64) -> f64 {
+        if x >= 0.3 {
+            0.2
+        } else {
+            0.0
+        }
+    }
+
+    #[test]
+    fn clearance_terrain_sees_a_riser_as_far_ahead_as_the_lookahead_reaches() {
+        let (at, fwd) = ((0.1, 0.0), (1.0, 0.0));
+        // The default reaches the toe (0.22 m): the riser is not there yet.
+        assert_eq!(clearance_terrain(riser, at, fwd, CLEARANCE_LOOKAHEAD), 0.0);
+        assert_eq!(clearance_terrain(riser, at, fwd, 0.24), 0.2);
+        // Walking away from it, or sideways past it, it never counts.
+        assert_eq!(clearance_terrain(riser, at, (-1.0, 0.0), 0.5), 0.0);
+        assert_eq!(clearance_terrain(riser, at, (0.0, 1.0), 0.5), 0.0);
+        // The default is the old two-point rule (under the foot and 0.12 m ahead), bit for bit.
+        let wavy = |x: f64, y: f64| (7.0 * x).sin() * 0.1 + 0.03 * y;
+        for i in 0..50 {
+            let (x, y, a) = (0.05 * i as f64, 0.5 - 0.02 * i as f64, 0.3 * i as f64);
+            let old = wavy(x, y).max(wavy(x + a.cos() * 0.12, y + a.sin() * 0.12));
+            let new = clearance_terrain(wavy, (x, y), (a.cos(), a.sin()), CLEARANCE_LOOKAHEAD);
+            assert_eq!(new.to_bits(), old.to_bits(), "sample {i}");
+        }
+    }
+
+    #[test]
+    fn clearance_terrain_misses_no_tread_between_samples() {
+        // A single 0.13 m-wide block anywhere within the look-ahead is found: samples are at most
+        // CLEARANCE_SAMPLE_M apart.
+        for start in [0.05, 0.11, 0.2, 0.33, 0.41] {
+            let block = |x: f64, _y: f64| if (start..start + 0.13).contains(&x) { 0.15 } else { 0.0 };
+            assert_eq!(clearance_terrain(block, (0.0, 0.0), (1.0, 0.0), 0.5), 0.15, "{start}");
+        }
+    }
 
     #[test]
     fn total_is_weighted_sum_times_dt() {

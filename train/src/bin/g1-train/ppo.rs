@@ -161,6 +161,11 @@ pub struct Args {
     /// large turn-rate error smaller. 0 (default): off.
     #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.yaw_rate_error, value_name = "P", value_parser = parse_yaw_error_penalty)]
     yaw_error_penalty: f64,
+    /// How far ahead of a swing foot, along its travel, the foot-clearance term looks for
+    /// terrain, m. The default, 0.12, reaches the toe only, so a riser counts once the toe is
+    /// over it; 0.24 asks for the lift 0.12 m before the toe gets there.
+    #[arg(long, default_value_t = train::ppo::reward::CLEARANCE_LOOKAHEAD, value_name = "M", value_parser = parse_clearance_lookahead)]
+    clearance_lookahead: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -206,6 +211,7 @@ impl Args {
             hold_line: self.hold_line,
             stair_turn_share: self.stair_turns,
             yaw_error_weight: -self.yaw_error_penalty,
+            clearance_lookahead: self.clearance_lookahead,
         }
     }
 }
@@ -415,6 +421,14 @@ fn parse_yaw_error_penalty(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_clearance_lookahead(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=0.5).contains(&v),
+        "the clearance look-ahead in m within [0, 0.5], e.g. 0.24",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -504,6 +518,8 @@ mod tests {
             "0.5",
             "--yaw-error-penalty",
             "1",
+            "--clearance-lookahead",
+            "0.24",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -525,6 +541,7 @@ mod tests {
             hold_line: true,
             stair_turn_share: 0.5,
             yaw_error_weight: -1.0,
+            clearance_lookahead: 0.24,
         };
         assert_eq!(set, want);
     }
@@ -575,6 +592,13 @@ mod tests {
         assert_eq!(parse_drift_penalty("2"), Ok(2.0));
         assert_eq!(parse_stair_turns("0.5"), Ok(0.5));
         assert_eq!(parse_yaw_error_penalty("1"), Ok(1.0));
+        assert_eq!(parse_clearance_lookahead("0.24"), Ok(0.24));
+        for bad in ["-0.1", "0.6", "NaN", "far"] {
+            assert!(
+                parse_clearance_lookahead(bad).unwrap_err().contains("[0, 0.5]"),
+                "{bad}"
+            );
+        }
         for bad in ["-1", "60", "NaN", "strong"] {
             assert!(parse_yaw_error_penalty(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
