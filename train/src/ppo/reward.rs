@@ -65,6 +65,14 @@
 //! taught the policy to stand before the stairs; P = 0.3 (run 43) passed 23 of 30 presets against
 //! 19 and swept a little below (docs/stair_policy.md, session 18).
 //!
+//! Why `--clearance-lookahead`: the foot's point is the ankle-roll body's origin, and the G1's toe
+//! contacts sit 0.12 m ahead of it, so the default look-ahead of 0.12 m reaches only the toe: a
+//! riser enters the term when the toe is already over it, at the moment a low toe meets its face,
+//! and the term then charges what the stumble term charges. Through `g1fw` the committed actor's
+//! climbs of 18–22 cm stall at the first riser (185 of its 492 table failures): its swing foot
+//! peaks behind the base and meets the riser's face. A longer look-ahead charges a low swing before
+//! the toe gets there. Off by default (0.12, bit for bit the old rule).
+//!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
 //! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
