@@ -645,6 +645,21 @@ fn rewards_and_joint(
     (rewards, q)
 }
 
+/// Two walks of one episode (same seed, same actions) under two reward settings, as
+/// [`rewards_and_joint`] returns them: the motion is the same, and `charged` earns no more than
+/// `base` at any step and at least `margin` less in all. `what` names the change in the messages.
+fn assert_charges_more(base: &(Vec<f32>, Vec<f32>), charged: &(Vec<f32>, Vec<f32>), margin: f32, what: &str) {
+    assert_eq!(base.1, charged.1, "{what} changed the motion, not only the reward");
+    for (i, (b, c)) in base.0.iter().zip(&charged.0).enumerate() {
+        assert!(c <= b, "step {i}: {what} paid {c} against {b}");
+    }
+    let (sum_b, sum_c): (f32, f32) = (base.0.iter().sum(), charged.0.iter().sum());
+    assert!(
+        sum_c < sum_b - margin,
+        "{what} cost less than {margin} in all: {sum_c} vs {sum_b}"
+    );
+}
+
 /// `--soft-joint-speed` moves where the soft penalty starts and nothing else: the same episode
 /// (same seed, same actions) earns less at every step when the penalty starts lower, and the
 /// robot moves identically.
@@ -654,14 +669,11 @@ fn soft_joint_speed_share_moves_where_the_penalty_starts() {
         return;
     }
     let run = |share: f32| rewards_and_joint(Column::Up, 5, 60, 3, |s| s.soft_joint_speed = share);
-    let (r_default, q_default) = run(train::ppo::env::SOFT_JOINT_SPEED);
-    let (r_low, q_low) = run(0.05);
-    assert_eq!(q_default, q_low, "the share changed the motion, not only the reward");
-    assert!(r_default.iter().zip(&r_low).all(|(d, l)| l <= d));
-    let (sum_d, sum_l): (f32, f32) = (r_default.iter().sum(), r_low.iter().sum());
-    assert!(
-        sum_l < sum_d - 0.01,
-        "a penalty from 5 % of each limit (1 rad/s at the knee) cost nothing: {sum_l} vs {sum_d}"
+    assert_charges_more(
+        &run(train::ppo::env::SOFT_JOINT_SPEED),
+        &run(0.05),
+        0.01,
+        "a penalty from 5 % of each limit (1 rad/s at the knee)",
     );
 }
 
@@ -674,15 +686,13 @@ fn tighter_tracking_kernel_pays_less_for_the_same_walk() {
         return;
     }
     let run = |std: f64| rewards_and_joint(Column::Flat, 3, 100, 0, |s| s.tracking_std = std);
-    let (r_default, q_default) = run(train::ppo::reward::TRACKING_STD);
-    let (r_tight, q_tight) = run(0.1);
-    assert_eq!(q_default, q_tight, "the kernel changed the motion, not only the reward");
-    assert_eq!(r_default.len(), 100, "the committed actor fell on flat ground");
-    assert!(r_default.iter().zip(&r_tight).all(|(d, t)| t <= d));
-    let (sum_d, sum_t): (f32, f32) = (r_default.iter().sum(), r_tight.iter().sum());
-    assert!(
-        sum_t < sum_d - 0.1,
-        "a 0.1 m/s kernel paid as much as the 0.5 m/s one for a 2 s walk: {sum_t} vs {sum_d}"
+    let default = run(train::ppo::reward::TRACKING_STD);
+    assert_eq!(default.0.len(), 100, "the committed actor fell on flat ground");
+    assert_charges_more(
+        &default,
+        &run(0.1),
+        0.1,
+        "a 0.1 m/s kernel, against 0.5 m/s, over a 2 s walk,",
     );
 }
 
@@ -767,22 +777,13 @@ fn a_longer_clearance_lookahead_charges_risers_before_the_toe_reaches_them() {
         return;
     }
     let run = |la: f64| rewards_and_joint(Column::Up, 5, 250, 0, |s| s.clearance_lookahead = la);
-    let (r_toe, q_toe) = run(train::ppo::reward::CLEARANCE_LOOKAHEAD);
-    let (r_far, q_far) = run(0.24);
-    assert_eq!(q_toe, q_far, "the look-ahead changed the motion, not only the reward");
+    let toe = run(train::ppo::reward::CLEARANCE_LOOKAHEAD);
     assert!(
-        r_toe.len() > 100,
+        toe.0.len() > 100,
         "the committed actor fell within {} steps",
-        r_toe.len()
+        toe.0.len()
     );
-    for (i, (t, f)) in r_toe.iter().zip(&r_far).enumerate() {
-        assert!(f <= t, "step {i}: looking further paid {f} against {t}");
-    }
-    let (sum_t, sum_f): (f32, f32) = (r_toe.iter().sum(), r_far.iter().sum());
-    assert!(
-        sum_f < sum_t - 1e-3,
-        "a climb cost nothing more with the riser seen 0.12 m earlier: {sum_f} vs {sum_t}"
-    );
+    assert_charges_more(&toe, &run(0.24), 1e-3, "seeing the riser 0.12 m earlier");
 }
 
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
