@@ -240,6 +240,9 @@ pub struct EnvSettings {
     /// `foot_clearance` term, m ([`reward::CLEARANCE_LOOKAHEAD`], the toe, by default). Longer,
     /// the term asks for the lift before the toe reaches a riser, not as it meets it.
     pub clearance_lookahead: f64,
+    /// Weight of the `riser_clearance` penalty (the sole below the next higher tread's top plus
+    /// [`reward::RISER_MARGIN`], `reward`). 0 (default): off.
+    pub riser_clearance_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -271,6 +274,7 @@ impl EnvSettings {
         stair_turn_share: 0.0,
         yaw_error_weight: reward::WEIGHTS.yaw_rate_error,
         clearance_lookahead: reward::CLEARANCE_LOOKAHEAD,
+        riser_clearance_weight: reward::WEIGHTS.riser_clearance,
     };
 }
 
@@ -912,6 +916,7 @@ impl StairEnv {
             flat_orientation: self.cfg.settings.flat_orientation_weight,
             drift: self.cfg.settings.drift_weight,
             yaw_rate_error: self.cfg.settings.yaw_error_weight,
+            riser_clearance: self.cfg.settings.riser_clearance_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1042,8 +1047,16 @@ impl StairEnv {
                     (ux, uy),
                     self.cfg.settings.clearance_lookahead,
                 );
-                let clearance = feet[f][2] - self.sole_offset - terrain;
-                r.foot_clearance += (reward::CLEARANCE_TARGET - clearance).max(0.0) * speed.min(1.0);
+                let sole = feet[f][2] - self.sole_offset;
+                r.foot_clearance += (reward::CLEARANCE_TARGET - (sole - terrain)).max(0.0) * speed.min(1.0);
+                if let Some(top) = reward::next_tread_top(
+                    |x, y| self.ground(x, y),
+                    (feet[f][0], feet[f][1]),
+                    (ux, uy),
+                    reward::RISER_LOOKAHEAD,
+                ) {
+                    r.riser_clearance += (top + reward::RISER_MARGIN - sole).max(0.0) * speed.min(1.0);
+                }
             }
         }
         if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {

@@ -21,6 +21,7 @@
 //! | `joint_speed` | Σ max(\|q̇\| − s × the joint's limit, 0)² with s = 0.9 unless `--soft-joint-speed` sets it, \|q̇\| the fastest over the policy step's physics steps (legged_gym's `soft_dof_vel_limit`; limits from the spec, as the supervisor's) | −1.0 |
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under the foot and along its travel up to 0.12 m ahead (the toe; `--clearance-lookahead` sets it) | −10 |
+//! | `riser_clearance` | Σ swing feet max(top of the next higher tread within 0.40 m ahead of the foot along its travel + 0.05 m − sole height, 0) · min(‖v_foot,xy‖, 1 m/s); only while a higher tread lies ahead (up flights) | 0 unless `--riser-clearance` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) at any physics step, as `g1fw` checks every 2 ms tick, or with `--end-stalled` a stall on a staircase (< 0.1 m in 3 s, `g1fw eval`'s; not on time-out or success) | −200 |
@@ -73,6 +74,16 @@
 //! peaks behind the base and meets the riser's face. A longer look-ahead charges a low swing before
 //! the toe gets there. Off by default (0.12, bit for bit the old rule).
 //!
+//! Why `riser_clearance`: through `g1fw`, the committed actor's swing foot lifts 11–14 cm on the
+//! approach to a staircase whatever its step height (8, 12, 16 or 20 cm, ground-truth token), and
+//! at 20 cm the swing that meets the first riser passes 7.8 cm below its top: the policy reads the
+//! token's class, not its height (docs/stair_policy.md, session 20). `foot_clearance` asks for
+//! 0.10 m above the terrain under the toe, so a riser counts only once the toe is over it, when a
+//! low foot has already met its face; a longer look-ahead there (run 44, 0.24 m) counts the
+//! highest terrain ahead, two risers up on shallow treads. This term measures the sole against
+//! the top of the *next* higher tread only, from liftoff on, so the lift it asks for is the step's
+//! height plus a margin: it grows with the step, as the paper's clearance does. Off by default.
+//!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
 //! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
@@ -95,6 +106,7 @@ pub const WEIGHTS: Weights = Weights {
     joint_speed: -1.0,
     ankle_limits: -1.0,
     foot_clearance: -10.0,
+    riser_clearance: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
     termination: -200.0,
@@ -134,6 +146,38 @@ pub fn clearance_terrain(
         high.max(ground(x + ux * ahead, y + uy * ahead))
     })
 }
+
+/// Margin of the sole over the next higher tread's top that `riser_clearance` asks for, m.
+pub const RISER_MARGIN: f64 = 0.05;
+/// How far ahead of the swing foot (the ankle-roll origin), along its travel, `riser_clearance`
+/// looks for the next higher tread, m: past the toe (0.12 m) by more than the deepest foot
+/// placement from a riser, so the riser counts from liftoff on.
+pub const RISER_LOOKAHEAD: f64 = 0.40;
+/// Spacing of `riser_clearance`'s terrain samples, m: fine enough to find the riser within 4 cm.
+pub const RISER_SAMPLE_M: f64 = 0.04;
+/// Rise over the terrain under the foot past which a tread ahead counts as higher, m: the
+/// terrain's own unevenness is not a step.
+pub const RISER_MIN_RISE: f64 = 0.02;
+
+/// The top of the first tread ahead of the swing foot at `(x, y)` along its travel `(ux, uy)` (a
+/// unit vector), within `lookahead` m, that stands more than [`RISER_MIN_RISE`] above the terrain
+/// under the foot; `None` on flat ground, going down, or once the foot is over the last riser.
+pub fn next_tread_top(
+    ground: impl Fn(f64, f64) -> f64,
+    (x, y): (f64, f64),
+    (ux, uy): (f64, f64),
+    lookahead: f64,
+) -> Option<f64> {
+    let under = ground(x, y);
+    let n = (lookahead / RISER_SAMPLE_M).ceil().max(1.0) as usize;
+    (1..=n)
+        .map(|k| {
+            let ahead = lookahead * k as f64 / n as f64;
+            ground(x + ux * ahead, y + uy * ahead)
+        })
+        .find(|&z| z > under + RISER_MIN_RISE)
+}
+
 /// Base height above the ground under it below which the episode ends, m. (Tilt, joint-speed and
 /// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
 /// `firmware::supervisor::MotionLimits`.)
@@ -167,6 +211,7 @@ pub struct Terms {
     pub joint_speed: f64,
     pub ankle_limits: f64,
     pub foot_clearance: f64,
+    pub riser_clearance: f64,
     pub stumble: f64,
     pub body_contact: f64,
     pub termination: f64,
@@ -191,6 +236,7 @@ impl Terms {
             + w.joint_speed * self.joint_speed
             + w.ankle_limits * self.ankle_limits
             + w.foot_clearance * self.foot_clearance
+            + w.riser_clearance * self.riser_clearance
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
             + w.termination * self.termination
@@ -241,6 +287,51 @@ mod tests {
             let block = |x: f64, _y: f64| if (start..start + 0.13).contains(&x) { 0.15 } else { 0.0 };
             assert_eq!(clearance_terrain(block, (0.0, 0.0), (1.0, 0.0), 0.5), 0.15, "{start}");
         }
+    }
+
+    /// A flight of 0.15 m risers every 0.25 m from x = 0.3 m.
+    fn flight(x: f64, _y: f64) -> f64 {
+        if x < 0.3 {
+            0.0
+        } else {
+            0.15 * (1.0 + ((x - 0.3) / 0.25).floor())
+        }
+    }
+
+    #[test]
+    fn next_tread_top_is_the_next_riser_only_not_the_highest_ahead() {
+        // Before the flight: the first tread (0.15), though two more lie within reach.
+        assert_eq!(
+            next_tread_top(flight, (0.1, 0.0), (1.0, 0.0), RISER_LOOKAHEAD),
+            Some(0.15)
+        );
+        // On the first tread: the second; the foot's own tread never counts.
+        assert_eq!(
+            next_tread_top(flight, (0.4, 0.0), (1.0, 0.0), RISER_LOOKAHEAD),
+            Some(0.3)
+        );
+        // Out of reach, walking back down, sideways along a tread, on flat ground: nothing.
+        assert_eq!(next_tread_top(flight, (-0.2, 0.0), (1.0, 0.0), RISER_LOOKAHEAD), None);
+        assert_eq!(next_tread_top(flight, (0.9, 0.0), (-1.0, 0.0), RISER_LOOKAHEAD), None);
+        assert_eq!(next_tread_top(flight, (0.4, 0.0), (0.0, 1.0), RISER_LOOKAHEAD), None);
+        assert_eq!(
+            next_tread_top(|_, _| 0.0, (0.0, 0.0), (1.0, 0.0), RISER_LOOKAHEAD),
+            None
+        );
+        // Bumps below RISER_MIN_RISE are not steps.
+        let bumpy = |x: f64, _: f64| 0.015 * (x * 20.0).sin();
+        assert_eq!(next_tread_top(bumpy, (0.0, 0.0), (1.0, 0.0), RISER_LOOKAHEAD), None);
+        // No riser falls between two samples: found within RISER_SAMPLE_M of its face.
+        for i in 0..40 {
+            let x = 0.3 - RISER_LOOKAHEAD + 0.001 + i as f64 * 0.01;
+            assert_eq!(
+                next_tread_top(flight, (x, 0.0), (1.0, 0.0), RISER_LOOKAHEAD),
+                Some(0.15),
+                "{x}"
+            );
+        }
+        // Off by default: the committed recipe's reward is unchanged.
+        assert_eq!(WEIGHTS.riser_clearance, 0.0);
     }
 
     #[test]

@@ -166,6 +166,12 @@ pub struct Args {
     /// over it; 0.24 asks for the lift 0.12 m before the toe gets there.
     #[arg(long, default_value_t = train::ppo::reward::CLEARANCE_LOOKAHEAD, value_name = "M", value_parser = parse_clearance_lookahead)]
     clearance_lookahead: f64,
+    /// Weight of the riser-clearance penalty, given as a positive number P for a weight of −P:
+    /// while a higher tread lies within 0.40 m ahead of a swing foot, the sole is charged for
+    /// every metre below that tread's top plus 0.05 m, times its speed, so the lift asked for
+    /// grows with the step height. 0 (default): off.
+    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.riser_clearance, value_name = "P", value_parser = parse_riser_clearance)]
+    riser_clearance: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -212,6 +218,7 @@ impl Args {
             stair_turn_share: self.stair_turns,
             yaw_error_weight: -self.yaw_error_penalty,
             clearance_lookahead: self.clearance_lookahead,
+            riser_clearance_weight: -self.riser_clearance,
         }
     }
 }
@@ -429,6 +436,14 @@ fn parse_clearance_lookahead(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_riser_clearance(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the riser-clearance penalty's size in [0, 50] (the weight is minus it), e.g. 10",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -520,6 +535,8 @@ mod tests {
             "1",
             "--clearance-lookahead",
             "0.24",
+            "--riser-clearance",
+            "10",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -542,6 +559,7 @@ mod tests {
             stair_turn_share: 0.5,
             yaw_error_weight: -1.0,
             clearance_lookahead: 0.24,
+            riser_clearance_weight: -10.0,
         };
         assert_eq!(set, want);
     }
@@ -593,6 +611,10 @@ mod tests {
         assert_eq!(parse_stair_turns("0.5"), Ok(0.5));
         assert_eq!(parse_yaw_error_penalty("1"), Ok(1.0));
         assert_eq!(parse_clearance_lookahead("0.24"), Ok(0.24));
+        assert_eq!(parse_riser_clearance("10"), Ok(10.0));
+        for bad in ["-1", "60", "NaN", "high"] {
+            assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
+        }
         for bad in ["-0.1", "0.6", "NaN", "far"] {
             assert!(
                 parse_clearance_lookahead(bad).unwrap_err().contains("[0, 0.5]"),
