@@ -139,12 +139,12 @@ pub struct Args {
     review_share: f64,
     /// Weight of the upright penalty ‖g_xy‖² (projected gravity), given as a positive number P
     /// for a weight of −P: IsaacLab's G1 1 (default), mjlab's G1 5.
-    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.flat_orientation, value_name = "P", value_parser = parse_orientation_penalty)]
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.flat_orientation), value_name = "P", value_parser = parse_orientation_penalty)]
     orientation_penalty: f64,
     /// Weight of the drift penalty (metres across the line through the start along the target
     /// heading, per second; heading-hold episodes), given as a positive number P for a weight
     /// of −P. 0 (default): off.
-    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.drift, value_name = "P", value_parser = parse_drift_penalty)]
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.drift), value_name = "P", value_parser = parse_drift_penalty)]
     drift_penalty: f64,
     /// Heading-hold episodes also steer back to the line through the start along the target
     /// heading (a staircase's centre line), by `g1fw sim|eval --hold-line`'s rule, from the
@@ -159,7 +159,7 @@ pub struct Args {
     /// Weight of a squared turn-rate error penalty, (commanded − measured yaw rate)², given as a
     /// positive number P for a weight of −P: unlike the tracking kernel it still pays to make a
     /// large turn-rate error smaller. 0 (default): off.
-    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.yaw_rate_error, value_name = "P", value_parser = parse_yaw_error_penalty)]
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.yaw_rate_error), value_name = "P", value_parser = parse_yaw_error_penalty)]
     yaw_error_penalty: f64,
     /// How far ahead of a swing foot, along its travel, the foot-clearance term looks for
     /// terrain, m. The default, 0.12, reaches the toe only, so a riser counts once the toe is
@@ -170,7 +170,7 @@ pub struct Args {
     /// while a higher tread lies within 0.40 m ahead of a swing foot, the sole is charged for
     /// every metre below that tread's top plus 0.05 m, times its speed, so the lift asked for
     /// grows with the step height. 0 (default): off.
-    #[arg(long, default_value_t = -train::ppo::reward::WEIGHTS.riser_clearance, value_name = "P", value_parser = parse_riser_clearance)]
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.riser_clearance), value_name = "P", value_parser = parse_riser_clearance)]
     riser_clearance: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
@@ -436,6 +436,12 @@ fn parse_clearance_lookahead(s: &str) -> Result<f64, String> {
     )
 }
 
+/// The size P that a penalty's option takes for the reward weight −P. `0.0 - w`, not `-w`: an
+/// off term (w = 0) reads "0" in `--help`, not "-0".
+const fn penalty_size(weight: f64) -> f64 {
+    0.0 - weight
+}
+
 fn parse_riser_clearance(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -486,6 +492,16 @@ mod tests {
     struct Cli {
         #[command(flatten)]
         args: Args,
+    }
+
+    #[test]
+    fn penalty_defaults_read_as_plain_numbers_in_help() {
+        use clap::CommandFactory;
+        let help = Cli::command().render_long_help().to_string();
+        assert!(help.contains("--riser-clearance"), "{help}");
+        assert!(!help.contains("[default: -0]"), "an off penalty shows as -0:\n{help}");
+        assert_eq!(penalty_size(-1.0), 1.0);
+        assert!(penalty_size(0.0).is_sign_positive());
     }
 
     #[test]
