@@ -807,6 +807,27 @@ fn riser_clearance_charges_low_swings_on_up_flights_and_nothing_on_flat_ground()
     assert_eq!(flat_off, flat_on, "flat ground paid for a riser it does not have");
 }
 
+/// `--foothold-edge`: the same climb (same seed, same actions, the same motion) costs at least as
+/// much at every step with the term on, more in all on a staircase, where feet land across tread
+/// edges, and exactly the same on flat ground, which has no edge.
+#[test]
+fn foothold_edge_charges_feet_across_tread_edges_and_nothing_on_flat_ground() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.foothold_edge_weight = -p);
+    let off = run(Column::Up, 0.0);
+    assert!(
+        off.0.len() > 100,
+        "the committed actor fell within {} steps",
+        off.0.len()
+    );
+    assert_charges_more(&off, &run(Column::Up, 2.0), 1e-3, "the foothold-edge term on");
+    let (flat_off, _) = run(Column::Flat, 0.0);
+    let (flat_on, _) = run(Column::Flat, 2.0);
+    assert_eq!(flat_off, flat_on, "flat ground paid for an edge it does not have");
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

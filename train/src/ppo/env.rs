@@ -243,6 +243,9 @@ pub struct EnvSettings {
     /// Weight of the `riser_clearance` penalty (the sole below the next higher tread's top plus
     /// [`reward::RISER_MARGIN`], `reward`). 0 (default): off.
     pub riser_clearance_weight: f64,
+    /// Weight of the `foothold_edge` penalty (a foot in contact across a tread's edge,
+    /// `reward`). 0 (default): off.
+    pub foothold_edge_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -275,6 +278,7 @@ impl EnvSettings {
         yaw_error_weight: reward::WEIGHTS.yaw_rate_error,
         clearance_lookahead: reward::CLEARANCE_LOOKAHEAD,
         riser_clearance_weight: reward::WEIGHTS.riser_clearance,
+        foothold_edge_weight: reward::WEIGHTS.foothold_edge,
     };
 }
 
@@ -917,6 +921,7 @@ impl StairEnv {
             drift: self.cfg.settings.drift_weight,
             yaw_rate_error: self.cfg.settings.yaw_error_weight,
             riser_clearance: self.cfg.settings.riser_clearance_weight,
+            foothold_edge: self.cfg.settings.foothold_edge_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1032,6 +1037,9 @@ impl StairEnv {
                 self.air_time[f] = 0.0;
                 single += 1;
                 in_mode[f] = self.contact_time[f];
+                if reward::straddles_edge(|x, y| self.ground(x, y), (feet[f][0], feet[f][1]), (c, s)) {
+                    r.foothold_edge += 1.0;
+                }
             } else {
                 self.air_time[f] += policy_dt;
                 self.contact_time[f] = 0.0;

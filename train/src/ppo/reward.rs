@@ -22,6 +22,7 @@
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under the foot and along its travel up to 0.12 m ahead (the toe; `--clearance-lookahead` sets it) | −10 |
 //! | `riser_clearance` | Σ swing feet max(top of the next higher tread within 0.40 m ahead of the foot along its travel + 0.05 m − sole height, 0) · min(‖v_foot,xy‖, 1 m/s); only while a higher tread lies ahead (up flights) | 0 unless `--riser-clearance` sets it |
+//! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
 //! | `termination` | 1 on a fall, a base below 0.4 m, or a supervisor limit (tilt, joint speed, base angular speed per axis) at any physics step, as `g1fw` checks every 2 ms tick, or with `--end-stalled` a stall on a staircase (< 0.1 m in 3 s, `g1fw eval`'s; not on time-out or success) | −200 |
@@ -84,6 +85,12 @@
 //! the top of the *next* higher tread only, from liftoff on, so the lift it asks for is the step's
 //! height plus a margin: it grows with the step, as the paper's clearance does. Off by default.
 //!
+//! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
+//! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
+//! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
+//! with a foot flat on a tread (docs/stair_policy.md, sessions 21–22). Legged robots' stair and
+//! parkour rewards charge such footholds (extreme-parkour's `feet_edge`). Off by default.
+//!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
 //! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
 //! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
@@ -107,6 +114,7 @@ pub const WEIGHTS: Weights = Weights {
     ankle_limits: -1.0,
     foot_clearance: -10.0,
     riser_clearance: 0.0,
+    foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
     termination: -200.0,
@@ -178,6 +186,23 @@ pub fn next_tread_top(
         .find(|&z| z > under + RISER_MIN_RISE)
 }
 
+/// Where the G1's sole reaches behind and ahead of the foot origin (the ankle-roll body), m: the
+/// model's heel and toe contact spheres sit at x = −0.05 and +0.12.
+pub const FOOT_HEEL_M: f64 = 0.05;
+pub const FOOT_TOE_M: f64 = 0.12;
+
+/// Whether a foot at `(x, y)` facing `(ux, uy)` (a unit vector) straddles a tread's edge: the
+/// terrain under its heel, origin, mid-foot and toe spans more than [`RISER_MIN_RISE`]. The
+/// `foothold_edge` term counts such feet in contact.
+pub fn straddles_edge(ground: impl Fn(f64, f64) -> f64, (x, y): (f64, f64), (ux, uy): (f64, f64)) -> bool {
+    let along = [-FOOT_HEEL_M, 0.0, 0.5 * FOOT_TOE_M, FOOT_TOE_M];
+    let (lo, hi) = along.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &a| {
+        let z = ground(x + ux * a, y + uy * a);
+        (lo.min(z), hi.max(z))
+    });
+    hi - lo > RISER_MIN_RISE
+}
+
 /// Base height above the ground under it below which the episode ends, m. (Tilt, joint-speed and
 /// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
 /// `firmware::supervisor::MotionLimits`.)
@@ -212,6 +237,7 @@ pub struct Terms {
     pub ankle_limits: f64,
     pub foot_clearance: f64,
     pub riser_clearance: f64,
+    pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
     pub termination: f64,
@@ -237,6 +263,7 @@ impl Terms {
             + w.ankle_limits * self.ankle_limits
             + w.foot_clearance * self.foot_clearance
             + w.riser_clearance * self.riser_clearance
+            + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
             + w.termination * self.termination
@@ -299,6 +326,25 @@ mod tests {
     }
 
     #[test]
+    fn straddles_edge_finds_a_foot_across_a_riser_and_not_one_flat_on_a_tread() {
+        // The riser at x = 0.3: a foot whose toe (origin + 0.12) or heel (origin − 0.05) is past
+        // it straddles the edge; one wholly on either side does not.
+        let fwd = (1.0, 0.0);
+        assert!(!straddles_edge(riser, (0.1, 0.0), fwd), "on the floor, toe 8 cm short");
+        assert!(
+            straddles_edge(riser, (0.2, 0.0), fwd),
+            "toe on the tread, heel on the floor"
+        );
+        assert!(straddles_edge(riser, (0.33, 0.0), fwd), "heel hanging over the nose");
+        assert!(!straddles_edge(riser, (0.36, 0.0), fwd), "wholly on the tread");
+        // Facing along the riser, the foot lies on one side of it.
+        assert!(!straddles_edge(riser, (0.25, 0.0), (0.0, 1.0)));
+        // Uneven ground below RISER_MIN_RISE is not an edge.
+        let bumpy = |x: f64, _: f64| 0.009 * (x * 20.0).sin();
+        assert!((0..40).all(|i| !straddles_edge(bumpy, (0.05 * i as f64, 0.0), fwd)));
+    }
+
+    #[test]
     fn next_tread_top_is_the_next_riser_only_not_the_highest_ahead() {
         // Before the flight: the first tread (0.15), though two more lie within reach.
         assert_eq!(
@@ -332,6 +378,7 @@ mod tests {
         }
         // Off by default: the committed recipe's reward is unchanged.
         assert_eq!(WEIGHTS.riser_clearance, 0.0);
+        assert_eq!(WEIGHTS.foothold_edge, 0.0);
     }
 
     #[test]

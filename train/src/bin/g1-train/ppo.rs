@@ -172,6 +172,11 @@ pub struct Args {
     /// grows with the step height. 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.riser_clearance), value_name = "P", value_parser = parse_riser_clearance)]
     riser_clearance: f64,
+    /// Weight of the foothold-edge penalty, given as a positive number P for a weight of −P:
+    /// every policy step a foot in contact straddles a tread's edge (heel, mid-foot and toe on
+    /// terrain more than 0.02 m apart) costs P. 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.foothold_edge), value_name = "P", value_parser = parse_foothold_edge)]
+    foothold_edge: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -219,6 +224,7 @@ impl Args {
             yaw_error_weight: -self.yaw_error_penalty,
             clearance_lookahead: self.clearance_lookahead,
             riser_clearance_weight: -self.riser_clearance,
+            foothold_edge_weight: -self.foothold_edge,
         }
     }
 }
@@ -450,6 +456,14 @@ fn parse_riser_clearance(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_foothold_edge(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the foothold-edge penalty's size in [0, 50] (the weight is minus it), e.g. 1",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -553,6 +567,8 @@ mod tests {
             "0.24",
             "--riser-clearance",
             "10",
+            "--foothold-edge",
+            "2",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -576,6 +592,7 @@ mod tests {
             yaw_error_weight: -1.0,
             clearance_lookahead: 0.24,
             riser_clearance_weight: -10.0,
+            foothold_edge_weight: -2.0,
         };
         assert_eq!(set, want);
     }
@@ -628,6 +645,7 @@ mod tests {
         assert_eq!(parse_yaw_error_penalty("1"), Ok(1.0));
         assert_eq!(parse_clearance_lookahead("0.24"), Ok(0.24));
         assert_eq!(parse_riser_clearance("10"), Ok(10.0));
+        assert_eq!(parse_foothold_edge("1.5"), Ok(1.5));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
