@@ -828,6 +828,29 @@ fn foothold_edge_charges_feet_across_tread_edges_and_nothing_on_flat_ground() {
     assert_eq!(flat_off, flat_on, "flat ground paid for an edge it does not have");
 }
 
+/// `--token-clearance`: the same climb (same seed, same actions, the same motion) costs at least
+/// as much at every step with the term on and more in all on an up flight, whose token reads up;
+/// flat ground and down flights, whose tokens do not, pay exactly the same.
+#[test]
+fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.token_clearance_weight = -p);
+    let off = run(Column::Up, 0.0);
+    assert!(
+        off.0.len() > 100,
+        "the committed actor fell within {} steps",
+        off.0.len()
+    );
+    assert_charges_more(&off, &run(Column::Up, 5.0), 1e-3, "the token-clearance term on");
+    for col in [Column::Flat, Column::Down] {
+        let (r_off, _) = run(col, 0.0);
+        let (r_on, _) = run(col, 5.0);
+        assert_eq!(r_off, r_on, "{col:?}: paid for an up token it does not have");
+    }
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

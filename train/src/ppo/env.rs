@@ -246,6 +246,9 @@ pub struct EnvSettings {
     /// Weight of the `foothold_edge` penalty (a foot in contact across a tread's edge,
     /// `reward`). 0 (default): off.
     pub foothold_edge_weight: f64,
+    /// Weight of the `token_clearance` penalty (a swing below the observed token's step height
+    /// plus a margin, on up flights, `reward`). 0 (default): off.
+    pub token_clearance_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -279,6 +282,7 @@ impl EnvSettings {
         clearance_lookahead: reward::CLEARANCE_LOOKAHEAD,
         riser_clearance_weight: reward::WEIGHTS.riser_clearance,
         foothold_edge_weight: reward::WEIGHTS.foothold_edge,
+        token_clearance_weight: reward::WEIGHTS.token_clearance,
     };
 }
 
@@ -922,6 +926,7 @@ impl StairEnv {
             yaw_rate_error: self.cfg.settings.yaw_error_weight,
             riser_clearance: self.cfg.settings.riser_clearance_weight,
             foothold_edge: self.cfg.settings.foothold_edge_weight,
+            token_clearance: self.cfg.settings.token_clearance_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1057,6 +1062,10 @@ impl StairEnv {
                 );
                 let sole = feet[f][2] - self.sole_offset;
                 r.foot_clearance += (reward::CLEARANCE_TARGET - (sole - terrain)).max(0.0) * speed.min(1.0);
+                if let Some(target) = reward::token_clearance_target(&self.token) {
+                    let under = self.ground(feet[f][0], feet[f][1]);
+                    r.token_clearance += (target - (sole - under)).max(0.0) * speed.min(1.0);
+                }
                 if let Some(top) = reward::next_tread_top(
                     |x, y| self.ground(x, y),
                     (feet[f][0], feet[f][1]),

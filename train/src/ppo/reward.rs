@@ -22,6 +22,7 @@
 //! | `ankle_limits` | Σ ankle joint excursion past 90 % of its range, rad | −1.0 |
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under the foot and along its travel up to 0.12 m ahead (the toe; `--clearance-lookahead` sets it) | −10 |
 //! | `riser_clearance` | Σ swing feet max(top of the next higher tread within 0.40 m ahead of the foot along its travel + 0.05 m − sole height, 0) · min(‖v_foot,xy‖, 1 m/s); only while a higher tread lies ahead (up flights) | 0 unless `--riser-clearance` sets it |
+//! | `token_clearance` | Σ swing feet max(the token's step height + 0.05 m − (sole height − terrain under the foot), 0) · min(‖v_foot,xy‖, 1 m/s), while the policy's own token (as observed, noise and all) reads up | 0 unless `--token-clearance` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -85,6 +86,14 @@
 //! the top of the *next* higher tread only, from liftoff on, so the lift it asks for is the step's
 //! height plus a margin: it grows with the step, as the paper's clearance does. Off by default.
 //!
+//! Why `token_clearance`: the policy observes no distance to the first riser, only the token
+//! (class, height, depth, yaw), so a term that asks for lift only near a riser (`riser_clearance`)
+//! asks for what it cannot see coming: run 51 learned it by touch, lifting at the riser's face
+//! and landing on it, while its approach lifts shrank to 4–12 cm. This term asks for a swing that
+//! clears the token's step height wherever the token reads up (the approach included), from what
+//! the policy observes: the paper's swing clearance that grows with the stair height. Off by
+//! default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -114,6 +123,7 @@ pub const WEIGHTS: Weights = Weights {
     ankle_limits: -1.0,
     foot_clearance: -10.0,
     riser_clearance: 0.0,
+    token_clearance: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -186,6 +196,13 @@ pub fn next_tread_top(
         .find(|&z| z > under + RISER_MIN_RISE)
 }
 
+/// The swing clearance over the terrain under the foot that `token_clearance` asks for, m, from
+/// the token the policy observes: its step height plus [`RISER_MARGIN`] when it reads up, nothing
+/// (`None`) on flat ground or down a flight.
+pub fn token_clearance_target(token: &hal::TerrainToken) -> Option<f64> {
+    (token.class == hal::TerrainClass::StairsUp).then(|| token.step_height_m.max(0.0) as f64 + RISER_MARGIN)
+}
+
 /// Where the G1's sole reaches behind and ahead of the foot origin (the ankle-roll body), m: the
 /// model's heel and toe contact spheres sit at x = −0.05 and +0.12.
 pub const FOOT_HEEL_M: f64 = 0.05;
@@ -237,6 +254,7 @@ pub struct Terms {
     pub ankle_limits: f64,
     pub foot_clearance: f64,
     pub riser_clearance: f64,
+    pub token_clearance: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -263,6 +281,7 @@ impl Terms {
             + w.ankle_limits * self.ankle_limits
             + w.foot_clearance * self.foot_clearance
             + w.riser_clearance * self.riser_clearance
+            + w.token_clearance * self.token_clearance
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -326,6 +345,28 @@ mod tests {
     }
 
     #[test]
+    fn token_clearance_asks_for_the_tokens_step_height_up_flights_only() {
+        use hal::{TerrainClass, TerrainToken};
+        let token = |class, h| TerrainToken {
+            class,
+            step_height_m: h,
+            step_depth_m: 0.3,
+            yaw_rad: 0.1,
+        };
+        let up20 = token_clearance_target(&token(TerrainClass::StairsUp, 0.20)).unwrap();
+        let up12 = token_clearance_target(&token(TerrainClass::StairsUp, 0.12)).unwrap();
+        assert!((up20 - 0.25).abs() < 1e-6, "{up20}");
+        assert!(up20 > up12, "the target grows with the step height");
+        // A noisy token's negative height asks for the margin, never less.
+        assert_eq!(
+            token_clearance_target(&token(TerrainClass::StairsUp, -0.01)),
+            Some(RISER_MARGIN)
+        );
+        assert_eq!(token_clearance_target(&token(TerrainClass::StairsDown, 0.20)), None);
+        assert_eq!(token_clearance_target(&TerrainToken::FLAT), None);
+    }
+
+    #[test]
     fn straddles_edge_finds_a_foot_across_a_riser_and_not_one_flat_on_a_tread() {
         // The riser at x = 0.3: a foot whose toe (origin + 0.12) or heel (origin − 0.05) is past
         // it straddles the edge; one wholly on either side does not.
@@ -379,6 +420,7 @@ mod tests {
         // Off by default: the committed recipe's reward is unchanged.
         assert_eq!(WEIGHTS.riser_clearance, 0.0);
         assert_eq!(WEIGHTS.foothold_edge, 0.0);
+        assert_eq!(WEIGHTS.token_clearance, 0.0);
     }
 
     #[test]

@@ -177,6 +177,13 @@ pub struct Args {
     /// terrain more than 0.02 m apart) costs P. 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.foothold_edge), value_name = "P", value_parser = parse_foothold_edge)]
     foothold_edge: f64,
+    /// Weight of the token-clearance penalty, given as a positive number P for a weight of −P:
+    /// while the policy's terrain token reads up, a swing foot is charged for every metre its
+    /// sole is below the token's step height plus 0.05 m over the terrain under it, times its
+    /// speed, the approach included (the policy sees the token, not the distance to the
+    /// riser). 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.token_clearance), value_name = "P", value_parser = parse_token_clearance)]
+    token_clearance: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -225,6 +232,7 @@ impl Args {
             clearance_lookahead: self.clearance_lookahead,
             riser_clearance_weight: -self.riser_clearance,
             foothold_edge_weight: -self.foothold_edge,
+            token_clearance_weight: -self.token_clearance,
         }
     }
 }
@@ -464,6 +472,14 @@ fn parse_foothold_edge(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_token_clearance(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the token-clearance penalty's size in [0, 50] (the weight is minus it), e.g. 5",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -569,6 +585,8 @@ mod tests {
             "10",
             "--foothold-edge",
             "2",
+            "--token-clearance",
+            "5",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -593,6 +611,7 @@ mod tests {
             clearance_lookahead: 0.24,
             riser_clearance_weight: -10.0,
             foothold_edge_weight: -2.0,
+            token_clearance_weight: -5.0,
         };
         assert_eq!(set, want);
     }
@@ -646,6 +665,8 @@ mod tests {
         assert_eq!(parse_clearance_lookahead("0.24"), Ok(0.24));
         assert_eq!(parse_riser_clearance("10"), Ok(10.0));
         assert_eq!(parse_foothold_edge("1.5"), Ok(1.5));
+        assert_eq!(parse_token_clearance("5"), Ok(5.0));
+        assert!(parse_token_clearance("-5").unwrap_err().contains("[0, 50]"));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
