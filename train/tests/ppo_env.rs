@@ -851,6 +851,36 @@ fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else(
     }
 }
 
+/// `--swing-apex`: the same climb (same seed, same actions, the same motion) costs at least as
+/// much at every step with the term on and more in all on an up flight; the cost comes only at
+/// touchdowns, as lumps, and flat ground and down flights pay exactly the same.
+#[test]
+fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.swing_apex_weight = -p);
+    let off = run(Column::Up, 0.0);
+    assert!(
+        off.0.len() > 100,
+        "the committed actor fell within {} steps",
+        off.0.len()
+    );
+    let on = run(Column::Up, 3.0);
+    assert_charges_more(&off, &on, 1e-3, "the swing-apex term on");
+    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    assert!(
+        charged > 0 && charged * 4 < off.0.len(),
+        "charged at {charged} of {} steps: not once per swing",
+        off.0.len()
+    );
+    for col in [Column::Flat, Column::Down] {
+        let (r_off, _) = run(col, 0.0);
+        let (r_on, _) = run(col, 3.0);
+        assert_eq!(r_off, r_on, "{col:?}: paid for an up token it does not have");
+    }
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

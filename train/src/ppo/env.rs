@@ -249,6 +249,10 @@ pub struct EnvSettings {
     /// Weight of the `token_clearance` penalty (a swing below the observed token's step height
     /// plus a margin, on up flights, `reward`). 0 (default): off.
     pub token_clearance_weight: f64,
+    /// Weight of the `swing_apex` penalty (a swing whose apex stayed below the observed token's
+    /// step height plus a margin, charged once at touchdown on up flights, `reward`). 0
+    /// (default): off.
+    pub swing_apex_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -283,6 +287,7 @@ impl EnvSettings {
         riser_clearance_weight: reward::WEIGHTS.riser_clearance,
         foothold_edge_weight: reward::WEIGHTS.foothold_edge,
         token_clearance_weight: reward::WEIGHTS.token_clearance,
+        swing_apex_weight: reward::WEIGHTS.swing_apex,
     };
 }
 
@@ -376,6 +381,8 @@ pub struct StairEnv {
     /// hit at any physics step of the current policy step.
     physics_step_trip: Option<usize>,
     air_time: [f64; 2],
+    /// The highest sole clearance over the ground under the foot in the current swing, m.
+    swing_peak: [f64; 2],
     contact_time: [f64; 2],
     prev_foot: [[f64; 3]; 2],
     foot_body: [usize; 2],
@@ -474,6 +481,7 @@ impl StairEnv {
             peak_dq: [0.0; NUM_MOTORS],
             physics_step_trip: None,
             air_time: [0.0; 2],
+            swing_peak: [0.0; 2],
             contact_time: [0.0; 2],
             prev_foot: [[0.0; 3]; 2],
             foot_body,
@@ -628,6 +636,7 @@ impl StairEnv {
         self.next_push = self.push_interval();
         self.prev_action.iter_mut().for_each(|a| *a = 0.0);
         self.air_time = [0.0; 2];
+        self.swing_peak = [0.0; 2];
         self.contact_time = [0.0; 2];
         // Stand in the default pose (what g1fw's start-up ramp ends in), then let it settle.
         let qpos_adr = self.slot_qpos_adr();
@@ -927,6 +936,7 @@ impl StairEnv {
             riser_clearance: self.cfg.settings.riser_clearance_weight,
             foothold_edge: self.cfg.settings.foothold_edge_weight,
             token_clearance: self.cfg.settings.token_clearance_weight,
+            swing_apex: self.cfg.settings.swing_apex_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1039,6 +1049,13 @@ impl StairEnv {
             if t.foot_contact[f] {
                 r.feet_slide += speed;
                 self.contact_time[f] += policy_dt;
+                if self.air_time[f] > 0.0 {
+                    // Touchdown: the swing that ended is charged once for its apex.
+                    if let Some(target) = reward::token_clearance_target(&self.token) {
+                        r.swing_apex += (target - self.swing_peak[f]).max(0.0) / policy_dt;
+                    }
+                    self.swing_peak[f] = 0.0;
+                }
                 self.air_time[f] = 0.0;
                 single += 1;
                 in_mode[f] = self.contact_time[f];
@@ -1062,9 +1079,10 @@ impl StairEnv {
                 );
                 let sole = feet[f][2] - self.sole_offset;
                 r.foot_clearance += (reward::CLEARANCE_TARGET - (sole - terrain)).max(0.0) * speed.min(1.0);
+                let over = sole - self.ground(feet[f][0], feet[f][1]);
+                self.swing_peak[f] = self.swing_peak[f].max(over);
                 if let Some(target) = reward::token_clearance_target(&self.token) {
-                    let under = self.ground(feet[f][0], feet[f][1]);
-                    r.token_clearance += (target - (sole - under)).max(0.0) * speed.min(1.0);
+                    r.token_clearance += (target - over).max(0.0) * speed.min(1.0);
                 }
                 if let Some(top) = reward::next_tread_top(
                     |x, y| self.ground(x, y),

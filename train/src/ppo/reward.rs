@@ -23,6 +23,7 @@
 //! | `foot_clearance` | Σ swing feet max(0.10 m − clearance, 0) · min(‖v_foot,xy‖, 1 m/s); clearance from the highest terrain under the foot and along its travel up to 0.12 m ahead (the toe; `--clearance-lookahead` sets it) | −10 |
 //! | `riser_clearance` | Σ swing feet max(top of the next higher tread within 0.40 m ahead of the foot along its travel + 0.05 m − sole height, 0) · min(‖v_foot,xy‖, 1 m/s); only while a higher tread lies ahead (up flights) | 0 unless `--riser-clearance` sets it |
 //! | `token_clearance` | Σ swing feet max(the token's step height + 0.05 m − (sole height − terrain under the foot), 0) · min(‖v_foot,xy‖, 1 m/s), while the policy's own token (as observed, noise and all) reads up | 0 unless `--token-clearance` sets it |
+//! | `swing_apex` | at each touchdown while the token reads up: max(the token's step height + 0.05 m − the ended swing's highest sole clearance over the ground under the foot, 0) / dt, so P costs P per metre of deficit per swing | 0 unless `--swing-apex` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -94,6 +95,11 @@
 //! the policy observes: the paper's swing clearance that grows with the stair height. Off by
 //! default.
 //!
+//! Why `swing_apex`: `token_clearance` weighs its deficit by the foot's speed, and from
+//! `--token-clearance 12` on the policy escaped it by shuffling up to the flight with 2–4 cm
+//! swings that move slowly (runs 54–55, docs/stair_policy.md, session 23). Charged once per swing
+//! for the swing's apex, a shuffle pays for every short step. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -124,6 +130,7 @@ pub const WEIGHTS: Weights = Weights {
     foot_clearance: -10.0,
     riser_clearance: 0.0,
     token_clearance: 0.0,
+    swing_apex: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -255,6 +262,7 @@ pub struct Terms {
     pub foot_clearance: f64,
     pub riser_clearance: f64,
     pub token_clearance: f64,
+    pub swing_apex: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -282,6 +290,7 @@ impl Terms {
             + w.foot_clearance * self.foot_clearance
             + w.riser_clearance * self.riser_clearance
             + w.token_clearance * self.token_clearance
+            + w.swing_apex * self.swing_apex
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -421,6 +430,7 @@ mod tests {
         assert_eq!(WEIGHTS.riser_clearance, 0.0);
         assert_eq!(WEIGHTS.foothold_edge, 0.0);
         assert_eq!(WEIGHTS.token_clearance, 0.0);
+        assert_eq!(WEIGHTS.swing_apex, 0.0);
     }
 
     #[test]

@@ -184,6 +184,12 @@ pub struct Args {
     /// riser). 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.token_clearance), value_name = "P", value_parser = parse_token_clearance)]
     token_clearance: f64,
+    /// Weight of the swing-apex penalty, given as a positive number P for a weight of −P: while
+    /// the policy's terrain token reads up, each swing is charged at touchdown P per metre its
+    /// highest sole clearance stayed below the token's step height plus 0.05 m. Unlike
+    /// --token-clearance, a slow shuffle pays for every short step. 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_apex), value_name = "P", value_parser = parse_swing_apex)]
+    swing_apex: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -233,6 +239,7 @@ impl Args {
             riser_clearance_weight: -self.riser_clearance,
             foothold_edge_weight: -self.foothold_edge,
             token_clearance_weight: -self.token_clearance,
+            swing_apex_weight: -self.swing_apex,
         }
     }
 }
@@ -480,6 +487,14 @@ fn parse_token_clearance(s: &str) -> Result<f64, String> {
     )
 }
 
+fn parse_swing_apex(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        "the swing-apex penalty's size in [0, 50] (the weight is minus it), e.g. 3",
+    )
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_number(
         s,
@@ -587,6 +602,8 @@ mod tests {
             "2",
             "--token-clearance",
             "5",
+            "--swing-apex",
+            "3",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -612,6 +629,7 @@ mod tests {
             riser_clearance_weight: -10.0,
             foothold_edge_weight: -2.0,
             token_clearance_weight: -5.0,
+            swing_apex_weight: -3.0,
         };
         assert_eq!(set, want);
     }
@@ -667,6 +685,8 @@ mod tests {
         assert_eq!(parse_foothold_edge("1.5"), Ok(1.5));
         assert_eq!(parse_token_clearance("5"), Ok(5.0));
         assert!(parse_token_clearance("-5").unwrap_err().contains("[0, 50]"));
+        assert_eq!(parse_swing_apex("3"), Ok(3.0));
+        assert!(parse_swing_apex("51").unwrap_err().contains("[0, 50]"));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
