@@ -616,16 +616,13 @@ fn supervisor_walls_hold_at_every_physics_step() {
     );
 }
 
+/// One walk as [`rewards_and_joint`] returns it: the reward per step and one joint's angle.
+type Walk = (Vec<f32>, Vec<f32>);
+
 /// The committed actor's mean action for up to `steps` policy steps on the 12-dof model, on one
 /// column, under the tests' settings changed by `set`: each step's reward and joint `slot`'s
 /// position (the reward tests compare two settings: a reward-only change leaves the motion as it was).
-fn rewards_and_joint(
-    only: Column,
-    seed: u64,
-    steps: usize,
-    slot: usize,
-    set: impl FnOnce(&mut EnvSettings),
-) -> (Vec<f32>, Vec<f32>) {
+fn rewards_and_joint(only: Column, seed: u64, steps: usize, slot: usize, set: impl FnOnce(&mut EnvSettings)) -> Walk {
     let spec = stair_spec();
     let weights = std::fs::read(spec.weights_path()).unwrap();
     let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec, only);
@@ -648,7 +645,7 @@ fn rewards_and_joint(
 /// Two walks of one episode (same seed, same actions) under two reward settings, as
 /// [`rewards_and_joint`] returns them: the motion is the same, and `charged` earns no more than
 /// `base` at any step and at least `margin` less in all. `what` names the change in the messages.
-fn assert_charges_more(base: &(Vec<f32>, Vec<f32>), charged: &(Vec<f32>, Vec<f32>), margin: f32, what: &str) {
+fn assert_charges_more(base: &Walk, charged: &Walk, margin: f32, what: &str) {
     assert_eq!(base.1, charged.1, "{what} changed the motion, not only the reward");
     for (i, (b, c)) in base.0.iter().zip(&charged.0).enumerate() {
         assert!(c <= b, "step {i}: {what} paid {c} against {b}");
@@ -786,99 +783,94 @@ fn a_longer_clearance_lookahead_charges_risers_before_the_toe_reaches_them() {
     assert_charges_more(&toe, &run(0.24), 1e-3, "seeing the riser 0.12 m earlier");
 }
 
-/// `--riser-clearance`: the same climb (same seed, same actions, the same motion) costs at least
-/// as much at every step with the term on, more in all on a staircase, and exactly the same on
-/// flat ground, where no higher tread lies ahead.
+/// One penalty term's weight set to −`p` against off, on the same walks (same seed, same actions,
+/// the same motion): on an up flight the committed actor keeps walking and the term costs at least
+/// as much at every step and more in all; on each of `free` (columns the term has nothing to charge
+/// on) the rewards are exactly the same. Returns the up flight's two walks.
+fn assert_term_charges_up_flights_only(
+    set_weight: fn(&mut EnvSettings, f64),
+    p: f64,
+    free: &[Column],
+    what: &str,
+) -> (Walk, Walk) {
+    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| set_weight(s, -p));
+    let off = run(Column::Up, 0.0);
+    assert!(
+        off.0.len() > 100,
+        "the committed actor fell within {} steps",
+        off.0.len()
+    );
+    let on = run(Column::Up, p);
+    assert_charges_more(&off, &on, 1e-3, &format!("the {what} term on"));
+    for &col in free {
+        let (r_off, _) = run(col, 0.0);
+        let (r_on, _) = run(col, p);
+        assert_eq!(
+            r_off, r_on,
+            "{col:?}: the {what} term charged a walk it has nothing to charge on"
+        );
+    }
+    (off, on)
+}
+
+/// `--riser-clearance`: charged on a staircase, nothing on flat ground, where no higher tread lies
+/// ahead.
 #[test]
 fn riser_clearance_charges_low_swings_on_up_flights_and_nothing_on_flat_ground() {
     if peer_weights().is_none() {
         return;
     }
-    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.riser_clearance_weight = -p);
-    let off = run(Column::Up, 0.0);
-    assert!(
-        off.0.len() > 100,
-        "the committed actor fell within {} steps",
-        off.0.len()
+    assert_term_charges_up_flights_only(
+        |s, w| s.riser_clearance_weight = w,
+        10.0,
+        &[Column::Flat],
+        "riser-clearance",
     );
-    assert_charges_more(&off, &run(Column::Up, 10.0), 1e-3, "the riser-clearance term on");
-    let (flat_off, _) = run(Column::Flat, 0.0);
-    let (flat_on, _) = run(Column::Flat, 10.0);
-    assert_eq!(flat_off, flat_on, "flat ground paid for a riser it does not have");
 }
 
-/// `--foothold-edge`: the same climb (same seed, same actions, the same motion) costs at least as
-/// much at every step with the term on, more in all on a staircase, where feet land across tread
-/// edges, and exactly the same on flat ground, which has no edge.
+/// `--foothold-edge`: charged on a staircase, where feet land across tread edges, nothing on flat
+/// ground, which has no edge.
 #[test]
 fn foothold_edge_charges_feet_across_tread_edges_and_nothing_on_flat_ground() {
     if peer_weights().is_none() {
         return;
     }
-    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.foothold_edge_weight = -p);
-    let off = run(Column::Up, 0.0);
-    assert!(
-        off.0.len() > 100,
-        "the committed actor fell within {} steps",
-        off.0.len()
-    );
-    assert_charges_more(&off, &run(Column::Up, 2.0), 1e-3, "the foothold-edge term on");
-    let (flat_off, _) = run(Column::Flat, 0.0);
-    let (flat_on, _) = run(Column::Flat, 2.0);
-    assert_eq!(flat_off, flat_on, "flat ground paid for an edge it does not have");
+    assert_term_charges_up_flights_only(|s, w| s.foothold_edge_weight = w, 2.0, &[Column::Flat], "foothold-edge");
 }
 
-/// `--token-clearance`: the same climb (same seed, same actions, the same motion) costs at least
-/// as much at every step with the term on and more in all on an up flight, whose token reads up;
-/// flat ground and down flights, whose tokens do not, pay exactly the same.
+/// `--token-clearance`: charged on an up flight, whose token reads up; flat ground and down
+/// flights, whose tokens do not, pay exactly the same.
 #[test]
 fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else() {
     if peer_weights().is_none() {
         return;
     }
-    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.token_clearance_weight = -p);
-    let off = run(Column::Up, 0.0);
-    assert!(
-        off.0.len() > 100,
-        "the committed actor fell within {} steps",
-        off.0.len()
+    assert_term_charges_up_flights_only(
+        |s, w| s.token_clearance_weight = w,
+        5.0,
+        &[Column::Flat, Column::Down],
+        "token-clearance",
     );
-    assert_charges_more(&off, &run(Column::Up, 5.0), 1e-3, "the token-clearance term on");
-    for col in [Column::Flat, Column::Down] {
-        let (r_off, _) = run(col, 0.0);
-        let (r_on, _) = run(col, 5.0);
-        assert_eq!(r_off, r_on, "{col:?}: paid for an up token it does not have");
-    }
 }
 
-/// `--swing-apex`: the same climb (same seed, same actions, the same motion) costs at least as
-/// much at every step with the term on and more in all on an up flight; the cost comes only at
-/// touchdowns, as lumps, and flat ground and down flights pay exactly the same.
+/// `--swing-apex`: as `--token-clearance`, and the cost comes only at touchdowns, as lumps.
 #[test]
 fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothing_else() {
     if peer_weights().is_none() {
         return;
     }
-    let run = |col: Column, p: f64| rewards_and_joint(col, 5, 250, 0, |s| s.swing_apex_weight = -p);
-    let off = run(Column::Up, 0.0);
-    assert!(
-        off.0.len() > 100,
-        "the committed actor fell within {} steps",
-        off.0.len()
+    let (off, on) = assert_term_charges_up_flights_only(
+        |s, w| s.swing_apex_weight = w,
+        3.0,
+        &[Column::Flat, Column::Down],
+        "swing-apex",
     );
-    let on = run(Column::Up, 3.0);
-    assert_charges_more(&off, &on, 1e-3, "the swing-apex term on");
     let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
     assert!(
         charged > 0 && charged * 4 < off.0.len(),
         "charged at {charged} of {} steps: not once per swing",
         off.0.len()
     );
-    for col in [Column::Flat, Column::Down] {
-        let (r_off, _) = run(col, 0.0);
-        let (r_on, _) = run(col, 3.0);
-        assert_eq!(r_off, r_on, "{col:?}: paid for an up token it does not have");
-    }
 }
 
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the

@@ -426,11 +426,7 @@ fn parse_review_share(s: &str) -> Result<f64, String> {
 }
 
 fn parse_orientation_penalty(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the upright penalty's size in [0, 50] (the weight is minus it), e.g. 5",
-    )
+    parse_penalty_size(s, "upright", "5")
 }
 
 fn parse_stair_turns(s: &str) -> Result<f64, String> {
@@ -442,11 +438,7 @@ fn parse_stair_turns(s: &str) -> Result<f64, String> {
 }
 
 fn parse_yaw_error_penalty(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the turn-rate error penalty's size in [0, 50] (the weight is minus it), e.g. 1",
-    )
+    parse_penalty_size(s, "turn-rate error", "1")
 }
 
 fn parse_clearance_lookahead(s: &str) -> Result<f64, String> {
@@ -464,43 +456,23 @@ const fn penalty_size(weight: f64) -> f64 {
 }
 
 fn parse_riser_clearance(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the riser-clearance penalty's size in [0, 50] (the weight is minus it), e.g. 10",
-    )
+    parse_penalty_size(s, "riser-clearance", "10")
 }
 
 fn parse_foothold_edge(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the foothold-edge penalty's size in [0, 50] (the weight is minus it), e.g. 1",
-    )
+    parse_penalty_size(s, "foothold-edge", "1")
 }
 
 fn parse_token_clearance(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the token-clearance penalty's size in [0, 50] (the weight is minus it), e.g. 5",
-    )
+    parse_penalty_size(s, "token-clearance", "5")
 }
 
 fn parse_swing_apex(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the swing-apex penalty's size in [0, 50] (the weight is minus it), e.g. 3",
-    )
+    parse_penalty_size(s, "swing-apex", "3")
 }
 
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
-    parse_number(
-        s,
-        |v| (0.0..=50.0).contains(&v),
-        "the drift penalty's size in [0, 50] (the weight is minus it), e.g. 2",
-    )
+    parse_penalty_size(s, "drift", "2")
 }
 
 /// `--up-level-floor LEVEL`: a curriculum level, 0 … 10.
@@ -519,6 +491,15 @@ fn parse_mixed_model(s: &str) -> Result<(g1_sim::ModelChoice, f64), String> {
     let (model, share) = s.rsplit_once(':').ok_or_else(|| format!("'{s}': give {want}"))?;
     let Ok(model) = model.parse::<g1_sim::ModelChoice>();
     Ok((model, parse_number(share, |v| v > 0.0 && v < 1.0, want)?))
+}
+
+/// A penalty's size P (the weight is −P), within [0, 50]; `what` names the penalty in the error.
+fn parse_penalty_size(s: &str, what: &str, example: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=50.0).contains(&v),
+        &format!("the {what} penalty's size in [0, 50] (the weight is minus it), e.g. {example}"),
+    )
 }
 
 fn parse_number(s: &str, accept: impl Fn(f64) -> bool, want: &str) -> Result<f64, String> {
