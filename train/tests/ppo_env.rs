@@ -873,6 +873,28 @@ fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothi
     );
 }
 
+/// `--swing-advance`: charged at touchdowns on an up flight (the first steps from standing and
+/// the short ones at the riser carry the foot less than a tread); flat ground and down flights,
+/// whose tokens do not read up, pay exactly the same.
+#[test]
+fn swing_advance_charges_short_swings_at_touchdown_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let (off, on) = assert_term_charges_up_flights_only(
+        |s, w| s.swing_advance_weight = w,
+        2.0,
+        &[Column::Flat, Column::Down],
+        "swing-advance",
+    );
+    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    assert!(
+        charged > 0 && charged * 4 < off.0.len(),
+        "charged at {charged} of {} steps: not once per swing",
+        off.0.len()
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

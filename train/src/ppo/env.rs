@@ -253,6 +253,9 @@ pub struct EnvSettings {
     /// step height plus a margin, charged once at touchdown on up flights, `reward`). 0
     /// (default): off.
     pub swing_apex_weight: f64,
+    /// Weight of the `swing_advance` penalty (a swing on an up flight that carried the foot less
+    /// than a tread forward; `reward::swing_advance_target`). 0 (default): off.
+    pub swing_advance_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -288,6 +291,7 @@ impl EnvSettings {
         foothold_edge_weight: reward::WEIGHTS.foothold_edge,
         token_clearance_weight: reward::WEIGHTS.token_clearance,
         swing_apex_weight: reward::WEIGHTS.swing_apex,
+        swing_advance_weight: reward::WEIGHTS.swing_advance,
     };
 }
 
@@ -383,6 +387,8 @@ pub struct StairEnv {
     air_time: [f64; 2],
     /// The highest sole clearance over the ground under the foot in the current swing, m.
     swing_peak: [f64; 2],
+    /// Where each foot lifted off (x, y), m: the start of its current swing.
+    swing_start: [[f64; 2]; 2],
     contact_time: [f64; 2],
     prev_foot: [[f64; 3]; 2],
     foot_body: [usize; 2],
@@ -482,6 +488,7 @@ impl StairEnv {
             physics_step_trip: None,
             air_time: [0.0; 2],
             swing_peak: [0.0; 2],
+            swing_start: [[0.0; 2]; 2],
             contact_time: [0.0; 2],
             prev_foot: [[0.0; 3]; 2],
             foot_body,
@@ -637,6 +644,7 @@ impl StairEnv {
         self.prev_action.iter_mut().for_each(|a| *a = 0.0);
         self.air_time = [0.0; 2];
         self.swing_peak = [0.0; 2];
+        self.swing_start = [[0.0; 2]; 2];
         self.contact_time = [0.0; 2];
         // Stand in the default pose (what g1fw's start-up ramp ends in), then let it settle.
         let qpos_adr = self.slot_qpos_adr();
@@ -937,6 +945,7 @@ impl StairEnv {
             foothold_edge: self.cfg.settings.foothold_edge_weight,
             token_clearance: self.cfg.settings.token_clearance_weight,
             swing_apex: self.cfg.settings.swing_apex_weight,
+            swing_advance: self.cfg.settings.swing_advance_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1055,6 +1064,11 @@ impl StairEnv {
                         r.swing_apex += (target - self.swing_peak[f]).max(0.0) / policy_dt;
                     }
                     self.swing_peak[f] = 0.0;
+                    if let Some(target) = reward::swing_advance_target(&self.token).filter(|_| !self.standing()) {
+                        let [x0, y0] = self.swing_start[f];
+                        let advance = (feet[f][0] - x0) * c + (feet[f][1] - y0) * s;
+                        r.swing_advance += (target - advance).max(0.0) / policy_dt;
+                    }
                 }
                 self.air_time[f] = 0.0;
                 single += 1;
@@ -1063,6 +1077,10 @@ impl StairEnv {
                     r.foothold_edge += 1.0;
                 }
             } else {
+                if self.air_time[f] == 0.0 {
+                    // Liftoff: the swing starts where the foot last stood.
+                    self.swing_start[f] = [self.prev_foot[f][0], self.prev_foot[f][1]];
+                }
                 self.air_time[f] += policy_dt;
                 self.contact_time[f] = 0.0;
                 in_mode[f] = self.air_time[f];

@@ -24,6 +24,7 @@
 //! | `riser_clearance` | Σ swing feet max(top of the next higher tread within 0.40 m ahead of the foot along its travel + 0.05 m − sole height, 0) · min(‖v_foot,xy‖, 1 m/s); only while a higher tread lies ahead (up flights) | 0 unless `--riser-clearance` sets it |
 //! | `token_clearance` | Σ swing feet max(the token's step height + 0.05 m − (sole height − terrain under the foot), 0) · min(‖v_foot,xy‖, 1 m/s), while the policy's own token (as observed, noise and all) reads up | 0 unless `--token-clearance` sets it |
 //! | `swing_apex` | at each touchdown while the token reads up: max(the token's step height + 0.05 m − the ended swing's highest sole clearance over the ground under the foot, 0) / dt, so P costs P per metre of deficit per swing | 0 unless `--swing-apex` sets it |
+//! | `swing_advance` | at each touchdown while the token reads up and the command is not a stand: max(min(the token's step depth, 0.25 m) − the ended swing's advance along the base's heading, 0) / dt, so P costs P per metre of shortfall per swing | 0 unless `--swing-advance` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -100,6 +101,13 @@
 //! swings that move slowly (runs 54–55, docs/stair_policy.md, session 23). Charged once per swing
 //! for the swing's apex, a shuffle pays for every short step. Off by default.
 //!
+//! Why `swing_advance`: with `--swing-apex 2` alone (run 56) the policy stopped at the riser
+//! and inched there, and with `--token-clearance` it shuffled up to the flight (runs 54–55):
+//! short swings that carry the foot a few cm. A swing on an up flight should carry the foot at
+//! least a tread forward (capped at 0.25 m, less than the 0.32–0.4 m a swing advances when
+//! walking at the 0.4–0.5 m/s that the stairs are trained at), so walking pays nothing and each
+//! short step pays for its shortfall. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -131,6 +139,7 @@ pub const WEIGHTS: Weights = Weights {
     riser_clearance: 0.0,
     token_clearance: 0.0,
     swing_apex: 0.0,
+    swing_advance: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -210,6 +219,16 @@ pub fn token_clearance_target(token: &hal::TerrainToken) -> Option<f64> {
     (token.class == hal::TerrainClass::StairsUp).then(|| token.step_height_m.max(0.0) as f64 + RISER_MARGIN)
 }
 
+/// Longest advance per swing that `swing_advance` asks for, m.
+pub const SWING_ADVANCE_MAX_M: f64 = 0.25;
+
+/// How far forward along the base's heading a swing on an up flight should carry the foot, m:
+/// one tread of the token the policy observes, at most [`SWING_ADVANCE_MAX_M`]; `None` (nothing
+/// asked) on flat ground or down a flight.
+pub fn swing_advance_target(token: &hal::TerrainToken) -> Option<f64> {
+    (token.class == hal::TerrainClass::StairsUp).then(|| (token.step_depth_m.max(0.0) as f64).min(SWING_ADVANCE_MAX_M))
+}
+
 /// Where the G1's sole reaches behind and ahead of the foot origin (the ankle-roll body), m: the
 /// model's heel and toe contact spheres sit at x = −0.05 and +0.12.
 pub const FOOT_HEEL_M: f64 = 0.05;
@@ -263,6 +282,7 @@ pub struct Terms {
     pub riser_clearance: f64,
     pub token_clearance: f64,
     pub swing_apex: f64,
+    pub swing_advance: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -291,6 +311,7 @@ impl Terms {
             + w.riser_clearance * self.riser_clearance
             + w.token_clearance * self.token_clearance
             + w.swing_apex * self.swing_apex
+            + w.swing_advance * self.swing_advance
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -373,6 +394,28 @@ mod tests {
         );
         assert_eq!(token_clearance_target(&token(TerrainClass::StairsDown, 0.20)), None);
         assert_eq!(token_clearance_target(&TerrainToken::FLAT), None);
+    }
+
+    #[test]
+    fn swing_advance_asks_for_a_tread_capped_up_flights_only() {
+        use hal::{TerrainClass, TerrainToken};
+        let token = |class, d| TerrainToken {
+            class,
+            step_height_m: 0.18,
+            step_depth_m: d,
+            yaw_rad: 0.0,
+        };
+        let short = swing_advance_target(&token(TerrainClass::StairsUp, 0.22)).unwrap();
+        assert!((short - 0.22).abs() < 1e-6, "{short}");
+        assert_eq!(
+            swing_advance_target(&token(TerrainClass::StairsUp, 0.40)),
+            Some(SWING_ADVANCE_MAX_M),
+            "deep treads ask for the cap"
+        );
+        assert_eq!(swing_advance_target(&token(TerrainClass::StairsUp, -0.02)), Some(0.0));
+        assert_eq!(swing_advance_target(&token(TerrainClass::StairsDown, 0.3)), None);
+        assert_eq!(swing_advance_target(&TerrainToken::FLAT), None);
+        assert_eq!(WEIGHTS.swing_advance, 0.0, "off by default");
     }
 
     #[test]

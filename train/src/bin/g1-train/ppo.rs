@@ -190,6 +190,13 @@ pub struct Args {
     /// --token-clearance, a slow shuffle pays for every short step. 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_apex), value_name = "P", value_parser = parse_swing_apex)]
     swing_apex: f64,
+    /// Weight of the swing-advance penalty, given as a positive number P for a weight of −P:
+    /// while the policy's terrain token reads up (and the command is not a stand), each swing is
+    /// charged at touchdown P per metre it carried the foot less than one tread (the token's
+    /// depth, at most 0.25 m) forward along the heading. Walking pays nothing; shuffling and
+    /// marking time at a riser pay for every short step. 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_advance), value_name = "P", value_parser = parse_swing_advance)]
+    swing_advance: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -240,6 +247,7 @@ impl Args {
             foothold_edge_weight: -self.foothold_edge,
             token_clearance_weight: -self.token_clearance,
             swing_apex_weight: -self.swing_apex,
+            swing_advance_weight: -self.swing_advance,
         }
     }
 }
@@ -471,6 +479,10 @@ fn parse_swing_apex(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "swing-apex", "3")
 }
 
+fn parse_swing_advance(s: &str) -> Result<f64, String> {
+    parse_penalty_size(s, "swing-advance", "2")
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -585,6 +597,8 @@ mod tests {
             "5",
             "--swing-apex",
             "3",
+            "--swing-advance",
+            "2",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -611,6 +625,7 @@ mod tests {
             foothold_edge_weight: -2.0,
             token_clearance_weight: -5.0,
             swing_apex_weight: -3.0,
+            swing_advance_weight: -2.0,
         };
         assert_eq!(set, want);
     }
@@ -668,6 +683,8 @@ mod tests {
         assert!(parse_token_clearance("-5").unwrap_err().contains("[0, 50]"));
         assert_eq!(parse_swing_apex("3"), Ok(3.0));
         assert!(parse_swing_apex("51").unwrap_err().contains("[0, 50]"));
+        assert_eq!(parse_swing_advance("2"), Ok(2.0));
+        assert!(parse_swing_advance("-2").unwrap_err().contains("[0, 50]"));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
