@@ -80,12 +80,35 @@ fn run(tag: &str, extra: &[&str], duration: f64) -> Option<Outcome> {
     })
 }
 
+/// Below this real-time factor of Unitree's simulator the peer walker stumbles (measured).
+const MIN_REAL_TIME_FACTOR: f64 = 0.85;
+/// Runs of the walk scenario, at most, until one keeps real time.
+const WALK_ATTEMPTS: usize = 3;
+
 /// The peer walker walks in Unitree's simulator with `--unitree-mujoco`, damps at the end, and the
 /// log replays bit-exact (replay stamps the logged samples as the run did).
 #[test]
 fn the_peer_walker_walks_in_unitree_mujoco_and_damps_at_the_end() {
-    let Some(o) = run("walk", &["--unitree-mujoco"], 10.0) else {
-        return;
+    // Unitree's simulator steps in wall-clock time in Python: on a shared, loaded machine it can
+    // fall behind real time for a whole run (fresh check 46: 0.56 x, while the same test on the
+    // same machine ran at full speed twice minutes later), and then the peer walker sees a slowed
+    // world and stumbles. Such a run measures the machine, not g1fw, so it is run again (at most
+    // twice more); the last run is judged whatever its speed.
+    let mut attempt = 1;
+    let o = loop {
+        let Some(o) = run("walk", &["--unitree-mujoco"], 10.0) else {
+            return;
+        };
+        let rtf = o.sim["real_time_factor"].as_f64().unwrap_or(0.0);
+        if rtf >= MIN_REAL_TIME_FACTOR || attempt == WALK_ATTEMPTS {
+            break o;
+        }
+        eprintln!(
+            "unitree_mujoco ran at {rtf:.2} x real time (below {MIN_REAL_TIME_FACTOR}): the machine was \
+             loaded; running attempt {} of {WALK_ATTEMPTS}",
+            attempt + 1
+        );
+        attempt += 1;
     };
     let r = &o.report;
     let rtf = o.sim["real_time_factor"].as_f64().unwrap_or(0.0);
@@ -96,8 +119,8 @@ fn the_peer_walker_walks_in_unitree_mujoco_and_damps_at_the_end() {
     // Unitree's simulator steps in wall-clock time and publishes on its own timer: when Python
     // cannot keep a 2 ms step (a loaded machine), states repeat and the policy sees a slowed world.
     let ctx = format!(
-        "report {r}\nUnitree's simulator ran at {rtf:.2} x real time (below ~0.85 the peer walker \
-         stumbles: give the test a free core)\nstderr {}",
+        "report {r}\nUnitree's simulator ran at {rtf:.2} x real time on attempt {attempt} of \
+         {WALK_ATTEMPTS} (below {MIN_REAL_TIME_FACTOR} the peer walker stumbles: give the test a free core)\nstderr {}",
         o.stderr
     );
     assert!(r["trip"].is_null(), "no trip expected: {ctx}");
