@@ -80,7 +80,8 @@ fn run(tag: &str, extra: &[&str], duration: f64) -> Option<Outcome> {
     })
 }
 
-/// Below this real-time factor of Unitree's simulator the peer walker stumbles (measured).
+/// Below this real-time factor of Unitree's simulator the peer walker stumbles (docs/robot.md: it
+/// walked at 0.92 x and tripped at 0.73 and 0.56 x).
 const MIN_REAL_TIME_FACTOR: f64 = 0.85;
 /// Runs of the walk scenario, at most, until one keeps real time.
 const WALK_ATTEMPTS: usize = 3;
