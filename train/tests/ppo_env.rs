@@ -853,6 +853,17 @@ fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else(
     );
 }
 
+/// A term charged once per swing (at touchdown): the walk with it on costs more at some steps, and
+/// at fewer than a quarter of them.
+fn assert_charged_in_lumps(off: &Walk, on: &Walk) {
+    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    assert!(
+        charged > 0 && charged * 4 < off.0.len(),
+        "charged at {charged} of {} steps: not once per swing",
+        off.0.len()
+    );
+}
+
 /// `--swing-apex`: as `--token-clearance`, and the cost comes only at touchdowns, as lumps.
 #[test]
 fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothing_else() {
@@ -865,12 +876,7 @@ fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothi
         &[Column::Flat, Column::Down],
         "swing-apex",
     );
-    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
-    assert!(
-        charged > 0 && charged * 4 < off.0.len(),
-        "charged at {charged} of {} steps: not once per swing",
-        off.0.len()
-    );
+    assert_charged_in_lumps(&off, &on);
 }
 
 /// `--swing-advance`: charged at touchdowns on an up flight (the first steps from standing and
@@ -887,12 +893,7 @@ fn swing_advance_charges_short_swings_at_touchdown_while_the_token_reads_up_and_
         &[Column::Flat, Column::Down],
         "swing-advance",
     );
-    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
-    assert!(
-        charged > 0 && charged * 4 < off.0.len(),
-        "charged at {charged} of {} steps: not once per swing",
-        off.0.len()
-    );
+    assert_charged_in_lumps(&off, &on);
 }
 
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
