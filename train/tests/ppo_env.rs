@@ -853,9 +853,11 @@ fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else(
     );
 }
 
-/// A term charged once per swing (at touchdown): the walk with it on costs more at some steps, and
-/// at fewer than a quarter of them.
-fn assert_charged_in_lumps(off: &Walk, on: &Walk) {
+/// A term charged once per swing, at touchdown, while the token reads up: as
+/// [`assert_term_charges_up_flights_only`] with flat ground and down flights free, and the walk
+/// with it on costs more at some steps, and at fewer than a quarter of them.
+fn assert_touchdown_term_charges_up_flights_only(set_weight: fn(&mut EnvSettings, f64), p: f64, what: &str) {
+    let (off, on) = assert_term_charges_up_flights_only(set_weight, p, &[Column::Flat, Column::Down], what);
     let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
     assert!(
         charged > 0 && charged * 4 < off.0.len(),
@@ -870,13 +872,7 @@ fn swing_apex_charges_low_swings_at_touchdown_while_the_token_reads_up_and_nothi
     if peer_weights().is_none() {
         return;
     }
-    let (off, on) = assert_term_charges_up_flights_only(
-        |s, w| s.swing_apex_weight = w,
-        3.0,
-        &[Column::Flat, Column::Down],
-        "swing-apex",
-    );
-    assert_charged_in_lumps(&off, &on);
+    assert_touchdown_term_charges_up_flights_only(|s, w| s.swing_apex_weight = w, 3.0, "swing-apex");
 }
 
 /// `--swing-advance`: charged at touchdowns on an up flight (the first steps from standing and
@@ -887,13 +883,7 @@ fn swing_advance_charges_short_swings_at_touchdown_while_the_token_reads_up_and_
     if peer_weights().is_none() {
         return;
     }
-    let (off, on) = assert_term_charges_up_flights_only(
-        |s, w| s.swing_advance_weight = w,
-        2.0,
-        &[Column::Flat, Column::Down],
-        "swing-advance",
-    );
-    assert_charged_in_lumps(&off, &on);
+    assert_touchdown_term_charges_up_flights_only(|s, w| s.swing_advance_weight = w, 2.0, "swing-advance");
 }
 
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
