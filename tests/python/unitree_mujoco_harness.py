@@ -10,6 +10,16 @@ with a 2 ms step. The loop is Unitree's SimulationThread: a real-time `mj_step` 
 the band. The band holds the robot up (as a user hangs it in the viewer) until the controller has
 commanded for `--release-after` seconds (its start-up ramp), then lets go, as pressing 9 does.
 
+With `--lockstep` the physics is driven by the commands instead of the wall clock, as `g1-sim
+--dds` drives its own: one 2 ms `mj_step` per command that arrives (the torque Unitree's
+`LowCmdHandler` computed from it, held through the step, as in real time), then one `PublishLowState`
+(Unitree's) of the new state; the bridge's own 2 ms `sim_lowstate` timer is stopped, since a second
+publisher on a timer would break the one-to-one. The state is sent again when no command follows
+within 20 ms (discovery swallows the first samples). g1fw ticks on the states (`--tick-on state`),
+so a tick is one command is one physics step whatever the CPU's speed: Python's real-time loop
+falls to 0.42-0.56 x real time on a slow CPU, and the peer walker then sees a slowed world and
+trips (docs/robot.md). Times in the output are then simulated seconds.
+
 Prints one JSON line at the end: the pelvis trajectory (t, x, y, z at 10 Hz, t from the release),
 when the first command came, how many physics steps ran and the real-time factor.
 """
@@ -36,6 +46,8 @@ ap.add_argument("--release-after", type=float, default=0.8,
                 help="seconds after the first command before the band lets go")
 ap.add_argument("--idle-exit", type=float, default=1.5,
                 help="exit this long after commands stop (once some came)")
+ap.add_argument("--lockstep", action="store_true",
+                help="one physics step per command, then the state (for g1fw --tick-on state)")
 args = ap.parse_args()
 
 import config  # noqa: E402  Unitree's config module, set as a user edits config.py
@@ -73,8 +85,26 @@ band.length = (band.point[2] - pelvis_z) - mass * 9.81 / band.stiffness
 mujoco.mj_forward(mj_model, mj_data)
 
 locker = threading.Lock()
+
+
+class CommandCountingBridge(UnitreeSdk2Bridge):
+    """Unitree's bridge, its handler unchanged; it also counts the commands, for `--lockstep`."""
+
+    def __init__(self, model, data):
+        self.commands = 0
+        self.arrived = threading.Condition()
+        super().__init__(model, data)
+
+    def LowCmdHandler(self, msg):
+        with locker:  # not while the main loop steps: the handler reads the state
+            super().LowCmdHandler(msg)
+        with self.arrived:
+            self.commands += 1
+            self.arrived.notify()
+
+
 ChannelFactoryInitialize(config.DOMAIN_ID, config.INTERFACE)
-bridge = UnitreeSdk2Bridge(mj_model, mj_data)
+bridge = CommandCountingBridge(mj_model, mj_data)
 
 t_start = time.perf_counter()
 first_cmd = None
@@ -84,7 +114,54 @@ traj = []
 steps = 0
 next_sample = 0.0
 prev_ctrl = np.zeros(mj_model.nu)
-while time.perf_counter() - t_start < args.duration:
+
+
+def step_physics(now):
+    """One `mj_step` with the band as Unitree's SimulationThread applies it; `now` is the time the
+    release and the trajectory go by. Call with `locker` held."""
+    global released_at, next_sample, steps
+    if band.enable and first_cmd is not None and now - first_cmd >= args.release_after:
+        band.enable = False
+        released_at = now
+    if band.enable:
+        mj_data.xfrc_applied[band_link, :3] = band.Advance(mj_data.qpos[:3], mj_data.qvel[:3])
+    else:
+        mj_data.xfrc_applied[band_link, :3] = 0.0
+    mujoco.mj_step(mj_model, mj_data)
+    steps += 1
+    if released_at is not None and now - released_at >= next_sample:
+        traj.append([round(now - released_at, 3)] + [round(float(v), 4) for v in mj_data.qpos[:3]])
+        next_sample += 0.1
+
+
+RESEND_AFTER_S = 0.02
+if args.lockstep:
+    bridge.lowStateThread.Wait(1.0)  # the states go out below, one per physics step
+    seen = 0
+    last_command_wall = None
+    bridge.PublishLowState()
+    while time.perf_counter() - t_start < args.duration:
+        with bridge.arrived:
+            if bridge.commands == seen:
+                bridge.arrived.wait(RESEND_AFTER_S)
+            pending = bridge.commands - seen
+        wall_now = time.perf_counter()
+        if pending == 0:
+            if last_command_wall is not None and wall_now - last_command_wall > args.idle_exit:
+                break
+            bridge.PublishLowState()  # not heard (discovery, a lost sample): send it again
+            continue
+        seen += pending
+        last_command_wall = wall_now
+        with locker:
+            for _ in range(pending):  # commands that came together: one step each, the newest's torque
+                now = steps * mj_model.opt.timestep
+                if first_cmd is None:
+                    first_cmd = now
+                last_active = now
+                step_physics(now)
+        bridge.PublishLowState()
+while not args.lockstep and time.perf_counter() - t_start < args.duration:
     step_start = time.perf_counter()
     with locker:
         now = step_start - t_start
@@ -94,18 +171,7 @@ while time.perf_counter() - t_start < args.duration:
             if first_cmd is None:
                 first_cmd = now
         prev_ctrl = ctrl
-        if band.enable and first_cmd is not None and now - first_cmd >= args.release_after:
-            band.enable = False
-            released_at = now
-        if band.enable:
-            mj_data.xfrc_applied[band_link, :3] = band.Advance(mj_data.qpos[:3], mj_data.qvel[:3])
-        else:
-            mj_data.xfrc_applied[band_link, :3] = 0.0
-        mujoco.mj_step(mj_model, mj_data)
-        steps += 1
-        if released_at is not None and now - released_at >= next_sample:
-            traj.append([round(now - released_at, 3)] + [round(float(v), 4) for v in mj_data.qpos[:3]])
-            next_sample += 0.1
+        step_physics(now)
     if last_active is not None and time.perf_counter() - t_start - last_active > args.idle_exit:
         break
     wait = mj_model.opt.timestep - (time.perf_counter() - step_start)
@@ -114,6 +180,7 @@ while time.perf_counter() - t_start < args.duration:
 
 wall = time.perf_counter() - t_start
 print(json.dumps({
+    "lockstep": args.lockstep,
     "first_command_s": first_cmd,
     "released_s": released_at,
     "physics_steps": steps,
