@@ -886,6 +886,17 @@ fn swing_advance_charges_short_swings_at_touchdown_while_the_token_reads_up_and_
     assert_touchdown_term_charges_up_flights_only(|s, w| s.swing_advance_weight = w, 2.0, "swing-advance");
 }
 
+/// `--swing-overshoot`: charged at touchdowns on an up flight for the swings that rose more than
+/// 0.10 m above the asked apex; flat ground and down flights, whose tokens do not read up, pay
+/// exactly the same.
+#[test]
+fn swing_overshoot_charges_high_swings_at_touchdown_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    assert_touchdown_term_charges_up_flights_only(|s, w| s.swing_overshoot_weight = w, 4.0, "swing-overshoot");
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

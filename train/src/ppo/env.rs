@@ -256,6 +256,9 @@ pub struct EnvSettings {
     /// Weight of the `swing_advance` penalty (a swing on an up flight that carried the foot less
     /// than a tread forward; `reward::swing_advance_target`). 0 (default): off.
     pub swing_advance_weight: f64,
+    /// Weight of the `swing_overshoot` penalty (a swing on an up flight whose apex rose more than
+    /// `reward::SWING_OVERSHOOT_MARGIN_M` above what `swing_apex` asks). 0 (default): off.
+    pub swing_overshoot_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -292,6 +295,7 @@ impl EnvSettings {
         token_clearance_weight: reward::WEIGHTS.token_clearance,
         swing_apex_weight: reward::WEIGHTS.swing_apex,
         swing_advance_weight: reward::WEIGHTS.swing_advance,
+        swing_overshoot_weight: reward::WEIGHTS.swing_overshoot,
     };
 }
 
@@ -946,6 +950,7 @@ impl StairEnv {
             token_clearance: self.cfg.settings.token_clearance_weight,
             swing_apex: self.cfg.settings.swing_apex_weight,
             swing_advance: self.cfg.settings.swing_advance_weight,
+            swing_overshoot: self.cfg.settings.swing_overshoot_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1062,6 +1067,9 @@ impl StairEnv {
                     // Touchdown: the swing that ended is charged once for its apex.
                     if let Some(target) = reward::token_clearance_target(&self.token) {
                         r.swing_apex += (target - self.swing_peak[f]).max(0.0) / policy_dt;
+                    }
+                    if let Some(over) = reward::swing_overshoot(&self.token, self.swing_peak[f]) {
+                        r.swing_overshoot += over / policy_dt;
                     }
                     self.swing_peak[f] = 0.0;
                     if let Some(target) = reward::swing_advance_target(&self.token).filter(|_| !self.standing()) {

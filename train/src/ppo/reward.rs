@@ -25,6 +25,7 @@
 //! | `token_clearance` | Σ swing feet max(the token's step height + 0.05 m − (sole height − terrain under the foot), 0) · min(‖v_foot,xy‖, 1 m/s), while the policy's own token (as observed, noise and all) reads up | 0 unless `--token-clearance` sets it |
 //! | `swing_apex` | at each touchdown while the token reads up: max(the token's step height + 0.05 m − the ended swing's highest sole clearance over the ground under the foot, 0) / dt, so P costs P per metre of deficit per swing | 0 unless `--swing-apex` sets it |
 //! | `swing_advance` | at each touchdown while the token reads up and the command is not a stand: max(min(the token's step depth, 0.25 m) − the ended swing's advance along the base's heading, 0) / dt, so P costs P per metre of shortfall per swing | 0 unless `--swing-advance` sets it |
+//! | `swing_overshoot` | at each touchdown while the token reads up: max(the ended swing's highest sole clearance over the ground under the foot − (the token's step height + 0.05 m + 0.10 m), 0) / dt, so P costs P per metre a swing rose more than 0.10 m above what `swing_apex` asks for | 0 unless `--swing-overshoot` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -108,6 +109,12 @@
 //! walking at the 0.4–0.5 m/s that the stairs are trained at), so walking pays nothing and each
 //! short step pays for its shortfall. Off by default.
 //!
+//! Why `swing_overshoot`: the lift terms charge only a swing that stays low. With them on, the
+//! climbs at 20 cm passed two risers and then fell, with swings rising 40–55 cm over the ground
+//! under the foot (runs 57–58, docs/stair_policy.md, session 24): twice the 25 cm asked for. This
+//! charges only the excess past the asked apex plus [`SWING_OVERSHOOT_MARGIN_M`], so the swings of a
+//! normal climb pay nothing. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -140,6 +147,7 @@ pub const WEIGHTS: Weights = Weights {
     token_clearance: 0.0,
     swing_apex: 0.0,
     swing_advance: 0.0,
+    swing_overshoot: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -219,6 +227,17 @@ pub fn token_clearance_target(token: &hal::TerrainToken) -> Option<f64> {
     (token.class == hal::TerrainClass::StairsUp).then(|| token.step_height_m.max(0.0) as f64 + RISER_MARGIN)
 }
 
+/// How far a swing's apex may rise above [`token_clearance_target`] before `swing_overshoot`
+/// charges it, m.
+pub const SWING_OVERSHOOT_MARGIN_M: f64 = 0.10;
+
+/// How far the apex of a swing (its highest sole clearance over the ground under the foot, m) rose
+/// past [`token_clearance_target`] plus [`SWING_OVERSHOOT_MARGIN_M`], m; `None` (nothing charged)
+/// when the token does not read up.
+pub fn swing_overshoot(token: &hal::TerrainToken, apex: f64) -> Option<f64> {
+    token_clearance_target(token).map(|target| (apex - target - SWING_OVERSHOOT_MARGIN_M).max(0.0))
+}
+
 /// Longest advance per swing that `swing_advance` asks for, m.
 pub const SWING_ADVANCE_MAX_M: f64 = 0.25;
 
@@ -283,6 +302,7 @@ pub struct Terms {
     pub token_clearance: f64,
     pub swing_apex: f64,
     pub swing_advance: f64,
+    pub swing_overshoot: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -312,6 +332,7 @@ impl Terms {
             + w.token_clearance * self.token_clearance
             + w.swing_apex * self.swing_apex
             + w.swing_advance * self.swing_advance
+            + w.swing_overshoot * self.swing_overshoot
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -394,6 +415,26 @@ mod tests {
         );
         assert_eq!(token_clearance_target(&token(TerrainClass::StairsDown, 0.20)), None);
         assert_eq!(token_clearance_target(&TerrainToken::FLAT), None);
+    }
+
+    #[test]
+    fn swing_overshoot_charges_only_the_excess_past_the_asked_apex_on_up_flights() {
+        use hal::{TerrainClass, TerrainToken};
+        let token = |class, h| TerrainToken {
+            class,
+            step_height_m: h,
+            step_depth_m: 0.3,
+            yaw_rad: 0.0,
+        };
+        let up20 = token(TerrainClass::StairsUp, 0.20);
+        // The asked apex is 0.25 m: up to 0.35 m is free, 0.45 m pays for 0.10 m.
+        assert_eq!(swing_overshoot(&up20, 0.30), Some(0.0));
+        assert_eq!(swing_overshoot(&up20, 0.35), Some(0.0));
+        let over = swing_overshoot(&up20, 0.45).unwrap();
+        assert!((over - 0.10).abs() < 1e-6, "{over}");
+        assert_eq!(swing_overshoot(&token(TerrainClass::StairsDown, 0.3), 0.9), None);
+        assert_eq!(swing_overshoot(&TerrainToken::FLAT, 0.9), None);
+        assert_eq!(WEIGHTS.swing_overshoot, 0.0, "off by default");
     }
 
     #[test]

@@ -197,6 +197,13 @@ pub struct Args {
     /// marking time at a riser pay for every short step. 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_advance), value_name = "P", value_parser = parse_swing_advance)]
     swing_advance: f64,
+    /// Weight of the swing-overshoot penalty, given as a positive number P for a weight of −P:
+    /// while the policy's terrain token reads up, each swing is charged at touchdown P per metre
+    /// its highest sole clearance rose past the token's step height plus 0.15 m (0.10 m above what
+    /// --swing-apex asks). The lift terms charge only low swings; this caps the kicks that
+    /// overshoot. 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_overshoot), value_name = "P", value_parser = parse_swing_overshoot)]
+    swing_overshoot: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -248,6 +255,7 @@ impl Args {
             token_clearance_weight: -self.token_clearance,
             swing_apex_weight: -self.swing_apex,
             swing_advance_weight: -self.swing_advance,
+            swing_overshoot_weight: -self.swing_overshoot,
         }
     }
 }
@@ -483,6 +491,10 @@ fn parse_swing_advance(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "swing-advance", "2")
 }
 
+fn parse_swing_overshoot(s: &str) -> Result<f64, String> {
+    parse_penalty_size(s, "swing-overshoot", "2")
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -599,6 +611,8 @@ mod tests {
             "3",
             "--swing-advance",
             "2",
+            "--swing-overshoot",
+            "4",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -626,6 +640,7 @@ mod tests {
             token_clearance_weight: -5.0,
             swing_apex_weight: -3.0,
             swing_advance_weight: -2.0,
+            swing_overshoot_weight: -4.0,
         };
         assert_eq!(set, want);
     }
@@ -685,6 +700,8 @@ mod tests {
         assert!(parse_swing_apex("51").unwrap_err().contains("[0, 50]"));
         assert_eq!(parse_swing_advance("2"), Ok(2.0));
         assert!(parse_swing_advance("-2").unwrap_err().contains("[0, 50]"));
+        assert_eq!(parse_swing_overshoot("4"), Ok(4.0));
+        assert!(parse_swing_overshoot("nan").is_err());
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
