@@ -88,7 +88,8 @@ locker = threading.Lock()
 
 
 class CommandCountingBridge(UnitreeSdk2Bridge):
-    """Unitree's bridge, its handler unchanged; it also counts the commands, for `--lockstep`."""
+    """Unitree's bridge; its handler runs unchanged (under the lock the physics steps under) and the
+    commands are counted, for `--lockstep`."""
 
     def __init__(self, model, data):
         self.commands = 0
@@ -158,25 +159,27 @@ if args.lockstep:
                 now = steps * mj_model.opt.timestep
                 if first_cmd is None:
                     first_cmd = now
-                last_active = now
                 step_physics(now)
         bridge.PublishLowState()
-while not args.lockstep and time.perf_counter() - t_start < args.duration:
-    step_start = time.perf_counter()
-    with locker:
-        now = step_start - t_start
-        ctrl = np.array(mj_data.ctrl)
-        if np.any(ctrl != prev_ctrl):
-            last_active = now
-            if first_cmd is None:
-                first_cmd = now
-        prev_ctrl = ctrl
-        step_physics(now)
-    if last_active is not None and time.perf_counter() - t_start - last_active > args.idle_exit:
-        break
-    wait = mj_model.opt.timestep - (time.perf_counter() - step_start)
-    if wait > 0:
-        time.sleep(wait)
+else:
+    # Unitree's SimulationThread: a 2 ms step in wall-clock time; the first command is the first
+    # change of `ctrl`.
+    while time.perf_counter() - t_start < args.duration:
+        step_start = time.perf_counter()
+        with locker:
+            now = step_start - t_start
+            ctrl = np.array(mj_data.ctrl)
+            if np.any(ctrl != prev_ctrl):
+                last_active = now
+                if first_cmd is None:
+                    first_cmd = now
+            prev_ctrl = ctrl
+            step_physics(now)
+        if last_active is not None and time.perf_counter() - t_start - last_active > args.idle_exit:
+            break
+        wait = mj_model.opt.timestep - (time.perf_counter() - step_start)
+        if wait > 0:
+            time.sleep(wait)
 
 wall = time.perf_counter() - t_start
 print(json.dumps({
