@@ -897,6 +897,21 @@ fn swing_overshoot_charges_high_swings_at_touchdown_while_the_token_reads_up_and
     assert_touchdown_term_charges_up_flights_only(|s, w| s.swing_overshoot_weight = w, 4.0, "swing-overshoot");
 }
 
+/// `--base-height`: charged on an up flight, where the body rides low over the feet's treads at
+/// times; flat ground and down flights, whose tokens do not read up, pay exactly the same.
+#[test]
+fn base_height_charges_a_low_body_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    assert_term_charges_up_flights_only(
+        |s, w| s.base_height_weight = w,
+        5.0,
+        &[Column::Flat, Column::Down],
+        "base-height",
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

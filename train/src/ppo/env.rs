@@ -259,6 +259,9 @@ pub struct EnvSettings {
     /// Weight of the `swing_overshoot` penalty (a swing on an up flight whose apex rose more than
     /// `reward::SWING_OVERSHOOT_MARGIN_M` above what `swing_apex` asks). 0 (default): off.
     pub swing_overshoot_weight: f64,
+    /// Weight of the `base_height` penalty (the base lower than `reward::BASE_HEIGHT_TARGET_M`
+    /// over the feet's ground while the token reads up). 0 (default): off.
+    pub base_height_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -296,6 +299,7 @@ impl EnvSettings {
         swing_apex_weight: reward::WEIGHTS.swing_apex,
         swing_advance_weight: reward::WEIGHTS.swing_advance,
         swing_overshoot_weight: reward::WEIGHTS.swing_overshoot,
+        base_height_weight: reward::WEIGHTS.base_height,
     };
 }
 
@@ -951,6 +955,7 @@ impl StairEnv {
             swing_apex: self.cfg.settings.swing_apex_weight,
             swing_advance: self.cfg.settings.swing_advance_weight,
             swing_overshoot: self.cfg.settings.swing_overshoot_weight,
+            base_height: self.cfg.settings.base_height_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1119,6 +1124,10 @@ impl StairEnv {
                     r.riser_clearance += (top + reward::RISER_MARGIN - sole).max(0.0) * speed.min(1.0);
                 }
             }
+        }
+        let feet_ground = 0.5 * (self.ground(feet[0][0], feet[0][1]) + self.ground(feet[1][0], feet[1][1]));
+        if let Some(deficit) = reward::base_height_deficit(&self.token, t.base_pos[2] - feet_ground) {
+            r.base_height = deficit;
         }
         if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {
             let f = if t.foot_contact[0] { 0 } else { 1 };

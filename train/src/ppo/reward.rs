@@ -26,6 +26,7 @@
 //! | `swing_apex` | at each touchdown while the token reads up: max(the token's step height + 0.05 m − the ended swing's highest sole clearance over the ground under the foot, 0) / dt, so P costs P per metre of deficit per swing | 0 unless `--swing-apex` sets it |
 //! | `swing_advance` | at each touchdown while the token reads up and the command is not a stand: max(min(the token's step depth, 0.25 m) − the ended swing's advance along the base's heading, 0) / dt, so P costs P per metre of shortfall per swing | 0 unless `--swing-advance` sets it |
 //! | `swing_overshoot` | at each touchdown while the token reads up: max(the ended swing's highest sole clearance over the ground under the foot − (the token's step height + 0.05 m + 0.10 m), 0) / dt, so P costs P per metre a swing rose more than 0.10 m above what `swing_apex` asks for | 0 unless `--swing-overshoot` sets it |
+//! | `base_height` | while the token reads up: max(0.70 m − (base height − the mean of the ground heights under the two feet), 0), m | 0 unless `--base-height` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -115,6 +116,14 @@
 //! charges only the excess past the asked apex plus [`SWING_OVERSHOOT_MARGIN_M`], so the swings of a
 //! normal climb pay nothing. Off by default.
 //!
+//! Why `base_height`: once the lift terms got both feet onto the first two treads of a 20 cm
+//! flight (run 58), the climbs ended with the feet on the treads and the body left behind: the
+//! robot marked time at the second riser and fell back down the flight (docs/stair_policy.md,
+//! session 25). Measured from the feet's ground rather than the ground under the base, a body that
+//! stays low while its feet stand higher pays, and one that rises onto them does not; 0.70 m lies
+//! below the G1's walking height, so flat walking would pay nothing. legged_gym's `base_height`
+//! measures from the terrain too. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -148,6 +157,7 @@ pub const WEIGHTS: Weights = Weights {
     swing_apex: 0.0,
     swing_advance: 0.0,
     swing_overshoot: 0.0,
+    base_height: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -238,6 +248,16 @@ pub fn swing_overshoot(token: &hal::TerrainToken, apex: f64) -> Option<f64> {
     token_clearance_target(token).map(|target| (apex - target - SWING_OVERSHOOT_MARGIN_M).max(0.0))
 }
 
+/// The base height over the feet's ground below which `base_height` charges, m.
+pub const BASE_HEIGHT_TARGET_M: f64 = 0.70;
+
+/// How far the base (`height`: its height over the mean of the ground heights under the two feet,
+/// m) sits below [`BASE_HEIGHT_TARGET_M`], m; `None` (nothing charged) when the token does not read
+/// up.
+pub fn base_height_deficit(token: &hal::TerrainToken, height: f64) -> Option<f64> {
+    (token.class == hal::TerrainClass::StairsUp).then(|| (BASE_HEIGHT_TARGET_M - height).max(0.0))
+}
+
 /// Longest advance per swing that `swing_advance` asks for, m.
 pub const SWING_ADVANCE_MAX_M: f64 = 0.25;
 
@@ -303,6 +323,7 @@ pub struct Terms {
     pub swing_apex: f64,
     pub swing_advance: f64,
     pub swing_overshoot: f64,
+    pub base_height: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -333,6 +354,7 @@ impl Terms {
             + w.swing_apex * self.swing_apex
             + w.swing_advance * self.swing_advance
             + w.swing_overshoot * self.swing_overshoot
+            + w.base_height * self.base_height
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -435,6 +457,27 @@ mod tests {
         assert_eq!(swing_overshoot(&token(TerrainClass::StairsDown, 0.3), 0.9), None);
         assert_eq!(swing_overshoot(&TerrainToken::FLAT, 0.9), None);
         assert_eq!(WEIGHTS.swing_overshoot, 0.0, "off by default");
+    }
+
+    #[test]
+    fn base_height_charges_a_low_body_on_up_flights_only() {
+        use hal::{TerrainClass, TerrainToken};
+        let up = TerrainToken {
+            class: TerrainClass::StairsUp,
+            step_height_m: 0.2,
+            step_depth_m: 0.3,
+            yaw_rad: 0.0,
+        };
+        assert_eq!(base_height_deficit(&up, 0.75), Some(0.0));
+        let low = base_height_deficit(&up, 0.55).unwrap();
+        assert!((low - 0.15).abs() < 1e-9, "{low}");
+        let down = TerrainToken {
+            class: TerrainClass::StairsDown,
+            ..up
+        };
+        assert_eq!(base_height_deficit(&down, 0.5), None);
+        assert_eq!(base_height_deficit(&TerrainToken::FLAT, 0.5), None);
+        assert_eq!(WEIGHTS.base_height, 0.0, "off by default");
     }
 
     #[test]

@@ -204,6 +204,12 @@ pub struct Args {
     /// overshoot. 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.swing_overshoot), value_name = "P", value_parser = parse_swing_overshoot)]
     swing_overshoot: f64,
+    /// Weight of the base-height penalty, given as a positive number P for a weight of −P: while
+    /// the policy's terrain token reads up, P per second per metre the base sits lower than 0.70 m
+    /// over the mean of the ground heights under the two feet (a body left behind its feet on the
+    /// treads). 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.base_height), value_name = "P", value_parser = parse_base_height)]
+    base_height: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -256,6 +262,7 @@ impl Args {
             swing_apex_weight: -self.swing_apex,
             swing_advance_weight: -self.swing_advance,
             swing_overshoot_weight: -self.swing_overshoot,
+            base_height_weight: -self.base_height,
         }
     }
 }
@@ -495,6 +502,10 @@ fn parse_swing_overshoot(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "swing-overshoot", "2")
 }
 
+fn parse_base_height(s: &str) -> Result<f64, String> {
+    parse_penalty_size(s, "base-height", "5")
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -613,6 +624,8 @@ mod tests {
             "2",
             "--swing-overshoot",
             "4",
+            "--base-height",
+            "5",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -641,6 +654,7 @@ mod tests {
             swing_apex_weight: -3.0,
             swing_advance_weight: -2.0,
             swing_overshoot_weight: -4.0,
+            base_height_weight: -5.0,
         };
         assert_eq!(set, want);
     }
@@ -702,6 +716,7 @@ mod tests {
         assert!(parse_swing_advance("-2").unwrap_err().contains("[0, 50]"));
         assert_eq!(parse_swing_overshoot("4"), Ok(4.0));
         assert!(parse_swing_overshoot("nan").is_err());
+        assert_eq!(parse_base_height("5"), Ok(5.0));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
