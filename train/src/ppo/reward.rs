@@ -118,7 +118,7 @@
 //!
 //! Why `base_height`: once the lift terms got both feet onto the first two treads of a 20 cm
 //! flight (run 58), the climbs ended with the feet on the treads and the body left behind: the
-//! robot marked time at the second riser and fell back down the flight (docs/stair_policy.md,
+//! robot stopped with its feet at the second riser and fell back down the flight (docs/stair_policy.md,
 //! session 25). Measured from the feet's ground rather than the ground under the base, a body that
 //! stays low while its feet stand higher pays, and one that rises onto them does not; 0.70 m lies
 //! below the G1's walking height, so flat walking would pay nothing. legged_gym's `base_height`
