@@ -912,6 +912,28 @@ fn base_height_charges_a_low_body_while_the_token_reads_up_and_nothing_else() {
     );
 }
 
+/// `--up-lean`: charged on an up flight, where the committed actor walks pitched back (3–8°);
+/// flat ground and down flights, whose tokens do not read up, pay exactly the same.
+#[test]
+fn up_lean_charges_a_body_pitched_back_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    let (off, on) = assert_term_charges_up_flights_only(
+        |s, w| s.up_lean_weight = w,
+        4.0,
+        &[Column::Flat, Column::Down],
+        "up-lean",
+    );
+    // The committed actor leans back on the flight, so most steps with the token up pay.
+    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    assert!(
+        charged * 4 > off.0.len(),
+        "charged at only {charged} of {} steps",
+        off.0.len()
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

@@ -262,6 +262,9 @@ pub struct EnvSettings {
     /// Weight of the `base_height` penalty (the base lower than `reward::BASE_HEIGHT_TARGET_M`
     /// over the feet's ground while the token reads up). 0 (default): off.
     pub base_height_weight: f64,
+    /// Weight of the `up_lean` penalty (the base pitched less than `reward::UP_LEAN_TARGET_RAD`
+    /// forward while the token reads up). 0 (default): off.
+    pub up_lean_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -300,6 +303,7 @@ impl EnvSettings {
         swing_advance_weight: reward::WEIGHTS.swing_advance,
         swing_overshoot_weight: reward::WEIGHTS.swing_overshoot,
         base_height_weight: reward::WEIGHTS.base_height,
+        up_lean_weight: reward::WEIGHTS.up_lean,
     };
 }
 
@@ -956,6 +960,7 @@ impl StairEnv {
             swing_advance: self.cfg.settings.swing_advance_weight,
             swing_overshoot: self.cfg.settings.swing_overshoot_weight,
             base_height: self.cfg.settings.base_height_weight,
+            up_lean: self.cfg.settings.up_lean_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1128,6 +1133,9 @@ impl StairEnv {
         let feet_ground = 0.5 * (self.ground(feet[0][0], feet[0][1]) + self.ground(feet[1][0], feet[1][1]));
         if let Some(deficit) = reward::base_height_deficit(&self.token, t.base_pos[2] - feet_ground) {
             r.base_height = deficit;
+        }
+        if let Some(deficit) = reward::up_lean_deficit(&self.token, g[0] as f64) {
+            r.up_lean = deficit;
         }
         if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {
             let f = if t.foot_contact[0] { 0 } else { 1 };

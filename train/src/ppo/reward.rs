@@ -27,6 +27,7 @@
 //! | `swing_advance` | at each touchdown while the token reads up and the command is not a stand: max(min(the token's step depth, 0.25 m) − the ended swing's advance along the base's heading, 0) / dt, so P costs P per metre of shortfall per swing | 0 unless `--swing-advance` sets it |
 //! | `swing_overshoot` | at each touchdown while the token reads up: max(the ended swing's highest sole clearance over the ground under the foot − (the token's step height + 0.05 m + 0.10 m), 0) / dt, so P costs P per metre a swing rose more than 0.10 m above what `swing_apex` asks for | 0 unless `--swing-overshoot` sets it |
 //! | `base_height` | while the token reads up: max(0.70 m − (base height − the mean of the ground heights under the two feet), 0), m | 0 unless `--base-height` sets it |
+//! | `up_lean` | while the token reads up: max(0.10 rad − the base's pitch (nose down positive, from the projected gravity), 0), rad | 0 unless `--up-lean` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -124,6 +125,15 @@
 //! below the G1's walking height, so flat walking would pay nothing. legged_gym's `base_height`
 //! measures from the terrain too. Off by default.
 //!
+//! Why `up_lean`: the policy walks with its body pitched back 3–8°, on
+//! flat ground and on flights alike. On a 20 cm flight, with the ankles at their dorsiflexion stop
+//! (−0.87 rad; the stance ankle reads −0.94 to −1.10 under load), the shin cannot tilt further
+//! over the foot on the tread, so only a forward lean of the upper body can bring the centre of
+//! mass over the higher foot. Run 58's climbs at 20 cm stop with both feet on the second tread,
+//! the base behind them and pitched back 4–8°, and then slide back down the flight
+//! (docs/stair_policy.md, session 26). This asks for the body pitched 0.10 rad (6°) forward while
+//! the token reads up; flat walking and descents pay nothing. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -158,6 +168,7 @@ pub const WEIGHTS: Weights = Weights {
     swing_advance: 0.0,
     swing_overshoot: 0.0,
     base_height: 0.0,
+    up_lean: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -258,6 +269,17 @@ pub fn base_height_deficit(token: &hal::TerrainToken, height: f64) -> Option<f64
     (token.class == hal::TerrainClass::StairsUp).then(|| (BASE_HEIGHT_TARGET_M - height).max(0.0))
 }
 
+/// The forward pitch of the base (nose down) that `up_lean` asks for while the token reads up, rad.
+pub const UP_LEAN_TARGET_RAD: f64 = 0.10;
+
+/// How far the base's pitch falls short of [`UP_LEAN_TARGET_RAD`], rad: `forward_gravity` is the
+/// x component of the projected gravity (the sine of the pitch, nose down positive). `None`
+/// (nothing charged) when the token does not read up.
+pub fn up_lean_deficit(token: &hal::TerrainToken, forward_gravity: f64) -> Option<f64> {
+    (token.class == hal::TerrainClass::StairsUp)
+        .then(|| (UP_LEAN_TARGET_RAD - forward_gravity.clamp(-1.0, 1.0).asin()).max(0.0))
+}
+
 /// Longest advance per swing that `swing_advance` asks for, m.
 pub const SWING_ADVANCE_MAX_M: f64 = 0.25;
 
@@ -324,6 +346,7 @@ pub struct Terms {
     pub swing_advance: f64,
     pub swing_overshoot: f64,
     pub base_height: f64,
+    pub up_lean: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -355,6 +378,7 @@ impl Terms {
             + w.swing_advance * self.swing_advance
             + w.swing_overshoot * self.swing_overshoot
             + w.base_height * self.base_height
+            + w.up_lean * self.up_lean
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -478,6 +502,31 @@ mod tests {
         assert_eq!(base_height_deficit(&down, 0.5), None);
         assert_eq!(base_height_deficit(&TerrainToken::FLAT, 0.5), None);
         assert_eq!(WEIGHTS.base_height, 0.0, "off by default");
+    }
+
+    #[test]
+    fn up_lean_charges_a_body_pitched_back_on_up_flights_only() {
+        use hal::{TerrainClass, TerrainToken};
+        let up = TerrainToken {
+            class: TerrainClass::StairsUp,
+            step_height_m: 0.2,
+            step_depth_m: 0.3,
+            yaw_rad: 0.0,
+        };
+        // Pitched 0.15 rad forward: nothing; level: the whole target; pitched 0.1 rad back: both.
+        assert_eq!(up_lean_deficit(&up, 0.15f64.sin()), Some(0.0));
+        assert!((up_lean_deficit(&up, 0.0).unwrap() - UP_LEAN_TARGET_RAD).abs() < 1e-12);
+        let back = up_lean_deficit(&up, (-0.1f64).sin()).unwrap();
+        assert!((back - 0.2).abs() < 1e-9, "{back}");
+        // A value past ±1 (rounding of a unit quaternion) is clamped, not NaN.
+        assert_eq!(up_lean_deficit(&up, 1.0 + 1e-7), Some(0.0));
+        let down = TerrainToken {
+            class: TerrainClass::StairsDown,
+            ..up
+        };
+        assert_eq!(up_lean_deficit(&down, -0.2), None);
+        assert_eq!(up_lean_deficit(&TerrainToken::FLAT, -0.2), None);
+        assert_eq!(WEIGHTS.up_lean, 0.0, "off by default");
     }
 
     #[test]

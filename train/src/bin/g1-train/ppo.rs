@@ -210,6 +210,11 @@ pub struct Args {
     /// treads). 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.base_height), value_name = "P", value_parser = parse_base_height)]
     base_height: f64,
+    /// Weight of the up-lean penalty, given as a positive number P for a weight of −P: while the
+    /// policy's terrain token reads up, P per second per radian the base is pitched less than
+    /// 0.10 rad forward (a body leaning back on an up flight). 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.up_lean), value_name = "P", value_parser = parse_up_lean)]
+    up_lean: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -263,6 +268,7 @@ impl Args {
             swing_advance_weight: -self.swing_advance,
             swing_overshoot_weight: -self.swing_overshoot,
             base_height_weight: -self.base_height,
+            up_lean_weight: -self.up_lean,
         }
     }
 }
@@ -506,6 +512,10 @@ fn parse_base_height(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "base-height", "5")
 }
 
+fn parse_up_lean(s: &str) -> Result<f64, String> {
+    parse_penalty_size(s, "up-lean", "4")
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -626,6 +636,8 @@ mod tests {
             "4",
             "--base-height",
             "5",
+            "--up-lean",
+            "4",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -655,6 +667,7 @@ mod tests {
             swing_advance_weight: -2.0,
             swing_overshoot_weight: -4.0,
             base_height_weight: -5.0,
+            up_lean_weight: -4.0,
         };
         assert_eq!(set, want);
     }
@@ -717,6 +730,8 @@ mod tests {
         assert_eq!(parse_swing_overshoot("4"), Ok(4.0));
         assert!(parse_swing_overshoot("nan").is_err());
         assert_eq!(parse_base_height("5"), Ok(5.0));
+        assert_eq!(parse_up_lean("4"), Ok(4.0));
+        assert!(parse_up_lean("-4").unwrap_err().contains("[0, 50]"));
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
