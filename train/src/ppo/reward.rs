@@ -125,14 +125,14 @@
 //! below the G1's walking height, so flat walking would pay nothing. legged_gym's `base_height`
 //! measures from the terrain too. Off by default.
 //!
-//! Why `up_lean`: the policy walks with its body pitched back 3–8°, on
-//! flat ground and on flights alike. On a 20 cm flight, with the ankles at their dorsiflexion stop
-//! (−0.87 rad; the stance ankle reads −0.94 to −1.10 under load), the shin cannot tilt further
-//! over the foot on the tread, so only a forward lean of the upper body can bring the centre of
-//! mass over the higher foot. Run 58's climbs at 20 cm stop with both feet on the second tread,
-//! the base behind them and pitched back 4–8°, and then slide back down the flight
-//! (docs/stair_policy.md, session 26). This asks for the body pitched 0.10 rad (6°) forward while
-//! the token reads up; flat walking and descents pay nothing. Off by default.
+//! Why `up_lean`: the policy walks with its body pitched back 3–8°, on flat ground and on flights
+//! alike. On a 20 cm flight, with the ankles at their dorsiflexion stop (−0.87 rad; the stance
+//! ankle reads −0.92 to −1.05 under load), the shin cannot tilt further over the foot on the
+//! tread, so only a forward lean of the upper body can bring the centre of mass over the higher
+//! foot. Run 58's climbs at 20 cm get both feet onto the second tread with the base over the rear
+//! foot, pitched back 6–8°, and then slide back down the flight (docs/stair_policy.md, session
+//! 26). This asks for the body pitched 0.10 rad (6°) forward while the token reads up; flat
+//! walking and descents pay nothing. Off by default.
 //!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
