@@ -934,6 +934,22 @@ fn up_lean_charges_a_body_pitched_back_while_the_token_reads_up_and_nothing_else
     );
 }
 
+/// `--stance-lead`: charged on an up flight, where the committed actor at times stands on one foot
+/// well ahead of its base; flat ground and down flights, whose tokens do not read up, pay exactly
+/// the same.
+#[test]
+fn stance_lead_charges_a_lone_foot_far_ahead_while_the_token_reads_up_and_nothing_else() {
+    if peer_weights().is_none() {
+        return;
+    }
+    assert_term_charges_up_flights_only(
+        |s, w| s.stance_lead_weight = w,
+        5.0,
+        &[Column::Flat, Column::Down],
+        "stance-lead",
+    );
+}
+
 /// `--hold-line`: the trainer's operator steers back to the line through the start by the
 /// firmware's rule, so a heading-hold walk that drifts off its line under heading hold alone ends
 /// closer to it, and the command differs only by turning back toward the line.

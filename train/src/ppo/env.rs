@@ -265,6 +265,9 @@ pub struct EnvSettings {
     /// Weight of the `up_lean` penalty (the base pitched less than `reward::UP_LEAN_TARGET_RAD`
     /// forward while the token reads up). 0 (default): off.
     pub up_lean_weight: f64,
+    /// Weight of the `stance_lead` penalty (a lone stance foot more than
+    /// `reward::STANCE_LEAD_MAX_M` ahead of the base while the token reads up). 0 (default): off.
+    pub stance_lead_weight: f64,
 }
 
 /// The default share of episodes commanded to stand.
@@ -304,6 +307,7 @@ impl EnvSettings {
         swing_overshoot_weight: reward::WEIGHTS.swing_overshoot,
         base_height_weight: reward::WEIGHTS.base_height,
         up_lean_weight: reward::WEIGHTS.up_lean,
+        stance_lead_weight: reward::WEIGHTS.stance_lead,
     };
 }
 
@@ -961,6 +965,7 @@ impl StairEnv {
             swing_overshoot: self.cfg.settings.swing_overshoot_weight,
             base_height: self.cfg.settings.base_height_weight,
             up_lean: self.cfg.settings.up_lean_weight,
+            stance_lead: self.cfg.settings.stance_lead_weight,
             ..WEIGHTS
         };
         let reward = terms.total(&weights, self.timing.policy_dt);
@@ -1137,9 +1142,15 @@ impl StairEnv {
         if let Some(deficit) = reward::up_lean_deficit(&self.token, g[0] as f64) {
             r.up_lean = deficit;
         }
-        if single == 1 && cmd[0].hypot(cmd[1]) > 0.1 {
+        if single == 1 {
             let f = if t.foot_contact[0] { 0 } else { 1 };
-            r.feet_air_time = in_mode[f].min(reward::AIR_TIME_THRESHOLD);
+            let lead = (feet[f][0] - t.base_pos[0]) * c + (feet[f][1] - t.base_pos[1]) * s;
+            if let Some(excess) = reward::stance_lead_excess(&self.token, lead) {
+                r.stance_lead = excess;
+            }
+            if cmd[0].hypot(cmd[1]) > 0.1 {
+                r.feet_air_time = in_mode[f].min(reward::AIR_TIME_THRESHOLD);
+            }
         }
         self.prev_foot = feet;
         // Contacts against the terrain: risers under the feet, anything else.

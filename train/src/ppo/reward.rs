@@ -28,6 +28,7 @@
 //! | `swing_overshoot` | at each touchdown while the token reads up: max(the ended swing's highest sole clearance over the ground under the foot − (the token's step height + 0.05 m + 0.10 m), 0) / dt, so P costs P per metre a swing rose more than 0.10 m above what `swing_apex` asks for | 0 unless `--swing-overshoot` sets it |
 //! | `base_height` | while the token reads up: max(0.70 m − (base height − the mean of the ground heights under the two feet), 0), m | 0 unless `--base-height` sets it |
 //! | `up_lean` | while the token reads up: max(0.10 rad − the base's pitch (nose down positive, from the projected gravity), 0), rad | 0 unless `--up-lean` sets it |
+//! | `stance_lead` | while the token reads up and one foot stands alone: max(how far that foot's origin lies ahead of the base along the base's heading − 0.05 m, 0), m | 0 unless `--stance-lead` sets it |
 //! | `foothold_edge` | Σ feet in contact whose sole straddles a tread's edge: the terrain under its heel (0.05 m behind the foot origin), origin, mid-foot and toe (0.12 m ahead), along the base's heading, spans more than 0.02 m | 0 unless `--foothold-edge` sets it |
 //! | `stumble` | feet touching a near-vertical surface (contact normal \|n_z\| < 0.5: a riser) | −1.0 |
 //! | `body_contact` | any robot geom other than a foot touching the terrain, and the legs touching each other | −1.0 |
@@ -134,6 +135,15 @@
 //! 26). This asks for the body pitched 0.10 rad (6°) forward while the token reads up; flat
 //! walking and descents pay nothing. Off by default.
 //!
+//! Why `stance_lead`: where run 62's 20 cm climbs end (docs/stair_policy.md, session 26), a long
+//! step up (0.34 m forward and 0.20 m up) puts the leading foot on the second tread while the base
+//! stays 0.25 m behind it, and the trailing foot then lifts, as the gait clock has it, leaving the
+//! robot on one foot far ahead of its body: it pitches back and falls down the flight. Climbing
+//! the `ppo_env` test's 15 cm flight, the committed actor's lone stance foot lies at most 0.10 m
+//! ahead of the base (median: 0.06 m behind it). This charges standing on one foot more than
+//! 0.05 m ahead of the base while the token reads up, so the trailing foot waits until the body
+//! has come over the leading one. Off by default.
+//!
 //! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
 //! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
 //! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
@@ -169,6 +179,7 @@ pub const WEIGHTS: Weights = Weights {
     swing_overshoot: 0.0,
     base_height: 0.0,
     up_lean: 0.0,
+    stance_lead: 0.0,
     foothold_edge: 0.0,
     stumble: -1.0,
     body_contact: -1.0,
@@ -280,6 +291,15 @@ pub fn up_lean_deficit(token: &hal::TerrainToken, forward_gravity: f64) -> Optio
         .then(|| (UP_LEAN_TARGET_RAD - forward_gravity.clamp(-1.0, 1.0).asin()).max(0.0))
 }
 
+/// How far ahead of the base a lone stance foot may stand before `stance_lead` charges, m.
+pub const STANCE_LEAD_MAX_M: f64 = 0.05;
+
+/// How far a lone stance foot lies ahead of the base (`lead`: along the base's heading, m) past
+/// [`STANCE_LEAD_MAX_M`], m; `None` (nothing charged) when the token does not read up.
+pub fn stance_lead_excess(token: &hal::TerrainToken, lead: f64) -> Option<f64> {
+    (token.class == hal::TerrainClass::StairsUp).then(|| (lead - STANCE_LEAD_MAX_M).max(0.0))
+}
+
 /// Longest advance per swing that `swing_advance` asks for, m.
 pub const SWING_ADVANCE_MAX_M: f64 = 0.25;
 
@@ -347,6 +367,7 @@ pub struct Terms {
     pub swing_overshoot: f64,
     pub base_height: f64,
     pub up_lean: f64,
+    pub stance_lead: f64,
     pub foothold_edge: f64,
     pub stumble: f64,
     pub body_contact: f64,
@@ -379,6 +400,7 @@ impl Terms {
             + w.swing_overshoot * self.swing_overshoot
             + w.base_height * self.base_height
             + w.up_lean * self.up_lean
+            + w.stance_lead * self.stance_lead
             + w.foothold_edge * self.foothold_edge
             + w.stumble * self.stumble
             + w.body_contact * self.body_contact
@@ -527,6 +549,32 @@ mod tests {
         assert_eq!(up_lean_deficit(&down, -0.2), None);
         assert_eq!(up_lean_deficit(&TerrainToken::FLAT, -0.2), None);
         assert_eq!(WEIGHTS.up_lean, 0.0, "off by default");
+    }
+
+    #[test]
+    fn stance_lead_charges_a_lone_foot_far_ahead_on_up_flights_only() {
+        use hal::{TerrainClass, TerrainToken};
+        let up = TerrainToken {
+            class: TerrainClass::StairsUp,
+            step_height_m: 0.2,
+            step_depth_m: 0.3,
+            yaw_rad: 0.0,
+        };
+        assert_eq!(stance_lead_excess(&up, 0.04), Some(0.0));
+        assert_eq!(
+            stance_lead_excess(&up, -0.2),
+            Some(0.0),
+            "a foot behind the base is not charged"
+        );
+        let far = stance_lead_excess(&up, 0.25).unwrap();
+        assert!((far - 0.20).abs() < 1e-9, "{far}");
+        let down = TerrainToken {
+            class: TerrainClass::StairsDown,
+            ..up
+        };
+        assert_eq!(stance_lead_excess(&down, 0.3), None);
+        assert_eq!(stance_lead_excess(&TerrainToken::FLAT, 0.3), None);
+        assert_eq!(WEIGHTS.stance_lead, 0.0, "off by default");
     }
 
     #[test]

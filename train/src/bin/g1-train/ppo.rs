@@ -215,6 +215,12 @@ pub struct Args {
     /// 0.10 rad forward (a body leaning back on an up flight). 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.up_lean), value_name = "P", value_parser = parse_up_lean)]
     up_lean: f64,
+    /// Weight of the stance-lead penalty, given as a positive number P for a weight of −P: while
+    /// the policy's terrain token reads up and one foot stands alone, P per second per metre that
+    /// foot lies more than 0.05 m ahead of the base (a trailing foot lifted before the body came
+    /// over the leading one). 0 (default): off.
+    #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.stance_lead), value_name = "P", value_parser = parse_stance_lead)]
+    stance_lead: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -269,6 +275,7 @@ impl Args {
             swing_overshoot_weight: -self.swing_overshoot,
             base_height_weight: -self.base_height,
             up_lean_weight: -self.up_lean,
+            stance_lead_weight: -self.stance_lead,
         }
     }
 }
@@ -516,6 +523,10 @@ fn parse_up_lean(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "up-lean", "4")
 }
 
+fn parse_stance_lead(s: &str) -> Result<f64, String> {
+    parse_penalty_size(s, "stance-lead", "5")
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -638,6 +649,8 @@ mod tests {
             "5",
             "--up-lean",
             "4",
+            "--stance-lead",
+            "5",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -668,6 +681,7 @@ mod tests {
             swing_overshoot_weight: -4.0,
             base_height_weight: -5.0,
             up_lean_weight: -4.0,
+            stance_lead_weight: -5.0,
         };
         assert_eq!(set, want);
     }
@@ -732,6 +746,8 @@ mod tests {
         assert_eq!(parse_base_height("5"), Ok(5.0));
         assert_eq!(parse_up_lean("4"), Ok(4.0));
         assert!(parse_up_lean("-4").unwrap_err().contains("[0, 50]"));
+        assert_eq!(parse_stance_lead("5"), Ok(5.0));
+        assert!(parse_stance_lead("NaN").is_err());
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }
