@@ -505,36 +505,36 @@ mod tests {
         assert_eq!(WEIGHTS.swing_overshoot, 0.0, "off by default");
     }
 
-    #[test]
-    fn base_height_charges_a_low_body_on_up_flights_only() {
-        use hal::{TerrainClass, TerrainToken};
-        let up = TerrainToken {
-            class: TerrainClass::StairsUp,
+    /// The token of a flight of 20 cm risers and 0.30 m treads, read as `class`.
+    fn flight_token(class: hal::TerrainClass) -> hal::TerrainToken {
+        hal::TerrainToken {
+            class,
             step_height_m: 0.2,
             step_depth_m: 0.3,
             yaw_rad: 0.0,
-        };
+        }
+    }
+
+    /// `term` charges nothing on a down flight or flat ground, whatever the measure, and its
+    /// weight is 0 (off) by default.
+    fn assert_up_flights_only(term: fn(&hal::TerrainToken, f64) -> Option<f64>, measure: f64, weight: f64) {
+        assert_eq!(term(&flight_token(hal::TerrainClass::StairsDown), measure), None);
+        assert_eq!(term(&hal::TerrainToken::FLAT, measure), None);
+        assert_eq!(weight, 0.0, "off by default");
+    }
+
+    #[test]
+    fn base_height_charges_a_low_body_on_up_flights_only() {
+        let up = flight_token(hal::TerrainClass::StairsUp);
         assert_eq!(base_height_deficit(&up, 0.75), Some(0.0));
         let low = base_height_deficit(&up, 0.55).unwrap();
         assert!((low - 0.15).abs() < 1e-9, "{low}");
-        let down = TerrainToken {
-            class: TerrainClass::StairsDown,
-            ..up
-        };
-        assert_eq!(base_height_deficit(&down, 0.5), None);
-        assert_eq!(base_height_deficit(&TerrainToken::FLAT, 0.5), None);
-        assert_eq!(WEIGHTS.base_height, 0.0, "off by default");
+        assert_up_flights_only(base_height_deficit, 0.5, WEIGHTS.base_height);
     }
 
     #[test]
     fn up_lean_charges_a_body_pitched_back_on_up_flights_only() {
-        use hal::{TerrainClass, TerrainToken};
-        let up = TerrainToken {
-            class: TerrainClass::StairsUp,
-            step_height_m: 0.2,
-            step_depth_m: 0.3,
-            yaw_rad: 0.0,
-        };
+        let up = flight_token(hal::TerrainClass::StairsUp);
         // Pitched 0.15 rad forward: nothing; level: the whole target; pitched 0.1 rad back: both.
         assert_eq!(up_lean_deficit(&up, 0.15f64.sin()), Some(0.0));
         assert!((up_lean_deficit(&up, 0.0).unwrap() - UP_LEAN_TARGET_RAD).abs() < 1e-12);
@@ -542,24 +542,12 @@ mod tests {
         assert!((back - 0.2).abs() < 1e-9, "{back}");
         // A value past ±1 (rounding of a unit quaternion) is clamped, not NaN.
         assert_eq!(up_lean_deficit(&up, 1.0 + 1e-7), Some(0.0));
-        let down = TerrainToken {
-            class: TerrainClass::StairsDown,
-            ..up
-        };
-        assert_eq!(up_lean_deficit(&down, -0.2), None);
-        assert_eq!(up_lean_deficit(&TerrainToken::FLAT, -0.2), None);
-        assert_eq!(WEIGHTS.up_lean, 0.0, "off by default");
+        assert_up_flights_only(up_lean_deficit, -0.2, WEIGHTS.up_lean);
     }
 
     #[test]
     fn stance_lead_charges_a_lone_foot_far_ahead_on_up_flights_only() {
-        use hal::{TerrainClass, TerrainToken};
-        let up = TerrainToken {
-            class: TerrainClass::StairsUp,
-            step_height_m: 0.2,
-            step_depth_m: 0.3,
-            yaw_rad: 0.0,
-        };
+        let up = flight_token(hal::TerrainClass::StairsUp);
         assert_eq!(stance_lead_excess(&up, 0.04), Some(0.0));
         assert_eq!(
             stance_lead_excess(&up, -0.2),
@@ -568,13 +556,7 @@ mod tests {
         );
         let far = stance_lead_excess(&up, 0.25).unwrap();
         assert!((far - 0.20).abs() < 1e-9, "{far}");
-        let down = TerrainToken {
-            class: TerrainClass::StairsDown,
-            ..up
-        };
-        assert_eq!(stance_lead_excess(&down, 0.3), None);
-        assert_eq!(stance_lead_excess(&TerrainToken::FLAT, 0.3), None);
-        assert_eq!(WEIGHTS.stance_lead, 0.0, "off by default");
+        assert_up_flights_only(stance_lead_excess, 0.3, WEIGHTS.stance_lead);
     }
 
     #[test]
