@@ -853,12 +853,17 @@ fn token_clearance_charges_low_swings_while_the_token_reads_up_and_nothing_else(
     );
 }
 
+/// How many steps of the walk `on` (the term on) earned less than the same steps of `off`.
+fn charged_steps(off: &Walk, on: &Walk) -> usize {
+    off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count()
+}
+
 /// A term charged once per swing, at touchdown, while the token reads up: as
 /// [`assert_term_charges_up_flights_only`] with flat ground and down flights free, and the walk
 /// with it on costs more at some steps, and at fewer than a quarter of them.
 fn assert_touchdown_term_charges_up_flights_only(set_weight: fn(&mut EnvSettings, f64), p: f64, what: &str) {
     let (off, on) = assert_term_charges_up_flights_only(set_weight, p, &[Column::Flat, Column::Down], what);
-    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    let charged = charged_steps(&off, &on);
     assert!(
         charged > 0 && charged * 4 < off.0.len(),
         "charged at {charged} of {} steps: not once per swing",
@@ -926,7 +931,7 @@ fn up_lean_charges_a_body_pitched_back_while_the_token_reads_up_and_nothing_else
         "up-lean",
     );
     // The committed actor leans back on the flight, so most steps with the token up pay.
-    let charged = off.0.iter().zip(&on.0).filter(|(a, b)| a > b).count();
+    let charged = charged_steps(&off, &on);
     assert!(
         charged * 4 > off.0.len(),
         "charged at only {charged} of {} steps",
@@ -935,8 +940,8 @@ fn up_lean_charges_a_body_pitched_back_while_the_token_reads_up_and_nothing_else
 }
 
 /// `--stance-lead`: charged on an up flight, where the committed actor at times stands on one foot
-/// well ahead of its base; flat ground and down flights, whose tokens do not read up, pay exactly
-/// the same.
+/// more than 0.05 m (at most 0.10 m) ahead of its base; flat ground and down flights, whose tokens
+/// do not read up, pay exactly the same.
 #[test]
 fn stance_lead_charges_a_lone_foot_far_ahead_while_the_token_reads_up_and_nothing_else() {
     if peer_weights().is_none() {

@@ -136,7 +136,7 @@
 //! walking and descents pay nothing. Off by default.
 //!
 //! Why `stance_lead`: where run 62's 20 cm climbs end (docs/stair_policy.md, session 26), a long
-//! step up (0.34 m forward and 0.20 m up) puts the leading foot on the second tread while the base
+//! step up (0.34 m forward and 0.21 m up) puts the leading foot on the second tread while the base
 //! stays 0.25 m behind it, and the trailing foot then lifts, as the gait clock has it, leaving the
 //! robot on one foot far ahead of its body: it pitches back and falls down the flight. Climbing
 //! the `ppo_env` test's 15 cm flight, the committed actor's lone stance foot lies at most 0.10 m
