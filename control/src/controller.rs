@@ -126,7 +126,7 @@ impl Controller {
     }
 
     fn build(spec: DeploySpec, net: Option<Network>) -> Result<Self, ControllerError> {
-        let n = spec.num_joints();
+        let n = spec.action_dim();
         if let Some(net) = &net {
             Self::check_dims(&spec, net)?;
         }
@@ -184,8 +184,8 @@ impl Controller {
             got,
             expected,
         };
-        if net.output_dim() != spec.num_joints() {
-            return Err(dim("output", net.output_dim(), spec.num_joints()));
+        if net.output_dim() != spec.action_dim() {
+            return Err(dim("output", net.output_dim(), spec.action_dim()));
         }
         if net.input_dim() != spec.observation_dim() {
             return Err(dim("input", net.input_dim(), spec.observation_dim()));

@@ -12,7 +12,8 @@
 //! - gyro (ωx, ωy, ωz) → (−ωx, ωy, −ωz); projected gravity (gx, gy, gz) → (gx, −gy, gz); command
 //!   (vx, vy, ωz) → (vx, −vy, −ωz);
 //! - the two-leg gait clock moves half a period (the other leg leads): (sin, cos) → (−sin, −cos);
-//! - the terrain token keeps class, height and depth and negates its yaw.
+//! - the terrain token keeps class, height and depth and negates its yaw;
+//! - a policy-set gait clock's rate (`[phase] rate`, the action after the joints) is its own mirror.
 use crate::spec::{DeploySpec, HistoryLayout, ObsKind};
 
 /// Why a spec has no mirror.
@@ -150,9 +151,11 @@ impl PolicyMirror {
             }
             joints.push((j, sign));
         }
+        // A policy-set clock's rate (the output after the joints) has no side: it mirrors to itself.
+        let rate = (n..spec.action_dim()).map(|i| (i, 1.0));
         let action = SignedPermutation {
-            source: joints.iter().map(|j| j.0).collect(),
-            factor: joints.iter().map(|j| j.1).collect(),
+            source: joints.iter().map(|j| j.0).chain(rate.clone().map(|r| r.0)).collect(),
+            factor: joints.iter().map(|j| j.1).chain(rate.map(|r| r.1)).collect(),
         };
 
         // Each observation value: (term, frame, element) in the spec's layout.

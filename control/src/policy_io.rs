@@ -7,7 +7,7 @@
 use hal::{LowState, TerrainToken, NUM_MOTORS};
 
 use crate::obs::{ObsInputs, ObservationBuilder};
-use crate::spec::DeploySpec;
+use crate::spec::{DeploySpec, PhaseRate};
 
 pub struct PolicyIo {
     obs: ObservationBuilder,
@@ -22,6 +22,13 @@ pub struct PolicyIo {
     cmd_max: Option<[f32; 3]>,
     /// Gait clock: (first step time, period) in seconds, if the spec has one.
     phase: Option<(f64, f64)>,
+    /// A clock the policy sets (`[phase] rate`): its range, where in the period the newest
+    /// observation is, and the rate the last action asked for.
+    rate: Option<PhaseRate>,
+    rate_phase: f64,
+    next_rate: f64,
+    /// The gait phase of the newest observation, in [0, 1).
+    phase_now: f32,
     policy_hz: f64,
     action_clip: Option<f32>,
     /// Target limits per slot (robot joint range shrunk by the spec's margin).
@@ -48,6 +55,13 @@ impl PolicyIo {
             cmd_min: spec.commands.min,
             cmd_max: spec.commands.max,
             phase: spec.phase.as_ref().map(|ph| (ph.first_step_time_s, ph.period_s)),
+            rate: spec.phase.as_ref().and_then(|ph| ph.rate),
+            rate_phase: spec
+                .phase
+                .as_ref()
+                .map_or(0.0, |ph| (ph.first_step_time_s / ph.period_s).rem_euclid(1.0)),
+            next_rate: 1.0,
+            phase_now: 0.0,
             policy_hz: spec.rates.policy_hz as f64,
             action_clip: p.action_clip,
             q_min,
@@ -60,6 +74,10 @@ impl PolicyIo {
     pub fn reset(&mut self) {
         self.last_action.iter_mut().for_each(|a| *a = 0.0);
         self.steps_since_reset = 0;
+        if let Some((first, period)) = self.phase {
+            self.rate_phase = (first / period).rem_euclid(1.0);
+        }
+        self.next_rate = 1.0;
         self.obs.reset();
     }
 
@@ -87,13 +105,22 @@ impl PolicyIo {
             self.joint_pos_rel[i] = state.motors[slot].q - self.default_pose[i];
             self.joint_vel[i] = state.motors[slot].dq;
         }
-        let phase = match self.phase {
-            Some((first, period)) => {
+        let phase = match (self.phase, self.rate) {
+            // A fixed clock, from the step count (bit for bit as it has always been).
+            (Some((first, period)), None) => {
                 let t = first + self.steps_since_reset as f64 / self.policy_hz;
                 (t.rem_euclid(period) / period) as f32
             }
-            None => 0.0,
+            // A policy-set clock advances by the rate the last action chose.
+            (Some((_, period)), Some(_)) => {
+                if self.steps_since_reset > 0 {
+                    self.rate_phase = (self.rate_phase + self.next_rate / (period * self.policy_hz)).rem_euclid(1.0);
+                }
+                self.rate_phase as f32
+            }
+            (None, _) => 0.0,
         };
+        self.phase_now = phase;
         let inputs = ObsInputs {
             gyro: state.imu.gyroscope,
             quat: state.imu.quaternion,
@@ -119,10 +146,28 @@ impl PolicyIo {
         &self.last_action
     }
 
+    /// The gait phase the newest observation holds, in [0, 1) (0 without a clock).
+    pub fn phase(&self) -> f32 {
+        self.phase_now
+    }
+
+    /// The rate the gait clock runs at from the next observation on (1: nominal; always 1 for a
+    /// fixed clock).
+    pub fn clock_rate(&self) -> f64 {
+        self.next_rate
+    }
+
     /// Turns a raw network output into PD position targets: clip (spec `action_clip`), remember
     /// as the last action, `q = default + scale · action`, clamped to the joint range. Writes the
-    /// policy's slots of `target_q` and returns how many targets were clamped.
+    /// policy's slots of `target_q` and returns how many targets were clamped. With a policy-set
+    /// clock (`[phase] rate`) the output after the joints sets the clock's rate, clamped to its
+    /// range; it reaches no motor and is not part of the next observation's last action.
     pub fn apply_action(&mut self, action: &[f32], target_q: &mut [f32; NUM_MOTORS]) -> u64 {
+        if let (Some(r), Some(&raw)) = (self.rate, action.get(self.last_action.len())) {
+            // max/min, not clamp: never panics; a NaN (the controller rejects one before this)
+            // gives the slowest rate.
+            self.next_rate = (1.0 + raw as f64).max(r.min).min(r.max);
+        }
         for (a, &raw) in self.last_action.iter_mut().zip(action) {
             *a = match self.action_clip {
                 // max/min, not clamp: never panics, whatever the spec held (validated c > 0).

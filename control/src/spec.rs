@@ -359,6 +359,20 @@ pub struct Phase {
     /// Phase-clock time at the policy's first step; it advances by one policy period per step.
     /// unitree_rl_gym's MuJoCo and real deploy scripts both give 0.02 s.
     pub first_step_time_s: f64,
+    /// A clock the policy sets: the network has one output more than joints, and the clock runs at
+    /// `1 + that output` times its nominal rate, clamped to `[min, max]`, from the next policy step
+    /// on (so a network whose extra output is 0 keeps the fixed clock). The output never reaches
+    /// a motor. Unset (the default): a fixed clock.
+    #[serde(default)]
+    pub rate: Option<PhaseRate>,
+}
+
+/// The range of a policy-set gait clock's rate (`[phase] rate = { min = 0.5, max = 1.5 }`).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhaseRate {
+    pub min: f64,
+    pub max: f64,
 }
 
 /// Safety supervisor limits. Defaults follow Unitree's own runtime guards (../shared/facts/g1_low_level.md)
@@ -456,6 +470,8 @@ pub const MAX_CLIP: f32 = 10_000.0;
 pub const MAX_ELU_ALPHA: f32 = 10.0;
 /// Longest gait period, s.
 pub const MAX_PHASE_PERIOD_S: f64 = 100.0;
+/// Largest rate a policy-set gait clock may run at, in multiples of its nominal rate.
+pub const MAX_PHASE_RATE: f64 = 4.0;
 
 /// The signals an observation term can read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -811,6 +827,12 @@ impl DeploySpec {
     /// Number of joints the policy drives.
     pub fn num_joints(&self) -> usize {
         self.policy.joint_ids_map.len()
+    }
+
+    /// Length of the network's output: one per joint, plus the gait clock's rate when the policy
+    /// sets it (`[phase] rate`).
+    pub fn action_dim(&self) -> usize {
+        self.num_joints() + self.phase.as_ref().is_some_and(|ph| ph.rate.is_some()) as usize
     }
 
     /// Control ticks per perception step.
@@ -1180,6 +1202,17 @@ impl DeploySpec {
                     "phase.first_step_time_s",
                     format!("{}: must be a finite time within ±1000 s", ph.first_step_time_s),
                 ));
+            }
+            if let Some(r) = ph.rate {
+                if !(r.min > 0.0 && r.min <= 1.0 && r.max >= 1.0 && r.max <= MAX_PHASE_RATE) {
+                    return Err(self.invalid(
+                        "phase.rate",
+                        format!(
+                            "min {} and max {}: need 0 < min <= 1 <= max <= {MAX_PHASE_RATE} (1 is the nominal clock)",
+                            r.min, r.max
+                        ),
+                    ));
+                }
             }
         }
         Ok(())

@@ -15,7 +15,7 @@ use anyhow::{bail, Context, Result};
 pub const TARGET: &str = "aarch64-unknown-linux-gnu";
 /// Where Debian's cross libc lives (`libc6-arm64-cross`): qemu-aarch64's `-L`.
 pub const SYSROOT: &str = "/usr/aarch64-linux-gnu";
-/// What the C parts (lz4-sys, zstd-sys) and the final link need.
+/// What the C part (lz4-sys) and the final link need.
 const CROSS_GCC: &str = "aarch64-linux-gnu-gcc";
 const CROSS_AR: &str = "aarch64-linux-gnu-ar";
 const APT_HINT: &str =

@@ -485,9 +485,14 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let c = firmware::controller::Controller::new(spec)?;
             let s = c.spec();
             println!(
-                "ok: {} — {} joints, observation {} values, {} Hz control / {} Hz policy, weights sha256 {}",
+                "ok: {} — {} joints{}, observation {} values, {} Hz control / {} Hz policy, weights sha256 {}",
                 firmware::text::for_terminal(&s.meta.name, firmware::text::MAX_QUOTED_LINE, false),
                 s.num_joints(),
+                if s.action_dim() > s.num_joints() {
+                    " and the gait clock's rate"
+                } else {
+                    ""
+                },
                 s.observation_dim(),
                 s.rates.control_hz,
                 s.rates.policy_hz,

@@ -107,19 +107,26 @@ pub fn load(ac: &ActorCritic, path: &Path) -> anyhow::Result<(Normalizer, Proven
             let t = st
                 .tensor(n)
                 .with_context(|| format!("{}: no tensor {n}; is it a critic file for this spec?", path.display()))?;
+            // Action noise written for one output fewer (before the spec's policy-set clock,
+            // `[phase] rate`): the new output starts at the mean noise of the others.
+            let widen_noise = n == "log_std" && t.shape().len() == 1 && t.shape()[0] < want[0];
             anyhow::ensure!(
-                t.dtype() == safetensors::Dtype::F32 && t.shape() == want.as_slice(),
+                t.dtype() == safetensors::Dtype::F32 && (t.shape() == want.as_slice() || widen_noise),
                 "{}: {n} is {:?} {:?}, this spec's critic needs F32 {want:?} (written for another observation layout?)",
                 path.display(),
                 t.dtype(),
                 t.shape()
             );
-            let v = crate::tensor_file::f32_values(&t)?;
+            let mut v = crate::tensor_file::f32_values(&t)?;
             anyhow::ensure!(
                 v.iter().all(|x| x.is_finite()),
                 "{}: {n} holds a non-finite value",
                 path.display()
             );
+            if widen_noise {
+                let mean = v.iter().sum::<f32>() / v.len().max(1) as f32;
+                v.resize(want[0], mean);
+            }
             loaded.push((
                 n.clone(),
                 Tensor::from_vec(v, want, &Device::Cpu)?.to_dtype(DType::F32)?,

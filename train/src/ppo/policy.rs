@@ -154,9 +154,12 @@ impl ActorArch {
                 }
                 LayerDesc::Linear { weight, bias } => {
                     shaped += 1;
+                    // The last layer gives the spec's actions whatever the weights hold: an actor
+                    // of the same spec without a policy-set clock has one output fewer, which
+                    // [`ActorCritic::load_actor_widened`] pads.
                     let output = match &file {
+                        _ if shaped == n_shaped => act,
                         Some(_) => shape(weight)?[0],
-                        None if shaped == n_shaped => act,
                         None => next_hidden.next().unwrap_or(act),
                     };
                     layers.push(ActorLayer::Linear {
@@ -176,7 +179,7 @@ impl ActorArch {
         }
         anyhow::ensure!(
             width == act,
-            "[policy.network] ends in {width} outputs, the spec drives {act} joints"
+            "[policy.network] ends in {width} outputs, the spec has {act} actions"
         );
         Ok(Self { layers })
     }
@@ -240,6 +243,14 @@ impl ActorArch {
     }
 
     /// The name of the matrix that reads the observation (widened by a warm start).
+    /// The last linear layer's weight and bias names (the actions).
+    fn output_layer(&self) -> Option<(&str, &str)> {
+        self.layers.iter().rev().find_map(|l| match l {
+            ActorLayer::Linear { weight, bias, .. } => Some((weight.as_str(), bias.as_str())),
+            _ => None,
+        })
+    }
+
     fn input_matrix(&self) -> Option<&str> {
         match self.layers.first() {
             Some(ActorLayer::Lstm { weight_ih, .. }) => Some(weight_ih),
@@ -247,6 +258,15 @@ impl ActorArch {
             _ => None,
         }
     }
+}
+
+/// What [`ActorCritic::load_actor_widened`] added at zero weight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Widened {
+    /// Input columns (the terrain token, for an actor trained without it).
+    pub inputs: usize,
+    /// Output rows (the gait clock's rate, for an actor of a fixed clock).
+    pub outputs: usize,
 }
 
 pub struct ActorCritic {
@@ -398,11 +418,17 @@ impl ActorCritic {
     /// Overwrites actor tensors from a safetensors file with the spec's names. An input matrix
     /// narrower than ours is widened with zero columns on the right (the warm start: the peer
     /// walker, its input widened by the terrain token at zero weight).
-    /// Returns how many zero columns were added (0 for an actor already in the spec's layout).
-    pub fn load_actor_widened(&self, path: &Path) -> anyhow::Result<usize> {
+    /// An actor with fewer outputs than the spec's actions (one without the policy-set clock's
+    /// rate, `[phase] rate`) gets zero rows for them: rate 1, the fixed clock it was trained on.
+    /// Returns how many zero input columns and output rows were added (none for an actor already
+    /// in the spec's layout).
+    pub fn load_actor_widened(&self, path: &Path) -> anyhow::Result<Widened> {
         let src = candle_core::safetensors::load(path, &Device::Cpu)?;
         let mut widened_by = 0;
+        let mut outputs_added = 0;
         let input = self.arch.input_matrix().map(str::to_string);
+        let output = self.arch.output_layer().map(|(w, b)| (w.to_string(), b.to_string()));
+        let is_output = |name: &str| output.as_ref().is_some_and(|(w, b)| name == w || name == b);
         for (name, shape) in self.arch.shapes() {
             let Some(t) = src.get(&name) else {
                 anyhow::bail!(
@@ -415,6 +441,12 @@ impl ActorCritic {
                 widened_by = self.obs_dim - t.dim(1)?;
                 let pad = Tensor::zeros((t.dim(0)?, widened_by), DType::F32, &Device::Cpu)?;
                 Tensor::cat(&[&t, &pad], 1)?
+            } else if is_output(&name) && t.dim(0)? < self.act_dim {
+                let mut pad_dims = t.dims().to_vec();
+                pad_dims[0] = self.act_dim - pad_dims[0];
+                outputs_added = pad_dims[0];
+                let pad = Tensor::zeros(pad_dims, DType::F32, &Device::Cpu)?;
+                Tensor::cat(&[&t, &pad], 0)?
             } else {
                 t
             };
@@ -423,7 +455,10 @@ impl ActorCritic {
             }
             self.vars.data().lock().unwrap()[&name].set(&t)?;
         }
-        Ok(widened_by)
+        Ok(Widened {
+            inputs: widened_by,
+            outputs: outputs_added,
+        })
     }
 
     /// Sets the action noise σ of every action dimension.

@@ -99,7 +99,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
     let dims = Dims {
         obs: spec.observation_dim(),
-        act: spec.num_joints(),
+        act: spec.action_dim(),
         critic: spec.observation_dim() + CRITIC_EXTRA,
     };
     let (ac, mut state, mut history) = start_or_resume(cfg, &spec, dims)?;
@@ -234,13 +234,20 @@ fn start_or_resume(
         return Ok((ac, st, history));
     }
     let started_from = match &cfg.init_actor {
-        Some(p) => match ac.load_actor_widened(p)? {
-            0 => format!("actor warm-started from {}", p.display()),
-            n => format!(
-                "actor warm-started from {} (input widened by {n} zero columns: the token)",
-                p.display()
-            ),
-        },
+        Some(p) => {
+            let w = ac.load_actor_widened(p)?;
+            let mut s = format!("actor warm-started from {}", p.display());
+            if w.inputs > 0 {
+                s += &format!(" (input widened by {} zero columns: the token)", w.inputs);
+            }
+            if w.outputs > 0 {
+                s += &format!(
+                    " (output widened by {} zero rows: the gait clock's rate, at 1)",
+                    w.outputs
+                );
+            }
+            s
+        }
         None => "random initialisation".to_string(),
     };
     let (normalizer, started_from) = match &cfg.init_critic {
@@ -615,7 +622,7 @@ pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
     let spec = DeploySpec::load(spec_path)?;
     let obs = spec.observation_dim();
     let bytes = std::fs::read(checkpoint).with_context(|| format!("reading {}", checkpoint.display()))?;
-    let arch = ActorArch::from_desc(&spec.policy.network, spec.num_joints(), Sizes::Weights(&bytes))?;
+    let arch = ActorArch::from_desc(&spec.policy.network, spec.action_dim(), Sizes::Weights(&bytes))?;
     let mut ac = ActorCritic::with_arch(arch, obs + CRITIC_EXTRA, 1.0, 0)?;
     ac.load(checkpoint)?;
     let path = spec.weights_path();

@@ -174,8 +174,8 @@ mod tests {
         let spec = DeploySpec::load(&root().join("specs/stairs/g1_stairs_lstm.toml")).unwrap();
         let desc = &spec.policy.network;
         let narrow = std::fs::read(root().join("specs/stairs/g1_stairs_lstm.safetensors")).unwrap();
-        let wide = widen_actor(desc, spec.num_joints(), &narrow, &[128, 256], 5).unwrap();
-        let arch = ActorArch::from_desc(desc, spec.num_joints(), Sizes::Weights(&wide)).unwrap();
+        let wide = widen_actor(desc, spec.action_dim(), &narrow, &[128, 256], 5).unwrap();
+        let arch = ActorArch::from_desc(desc, spec.action_dim(), Sizes::Weights(&wide)).unwrap();
         assert_eq!(arch.lstm_hidden(), 128);
         assert!(matches!(
             arch.layers[1],

@@ -30,7 +30,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let weights = std::fs::read(&args.actor).with_context(|| format!("reading {}", args.actor.display()))?;
     let wide = train::ppo::widen::widen_actor(
         &spec.policy.network,
-        spec.num_joints(),
+        spec.action_dim(),
         &weights,
         &args.hidden,
         args.seed,
