@@ -255,10 +255,12 @@ fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
     assert_eq!(u(&peer["frames"]["mismatch"]), 0, "{}", peer["first_mismatch"]);
     assert!(u(&peer["frames"]["startup"]) >= 250, "{}", peer["frames"]);
     assert!(u(&peer["frames"]["policy"]) >= 4490, "{}", peer["frames"]);
-    // The peer counts the damping after the normal end (its reader may miss a few, as above).
+    // The peer counts the damping after the normal end. Its reader keeps the last sample only, so
+    // under load it misses a few (488 of 500 once, with clippy running beside the tests); what
+    // g1fw sent is asserted exactly above.
     let damping = u(&peer["frames"]["damping"]);
     assert!(
-        (490..=500).contains(&damping),
+        (475..=500).contains(&damping),
         "the peer saw {damping} damping commands after the end"
     );
     // Our g1-sim's LowState_ CRC, checked by the peer's own implementation.
