@@ -152,11 +152,15 @@ impl PolicyMirror {
             joints.push((j, sign));
         }
         // A policy-set clock's rate (the output after the joints) has no side: it mirrors to itself.
-        let rate = (n..spec.action_dim()).map(|i| (i, 1.0));
+        let extra = spec.action_dim() - n;
         let action = SignedPermutation {
-            source: joints.iter().map(|j| j.0).chain(rate.clone().map(|r| r.0)).collect(),
-            factor: joints.iter().map(|j| j.1).chain(rate.map(|r| r.1)).collect(),
-        };
+            source: joints.iter().map(|j| j.0).collect(),
+            factor: joints.iter().map(|j| j.1).collect(),
+        }
+        .then(&SignedPermutation {
+            source: (0..extra).collect(),
+            factor: vec![1.0; extra],
+        });
 
         // Each observation value: (term, frame, element) in the spec's layout.
         let terms = &spec.observation.terms;

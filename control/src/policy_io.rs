@@ -43,6 +43,7 @@ impl PolicyIo {
         let n = spec.num_joints();
         let p = &spec.policy;
         let (q_min, q_max) = crate::envelope::target_limits(spec.safety.joint_range_margin_rad);
+        let phase = spec.phase.as_ref().map(|ph| (ph.first_step_time_s, ph.period_s));
         Self {
             obs: ObservationBuilder::new(spec),
             obs_buf: vec![0.0; spec.observation_dim()],
@@ -54,12 +55,9 @@ impl PolicyIo {
             joint_ids_map: p.joint_ids_map.clone(),
             cmd_min: spec.commands.min,
             cmd_max: spec.commands.max,
-            phase: spec.phase.as_ref().map(|ph| (ph.first_step_time_s, ph.period_s)),
+            phase,
             rate: spec.phase.as_ref().and_then(|ph| ph.rate),
-            rate_phase: spec
-                .phase
-                .as_ref()
-                .map_or(0.0, |ph| (ph.first_step_time_s / ph.period_s).rem_euclid(1.0)),
+            rate_phase: clock_start(phase),
             next_rate: 1.0,
             phase_now: 0.0,
             policy_hz: spec.rates.policy_hz as f64,
@@ -74,9 +72,7 @@ impl PolicyIo {
     pub fn reset(&mut self) {
         self.last_action.iter_mut().for_each(|a| *a = 0.0);
         self.steps_since_reset = 0;
-        if let Some((first, period)) = self.phase {
-            self.rate_phase = (first / period).rem_euclid(1.0);
-        }
+        self.rate_phase = clock_start(self.phase);
         self.next_rate = 1.0;
         self.obs.reset();
     }
@@ -184,4 +180,9 @@ impl PolicyIo {
         }
         clamped
     }
+}
+
+/// Where a policy-set clock starts, as a fraction of its period (the fixed clock's first step).
+fn clock_start(phase: Option<(f64, f64)>) -> f64 {
+    phase.map_or(0.0, |(first, period)| (first / period).rem_euclid(1.0))
 }

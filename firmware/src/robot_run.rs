@@ -363,7 +363,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     };
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
-    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().action_dim());
+    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
     let period_ns = (control_dt * 1e9).round() as u64;
     // Everything that allocates or locks memory happens before the HAL opens: once CAN motors are
     // in motor mode (or the robot's state flows), the first command must follow at once (under the

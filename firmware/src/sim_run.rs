@@ -473,7 +473,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     } else {
         Controller::new(spec)?
     };
-    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().action_dim());
+    let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
 
