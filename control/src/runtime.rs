@@ -113,6 +113,15 @@ pub struct Overruns {
 /// Poses kept while perception is with the worker (a late step can be away past one period).
 const AWAY_POSES: usize = 256;
 
+/// A threaded perception step a log marks late (its result was not ready when due).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LateStep {
+    pub step_tick: u64,
+    /// The tick its result came back, in logs that record it. Until then perception was away with
+    /// the worker: later perception ticks took no frame and were skipped, and replay does the same.
+    pub back_tick: Option<u64>,
+}
+
 #[derive(Clone, Copy, Debug)]
 struct PendingStep {
     step_tick: u64,
@@ -121,6 +130,8 @@ struct PendingStep {
     late: bool,
     /// Replay: the result computed at `step_tick`.
     ready: Option<PerceptionSummary>,
+    /// Replay of a late step: the tick it came back live (perception is away until then).
+    back_tick: Option<u64>,
 }
 
 impl PendingStep {
@@ -130,6 +141,7 @@ impl PendingStep {
             consume_tick,
             late: false,
             ready,
+            back_tick: None,
         }
     }
 }
@@ -146,8 +158,11 @@ pub struct Runtime {
     perception: Option<Box<Perception>>,
     exec: PerceptionExec,
     worker: Option<PerceptionWorker>,
-    /// Replay of a threaded run: steps are computed at once, and consumed or not as the log says.
-    replayed_late_steps: Option<Vec<u64>>,
+    /// Replay of a threaded run: steps are computed at once, and consumed or not as the log says
+    /// (sorted by step tick).
+    replayed_late_steps: Option<Vec<LateStep>>,
+    /// Replay: perception held back until a late step's recorded return ([`LateStep::back_tick`]).
+    replay_away: Option<Box<Perception>>,
     /// The step handed over (or, in replay, computed ahead) and not yet consumed.
     pending: Option<PendingStep>,
     /// Poses recorded while perception was away, added to its history when it comes home: a ring
@@ -183,6 +198,7 @@ impl Runtime {
             exec: PerceptionExec::Inline,
             worker: None,
             replayed_late_steps: None,
+            replay_away: None,
             pending: None,
             away_poses: Box::new([(0, Estimate::default()); AWAY_POSES]),
             away_start: 0,
@@ -286,13 +302,15 @@ impl Runtime {
     }
 
     /// Replays a threaded run: each step is computed at its tick and consumed `consume_after`
-    /// ticks later unless the log marks it late (`late_steps`: step ticks, sorted).
-    pub fn set_perception_replay(&mut self, consume_after: u32, late_steps: Vec<u64>) {
+    /// ticks later unless the log marks it late; a late one keeps perception away until the tick it
+    /// came back, where the log records it.
+    pub fn set_perception_replay(&mut self, consume_after: u32, mut late_steps: Vec<LateStep>) {
         self.exec = PerceptionExec::Threaded {
             consume_after,
             wait: true,
         };
         self.worker = None;
+        late_steps.sort_by_key(|l| l.step_tick);
         self.replayed_late_steps = Some(late_steps);
     }
 
@@ -339,8 +357,19 @@ impl Runtime {
             return;
         }
         let (result, late) = if let Some(late_steps) = &self.replayed_late_steps {
-            // Computed at its tick; the log says whether it was on time.
-            (pend.ready.take(), late_steps.binary_search(&pend.step_tick).is_ok())
+            // Computed at its tick; the log says whether it was on time, and when it came back.
+            let late = late_steps
+                .binary_search_by_key(&pend.step_tick, |l| l.step_tick)
+                .is_ok();
+            if let Some(back) = pend.back_tick {
+                if k < back {
+                    return;
+                }
+                if let Some(p) = self.replay_away.take() {
+                    self.come_home(p);
+                }
+            }
+            (pend.ready.take(), late)
         } else {
             let Some(w) = self.worker.as_ref() else { return };
             let got = if wait && !pend.late {
@@ -402,10 +431,19 @@ impl Runtime {
         match self.exec {
             PerceptionExec::Threaded { consume_after, .. } if fresh => {
                 let consume_tick = k + consume_after as u64;
-                if self.replayed_late_steps.is_some() {
+                if let Some(late_steps) = &self.replayed_late_steps {
                     let sum = p.step(now_ns, true, &est);
-                    self.perception = Some(p);
-                    self.pending = Some(PendingStep::new(k, consume_tick, Some(sum)));
+                    let mut pend = PendingStep::new(k, consume_tick, Some(sum));
+                    pend.back_tick = late_steps
+                        .binary_search_by_key(&k, |l| l.step_tick)
+                        .ok()
+                        .and_then(|i| late_steps[i].back_tick);
+                    if pend.back_tick.is_some() {
+                        self.replay_away = Some(p);
+                    } else {
+                        self.perception = Some(p);
+                    }
+                    self.pending = Some(pend);
                 } else if let Some(w) = self.worker.as_ref() {
                     w.submit(p, now_ns, est);
                     self.pending = Some(PendingStep::new(k, consume_tick, None));

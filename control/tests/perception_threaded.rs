@@ -10,22 +10,29 @@ use control::controller::Controller;
 use control::operator::CommandSchedule;
 use control::perception::LidarFrame;
 use control::perception_worker::PerceptionExec;
-use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
+use control::runtime::{run_loop, FrameSource, LateStep, LoopEnd, Runtime};
 use control::spec::DeploySpec;
 use hal::{LidarPoint, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 /// A standing robot and, on every perception tick, a lidar frame of ground with a step ahead.
 struct StandingWithLidar {
     k: u64,
+    /// Wall time per tick, µs (the step's ~1 ms spans more ticks the shorter they are).
+    tick_us: u64,
+    /// As a log replays: frames only on these ticks (the steps whose result came back), or on
+    /// every perception tick (`None`).
+    frames_at: Option<Vec<u64>>,
     started: bool,
     /// The last command written.
     last: LowCommand,
 }
 
 impl StandingWithLidar {
-    fn new() -> Self {
+    fn new(tick_us: u64, frames_at: Option<Vec<u64>>) -> Self {
         Self {
             k: 0,
+            tick_us,
+            frames_at,
             started: false,
             last: LowCommand::default(),
         }
@@ -39,9 +46,9 @@ impl TimeBase for StandingWithLidar {
             self.k += 1;
         }
         self.started = true;
-        // A few tens of µs per tick: a step (~1 ms) is late at 1 tick, yet home again well before
-        // the next perception tick, so both paths run.
-        std::thread::sleep(std::time::Duration::from_micros(40));
+        if self.tick_us > 0 {
+            std::thread::sleep(std::time::Duration::from_micros(self.tick_us));
+        }
         Ok(TickTime {
             index: self.k,
             time_ns: self.k * 2_000_000,
@@ -93,6 +100,13 @@ impl FrameSource for StandingWithLidar {
         None
     }
     fn read_lidar(&mut self, out: &mut LidarFrame) -> bool {
+        if self
+            .frames_at
+            .as_ref()
+            .is_some_and(|f| f.binary_search(&self.k).is_err())
+        {
+            return false;
+        }
         out.clear(self.k * 2_000_000);
         let shift = (self.k / 50) as f32 * 0.01;
         for i in 0..60 {
@@ -117,11 +131,15 @@ struct Trace {
     commands: Vec<LowCommand>,
     /// (tick it came back, step tick, late, token class, h, d, yaw bits)
     results: Vec<(u64, u64, bool, u8, u32, u32, u32)>,
+    /// Late steps, and perception ticks skipped while a late step still had perception, as of the
+    /// last result (a step still in flight when the run ends is in no log).
+    late_skipped: (u64, u64),
 }
 
 enum Mode {
     Live(PerceptionExec),
-    Replay(u32, Vec<u64>),
+    /// Consume after, the late steps, and the ticks with a frame (`None`: every perception tick).
+    Replay(u32, Vec<LateStep>, Option<Vec<u64>>),
 }
 
 fn stair_spec() -> DeploySpec {
@@ -129,23 +147,39 @@ fn stair_spec() -> DeploySpec {
         .expect("stair spec")
 }
 
+/// A live run's ticks: a few tens of µs, so a step (~1 ms) is late at 1 tick yet usually home
+/// before the next perception tick.
+const TICK_US: u64 = 40;
+
 fn run(mode: Mode) -> Trace {
+    run_ticks(mode, TICK_US)
+}
+
+fn run_ticks(mode: Mode, tick_us: u64) -> Trace {
     let spec = stair_spec();
     let mut rt = Runtime::new(Controller::new(spec).expect("controller"));
-    match mode {
-        Mode::Live(exec) => rt.set_perception_exec(exec).unwrap(),
-        Mode::Replay(l, late) => rt.set_perception_replay(l, late),
-    }
-    let mut hal = StandingWithLidar::new();
+    let frames_at = match mode {
+        Mode::Live(exec) => {
+            rt.set_perception_exec(exec).unwrap();
+            None
+        }
+        Mode::Replay(l, late, frames_at) => {
+            rt.set_perception_replay(l, late);
+            frames_at
+        }
+    };
+    let mut hal = StandingWithLidar::new(tick_us, frames_at);
     let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
     let mut op = schedule.source(2_000_000);
     let mut t = Trace {
         commands: Vec::new(),
         results: Vec::new(),
+        late_skipped: (0, 0),
     };
     let end = run_loop(&mut hal, &mut rt, &mut op, 1500, |v| {
         t.commands.push(*v.command);
         if let Some(p) = v.summary.perception.filter(|p| p.fresh) {
+            t.late_skipped = v.runtime.perception_late();
             let z = p.token;
             t.results.push((
                 v.summary.tick.index,
@@ -170,26 +204,96 @@ fn a_live_threaded_run_replays_bit_exact_from_its_late_steps() {
         consume_after: 1,
         wait: false,
     }));
-    let late: Vec<u64> = live.results.iter().filter(|r| r.2).map(|r| r.1).collect();
+    let late = late_steps(&live);
     assert!(live.results.len() >= 10, "{} results", live.results.len());
     assert!(!late.is_empty(), "no result was late: {:?}", live.results);
     // The step ticks advance by the perception period unless a late step made a tick skip.
     for w in live.results.windows(2) {
         assert!(w[1].1 > w[0].1 && (w[1].1 - w[0].1) % 50 == 0, "{w:?}");
     }
-    let replay = run(Mode::Replay(1, late));
-    // Results come back on the step's due tick in replay, whenever the worker finished live.
-    let key = |t: &Trace| {
-        t.results
-            .iter()
-            .map(|r| (r.1, r.2, r.3, r.4, r.5, r.6))
-            .collect::<Vec<_>>()
-    };
-    assert_eq!(key(&live), key(&replay));
-    assert_eq!(
-        live.commands, replay.commands,
-        "commands differ between the live run and its replay"
+    let replay = run(replay_of(&live, 1));
+    // Late results come back on the tick they came back live, whenever the worker finished.
+    assert_same(&live, &replay);
+}
+
+/// Ticks with no sleep: a step spans the next perception tick, which the live run skips (no frame
+/// taken, no step). The replay skips the same ticks from the recorded returns alone.
+#[test]
+fn a_live_run_whose_steps_span_perception_ticks_replays_bit_exact() {
+    let live = run_ticks(
+        Mode::Live(PerceptionExec::Threaded {
+            consume_after: 1,
+            wait: false,
+        }),
+        0,
     );
+    assert!(
+        live.late_skipped.1 > 0,
+        "no perception tick was skipped (late, skipped: {:?}); the steps were faster than 50 ticks",
+        live.late_skipped
+    );
+    let replay = run_ticks(replay_of(&live, 1), 0);
+    assert_same(&live, &replay);
+}
+
+/// Replay equals live: the perception results (with the tick each came back), the late and skipped
+/// counts, and every command (the first differing tick named, not thousands of commands printed).
+fn assert_same(live: &Trace, replay: &Trace) {
+    assert_eq!(live.results, replay.results, "perception results");
+    assert_eq!(live.late_skipped, replay.late_skipped, "late steps and skipped ticks");
+    assert_eq!(live.commands.len(), replay.commands.len());
+    if let Some(k) = (0..live.commands.len()).find(|&k| live.commands[k] != replay.commands[k]) {
+        panic!("the commands differ from tick {k} on");
+    }
+}
+
+/// The replay of `live` as its log gives it: the late steps with the ticks they came back, and
+/// frames only where a step's result came back (`/lidar/frame` is written with it).
+fn replay_of(live: &Trace, consume_after: u32) -> Mode {
+    let frames: Vec<u64> = live.results.iter().map(|r| r.1).collect();
+    Mode::Replay(consume_after, late_steps(live), Some(frames))
+}
+
+/// The log's late steps: their step tick and the tick they came back.
+fn late_steps(t: &Trace) -> Vec<LateStep> {
+    t.results
+        .iter()
+        .filter(|r| r.2)
+        .map(|r| LateStep {
+            step_tick: r.1,
+            back_tick: Some(r.0),
+        })
+        .collect()
+}
+
+/// A late step still away at the next perception tick (a loaded machine, a slow step) makes the
+/// live run skip that tick: no frame is taken and no step runs. Replay keeps perception away until
+/// the recorded return, so it skips the same ticks and computes the same steps. Here one step is
+/// made away for 120 ticks (past two perception ticks) by replaying it so.
+#[test]
+fn a_replayed_late_step_keeps_perception_away_until_it_came_back() {
+    let waited = run(Mode::Live(PerceptionExec::Threaded {
+        consume_after: 1,
+        wait: true,
+    }));
+    let first = waited.results[2].1;
+    let away = [LateStep {
+        step_tick: first,
+        back_tick: Some(first + 120),
+    }];
+    let replay = run(Mode::Replay(1, away.to_vec(), None));
+    let ticks: Vec<(u64, u64, bool)> = replay.results.iter().map(|r| (r.0, r.1, r.2)).collect();
+    // The late result comes back at its recorded tick; the two perception ticks it spans are
+    // skipped, so the next step is the third period's.
+    let i = ticks.iter().position(|r| r.1 == first).expect("the late step's result");
+    assert_eq!(ticks[i], (first + 120, first, true), "{ticks:?}");
+    assert_eq!(ticks[i + 1].1, first + 150, "{ticks:?}");
+    assert_eq!(replay.late_skipped, (1, 2));
+    assert!(ticks[..i].iter().all(|r| !r.2 && r.0 == r.1 + 1), "{ticks:?}");
+    // Everything before the late step is the waiting run's, tick for tick.
+    assert_eq!(waited.results[..i], replay.results[..i]);
+    // Replaying that replay's own late steps gives it again, bit for bit.
+    assert_eq!(run(replay_of(&replay, 1)), replay);
 }
 
 #[test]
@@ -203,7 +307,7 @@ fn a_waiting_threaded_run_uses_every_result_on_its_tick() {
         "{:?}",
         waited.results
     );
-    let replay = run(Mode::Replay(3, Vec::new()));
+    let replay = run(replay_of(&waited, 3));
     assert_eq!(waited, replay);
 }
 
@@ -219,7 +323,7 @@ fn a_panic_on_the_perception_worker_damps_through_the_loop_guard() {
         rt.inject_perception_panic();
         let mut damping = LowCommand::default();
         rt.controller().damping_command(&LowState::default(), &mut damping);
-        let mut hal = StandingWithLidar::new();
+        let mut hal = StandingWithLidar::new(TICK_US, None);
         let schedule = CommandSchedule::constant([0.3, 0.0, 0.0]);
         let mut op = schedule.source(2_000_000);
         // Without waiting, the panic surfaces whenever the worker thread gets to run: on a loaded

@@ -18,6 +18,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use control::nn::sha256_hex;
+use control::runtime::LateStep;
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 use sensor_io::unitree_hg::cdr::{low_state_from_cdr, CdrError};
 use sensor_io::unitree_hg::{
@@ -167,6 +168,9 @@ struct RecTerrain {
     /// Threaded perception: the result was not ready when due (its token was not used).
     #[serde(default)]
     late: bool,
+    /// The tick the result came back (absent in logs written before it was recorded).
+    #[serde(default)]
+    back_tick: Option<u64>,
     #[serde(flatten)]
     token: RecToken,
     held: bool,
@@ -699,7 +703,15 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
         None | Some("inline") => {}
         Some(label) => match control::perception_worker::PerceptionExec::parse(label, true) {
             Ok(control::perception_worker::PerceptionExec::Threaded { consume_after, .. }) => {
-                let late: Vec<u64> = rec.terrain.iter().filter(|(_, r)| r.late).map(|(t, _)| *t).collect();
+                let late: Vec<LateStep> = rec
+                    .terrain
+                    .iter()
+                    .filter(|(_, r)| r.late)
+                    .map(|(t, r)| LateStep {
+                        step_tick: *t,
+                        back_tick: r.back_tick,
+                    })
+                    .collect();
                 rt.set_perception_replay(consume_after, late);
             }
             _ => bail!(

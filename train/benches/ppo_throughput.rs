@@ -79,6 +79,7 @@ fn whole_loop(
         actor_hidden,
         symmetry,
         init_std: Some(0.3),
+        rate_noise: train::ppo::runner::RateNoise::PER_STEP,
         critic_warmup: 0,
         ppo,
         env: EnvSettings {

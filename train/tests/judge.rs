@@ -37,6 +37,7 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         actor_hidden: Vec::new(),
         symmetry: false,
         init_std: Some(0.3),
+        rate_noise: train::ppo::runner::RateNoise::PER_STEP,
         critic_warmup: 2,
         ppo: Default::default(),
         env: common::flat_settings(2.0),

@@ -1,6 +1,8 @@
 //! Warm-starting a policy-set gait clock (`[phase] rate`) from an actor of the fixed clock: the
 //! trainer adds a zero row for the rate (rate 1, the clock the actor was trained on) and one entry
 //! of action noise, and the firmware runs the export with the joints' targets as before.
+// Test expectations use std's math on the host; this never runs on the robot.
+#![allow(clippy::disallowed_methods)]
 use std::path::{Path, PathBuf};
 
 use firmware::controller::Controller;
@@ -80,4 +82,22 @@ fn a_fixed_clock_actor_warm_starts_a_policy_set_clock_at_rate_one() {
         }
     }
     assert!(worst < 1e-4, "targets differ by up to {worst} rad");
+}
+
+#[test]
+fn the_rate_takes_its_own_action_noise_and_the_joints_keep_theirs() {
+    let set = spec(true);
+    let n = set.num_joints();
+    let weights = std::fs::read(set.weights_path()).unwrap();
+    let arch = ActorArch::from_desc(&set.policy.network, set.action_dim(), Sizes::Weights(&weights)).unwrap();
+    let ac = ActorCritic::with_arch(arch, set.observation_dim() + train::ppo::env::CRITIC_EXTRA, 0.1, 0).unwrap();
+    ac.set_action_std_from(n, 0.3).unwrap();
+    let log_std: Vec<f32> = ac.log_std().to_vec1().unwrap();
+    assert!((log_std[n] - 0.3f32.ln()).abs() < 1e-6, "{log_std:?}");
+    assert!(
+        log_std[..n].iter().all(|&l| (l - 0.1f32.ln()).abs() < 1e-6),
+        "{log_std:?}"
+    );
+    assert!(ac.set_action_std_from(n + 1, 0.3).is_err(), "no output past the rate");
+    assert!(ac.set_action_std_from(n, f64::NAN).is_err());
 }

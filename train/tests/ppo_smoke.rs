@@ -34,6 +34,7 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
         actor_hidden: vec![64, 64, 64],
         symmetry: true,
         init_std: Some(2.0),
+        rate_noise: train::ppo::runner::RateNoise::PER_STEP,
         critic_warmup: 0,
         ppo: train::ppo::algo::PpoConfig {
             lr: 1e-3,
@@ -193,6 +194,7 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
         actor_hidden: vec![64, 32],
         symmetry: false,
         init_std: Some(0.5),
+        rate_noise: train::ppo::runner::RateNoise::PER_STEP,
         critic_warmup: 1,
         ppo: Default::default(),
         env: EnvSettings {

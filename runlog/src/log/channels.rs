@@ -98,7 +98,7 @@ pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
     (
         PERCEPTION_TERRAIN,
         "g1fw.TerrainEstimate",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"class":{"type":"string"},"step_height_m":{"type":"number"},"step_depth_m":{"type":"number"},"yaw_deg":{"type":"number"},"source":{"type":"string"},"held":{"type":"boolean"},"geometric":{"type":"object"},"points":{"type":"integer"},"bev":{"type":"object"},"base_height_m":{"type":"number"},"roll":{"type":"number"},"pitch":{"type":"number"}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"back_tick":{"type":"integer"},"late":{"type":"boolean"},"class":{"type":"string"},"step_height_m":{"type":"number"},"step_depth_m":{"type":"number"},"yaw_deg":{"type":"number"},"source":{"type":"string"},"held":{"type":"boolean"},"geometric":{"type":"object"},"points":{"type":"integer"},"bev":{"type":"object"},"base_height_m":{"type":"number"},"roll":{"type":"number"},"pitch":{"type":"number"}}}"#,
     ),
     (
         TRUTH_TERRAIN,

@@ -113,6 +113,8 @@ impl Record {
 /// the robot frame, the BEV grid and the token. Large (~1.4 MB), so a small separate pool.
 pub struct PerceptionRecord {
     pub tick: u64,
+    /// The tick the step's result came back (threaded perception; `tick` when inline).
+    pub back_tick: u64,
     pub time_ns: u64,
     pub summary: PerceptionSummary,
     pub truth: Option<hal::TerrainToken>,
@@ -129,6 +131,7 @@ impl PerceptionRecord {
     fn boxed() -> Box<PerceptionRecord> {
         Box::new(PerceptionRecord {
             tick: 0,
+            back_tick: 0,
             time_ns: 0,
             summary: PerceptionSummary::default(),
             truth: None,
@@ -147,6 +150,7 @@ impl PerceptionRecord {
         let pts = per.robot_points();
         // Keyed by the step's tick: replay feeds `/lidar/frame` back on that tick.
         self.tick = p.step_tick;
+        self.back_tick = v.summary.tick.index;
         let back = v.summary.tick.index.saturating_sub(p.step_tick);
         self.time_ns = v.summary.tick.time_ns.saturating_sub(back * v.runtime.period_ns());
         self.summary = *p;
@@ -821,6 +825,7 @@ impl McapSink {
             t,
             &TerrainMsg {
                 tick: k,
+                back_tick: p.back_tick,
                 class: s.token.class.name(),
                 step_height_m: s.token.step_height_m,
                 step_depth_m: s.token.step_depth_m,
@@ -990,6 +995,9 @@ struct GeometricMsg {
 #[derive(Serialize)]
 struct TerrainMsg {
     tick: u64,
+    /// The tick the result came back: replay of a late threaded step keeps perception away until
+    /// then, as it was live.
+    back_tick: u64,
     class: &'static str,
     step_height_m: f32,
     step_depth_m: f32,

@@ -472,6 +472,22 @@ impl ActorCritic {
         Ok(())
     }
 
+    /// Sets the action noise σ of the outputs from `from` on (the gait clock's rate), keeping the rest.
+    pub fn set_action_std_from(&self, from: usize, std: f64) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            std.is_finite() && std > 0.0,
+            "the action noise σ must be positive (got {std})"
+        );
+        let mut ls: Vec<f32> = self.log_std().to_vec1()?;
+        anyhow::ensure!(from < ls.len(), "no action output past {from} to set a σ for");
+        for v in &mut ls[from..] {
+            *v = std.ln() as f32;
+        }
+        let t = Tensor::from_vec(ls, self.act_dim, &Device::Cpu)?;
+        self.vars.data().lock().expect("var map lock")["log_std"].set(&t)?;
+        Ok(())
+    }
+
     pub fn log_std(&self) -> Tensor {
         get(&self.vars, "log_std")
     }

@@ -14,7 +14,7 @@ use super::algo::{compute_gae, EnvRollout, Learner, Normalizer, PpoConfig, Updat
 use super::env::{EnvConfig, StairEnv, CRITIC_EXTRA};
 use super::judge::Judgement;
 use super::policy::{ActorArch, ActorCritic, Sizes};
-use super::rollout::{rollout, Slot};
+use super::rollout::{rollout, NoiseHold, Slot};
 
 /// The action noise σ of a run that is not told otherwise (in units of the action scale).
 pub const DEFAULT_INIT_STD: f64 = 0.3;
@@ -53,6 +53,9 @@ pub struct RunConfig {
     /// Initial action noise σ; `None`: [`DEFAULT_INIT_STD`], or the noise in `init_critic`'s file.
     /// Given with `init_critic`, it replaces the file's noise.
     pub init_std: Option<f64>,
+    /// Exploration of the gait clock's rate output (a spec with `[phase] rate`): its own initial σ
+    /// (after `init_std` or the critic file's) and its noise held over several policy steps.
+    pub rate_noise: RateNoise,
     pub critic_warmup: usize,
     pub ppo: PpoConfig,
     /// How environments are drawn, commanded and rewarded.
@@ -66,6 +69,19 @@ pub struct RunConfig {
 }
 
 pub use super::iter_log::IterLog;
+
+/// How the gait clock's rate output explores ([`RunConfig::rate_noise`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RateNoise {
+    /// Its initial σ on a new run; `None`: as the joints'.
+    pub std: Option<f64>,
+    /// Policy steps its noise is held ([`NoiseHold::every`]); 1: drawn each step, as the joints'.
+    pub hold: usize,
+}
+
+impl RateNoise {
+    pub const PER_STEP: RateNoise = RateNoise { std: None, hold: 1 };
+}
 
 /// PPO's rollout workers already take every core, with the learner beside them. candle splits each
 /// matrix product over all cores through rayon, whose workers then spin between the update's
@@ -100,6 +116,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let dims = Dims {
         obs: spec.observation_dim(),
         act: spec.action_dim(),
+        joints: spec.num_joints(),
         critic: spec.observation_dim() + CRITIC_EXTRA,
     };
     let (ac, mut state, mut history) = start_or_resume(cfg, &spec, dims)?;
@@ -186,6 +203,8 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
 struct Dims {
     obs: usize,
     act: usize,
+    /// The joint outputs; `act` has the clock's rate beyond them.
+    joints: usize,
     critic: usize,
 }
 
@@ -279,6 +298,18 @@ fn start_or_resume(
             (normalizer, s)
         }
     };
+    let started_from = match cfg.rate_noise.std {
+        None => started_from,
+        Some(std) => {
+            anyhow::ensure!(
+                dims.act > dims.joints,
+                "--rate-std needs a spec whose policy sets its gait clock ([phase] rate); {} has none",
+                cfg.spec.display()
+            );
+            ac.set_action_std_from(dims.joints, std)?;
+            format!("{started_from}; the clock rate's action noise {std} (--rate-std)")
+        }
+    };
     let state = RunState {
         iteration: 0,
         env_steps: 0,
@@ -330,6 +361,8 @@ fn make_envs(
             roll: EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, ac.state_len()),
             rng: Rng(seed ^ 0xAC7_10A5),
             ends: Vec::new(),
+            held: Vec::new(),
+            held_left: 0,
         });
         bar.inc(1);
     }
@@ -397,6 +430,11 @@ impl Pipeline {
     ) -> anyhow::Result<Option<Step>> {
         let t0 = Instant::now();
         let log_std: Vec<f32> = ac.log_std().to_vec1()?;
+        // The outputs past the joints (the clock's rate) explore with held noise.
+        let hold = NoiseHold {
+            from: dims.joints,
+            every: cfg.rate_noise.hold,
+        };
         let (first, second) = slots.split_at_mut(self.half);
         let (rolling, learning) = if self.turn == 0 {
             (first, second)
@@ -418,7 +456,7 @@ impl Pipeline {
                     let ls = &log_std;
                     s.spawn(move || {
                         let t = Instant::now();
-                        let r = rollout(chunk, ls, cfg.ppo.steps, dims.obs, dims.critic);
+                        let r = rollout(chunk, ls, hold, cfg.ppo.steps, dims.obs, dims.critic);
                         (r, t.elapsed().as_secs_f64())
                     })
                 })

@@ -62,6 +62,15 @@ pub struct Args {
     /// --init-critic, the critic file's noise unless this is given).
     #[arg(long)]
     init_std: Option<f64>,
+    /// The gait clock's rate output (a spec with [phase] rate): its initial action noise σ on a new
+    /// run, in place of the joints' (e.g. 0.3 to try clocks ±30 % off). Ignored when resuming.
+    #[arg(long)]
+    rate_std: Option<f64>,
+    /// Policy steps the rate output's noise is held (and redrawn at each episode start), so a
+    /// slower or faster clock lasts long enough to change a step (e.g. 25: 0.5 s at 50 Hz). 1: drawn
+    /// every step, as the joints'.
+    #[arg(long, default_value_t = 1)]
+    rate_hold: usize,
     /// Iterations that train only the critic (after a warm start).
     #[arg(long, default_value_t = 10)]
     critic_warmup: usize,
@@ -299,6 +308,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         actor_hidden,
         symmetry,
         init_std,
+        rate_std,
+        rate_hold,
         critic_warmup,
         lr,
         entropy_coef,
@@ -322,15 +333,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bounded("--steps", steps, 1, 10_000)?;
     bounded("--epochs", epochs, 1, 100)?;
     bounded("--minibatches", minibatches, 1, envs)?;
+    bounded("--rate-hold", rate_hold, 1, 10_000)?;
     anyhow::ensure!(
         lr.is_finite()
             && lr > 0.0
             && init_std.is_none_or(|s| s.is_finite() && s > 0.0)
+            && rate_std.is_none_or(|s| s.is_finite() && s > 0.0)
             && episode_s.is_finite()
             && episode_s > 0.0
             && desired_kl.is_finite()
             && desired_kl > 0.0,
-        "--lr, --init-std, --episode-s and --desired-kl must be positive numbers"
+        "--lr, --init-std, --rate-std, --episode-s and --desired-kl must be positive numbers"
     );
     if judge_every > 0 {
         // The judge runs g1fw's eval, each episode with its own g1-sim: find it now, not at the
@@ -355,6 +368,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         actor_hidden,
         symmetry,
         init_std,
+        rate_noise: train::ppo::runner::RateNoise {
+            std: rate_std,
+            hold: rate_hold,
+        },
         critic_warmup,
         ppo: train::ppo::algo::PpoConfig {
             steps,
