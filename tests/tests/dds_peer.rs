@@ -254,7 +254,9 @@ fn g1fw_walks_over_dds_through_an_independent_cyclonedds_peer() {
     assert_eq!(u(&peer["mode_machine_mismatch"]), 0);
     assert_eq!(u(&peer["frames"]["mismatch"]), 0, "{}", peer["first_mismatch"]);
     assert!(u(&peer["frames"]["startup"]) >= 250, "{}", peer["frames"]);
-    assert!(u(&peer["frames"]["policy"]) >= 4490, "{}", peer["frames"]);
+    // The same KEEP_LAST 1 reader: 4463 of 4500 once, with a training run on both cores beside
+    // the test (g1fw's own counts above were exact).
+    assert!(u(&peer["frames"]["policy"]) >= 4450, "{}", peer["frames"]);
     // The peer counts the damping after the normal end. Its reader keeps the last sample only, so
     // under load it misses a few (488 of 500 once, with clippy running beside the tests); what
     // g1fw sent is asserted exactly above.
