@@ -189,6 +189,18 @@ struct RecEstimate {
     confidence: Option<f32>,
 }
 
+/// The threaded steps the log marks late, with the tick each came back where the log has it.
+fn late_steps(terrain: &[(u64, RecTerrain)]) -> Vec<LateStep> {
+    terrain
+        .iter()
+        .filter(|(_, r)| r.late)
+        .map(|(t, r)| LateStep {
+            step_tick: *t,
+            back_tick: r.back_tick,
+        })
+        .collect()
+}
+
 /// What replay can do with a log's perception inputs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LidarCoverage {
@@ -703,16 +715,7 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
         None | Some("inline") => {}
         Some(label) => match control::perception_worker::PerceptionExec::parse(label, true) {
             Ok(control::perception_worker::PerceptionExec::Threaded { consume_after, .. }) => {
-                let late: Vec<LateStep> = rec
-                    .terrain
-                    .iter()
-                    .filter(|(_, r)| r.late)
-                    .map(|(t, r)| LateStep {
-                        step_tick: *t,
-                        back_tick: r.back_tick,
-                    })
-                    .collect();
-                rt.set_perception_replay(consume_after, late);
+                rt.set_perception_replay(consume_after, late_steps(&rec.terrain));
             }
             _ => bail!(
                 "the log's {} '{label}' is not one this g1fw knows",
@@ -1063,6 +1066,36 @@ mod tests {
         assert!(
             e.contains("'/lidar/frame'") && e.contains("terrain_token") && e.contains("20 lidar frames"),
             "{e}"
+        );
+    }
+
+    #[test]
+    fn late_steps_carry_the_tick_they_came_back_where_the_log_has_it() {
+        let msg = |extra: &str| -> (u64, RecTerrain) {
+            let json = format!(
+                r#"{{"tick":50,{extra}"class":"flat","step_height_m":0.0,"step_depth_m":0.0,"yaw_deg":0.0,
+                    "held":false,"estimate":{{"class":"flat","step_height_m":0.0,"step_depth_m":0.0,"yaw_deg":0.0}},
+                    "points":1,"frame_timestamp_ns":1}}"#
+            );
+            (50, serde_json::from_str(&json).unwrap())
+        };
+        let terrain = [
+            msg(r#""late":true,"back_tick":173,"#),
+            msg(r#""late":false,"back_tick":60,"#),
+            msg(r#""late":true,"#), // written before back_tick was logged
+        ];
+        assert_eq!(
+            late_steps(&terrain),
+            vec![
+                LateStep {
+                    step_tick: 50,
+                    back_tick: Some(173)
+                },
+                LateStep {
+                    step_tick: 50,
+                    back_tick: None
+                },
+            ]
         );
     }
 
