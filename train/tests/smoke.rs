@@ -326,3 +326,33 @@ fn fit_refuses_to_overwrite_a_run_or_its_inputs() {
     assert_eq!(std::fs::read(&init).unwrap(), b"an earlier run");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// `--rate-std` and `--rate-hold` act on the gait clock's rate output: a spec without `[phase]
+/// rate` is refused by name before any environment is built, as are a zero hold and a bad σ.
+#[test]
+fn ppo_refuses_rate_exploration_without_a_rate_output() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let out = temp("rate_refused");
+    let run = |extra: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_g1-train"))
+            .args(["ppo", "--quiet", "--judge-every", "0", "--spec"])
+            .arg(root.join("specs/stairs/g1_stairs_lstm.toml"))
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{extra:?} was accepted");
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let e = run(&["--rate-hold", "25"]);
+    assert!(e.contains("[phase] rate") && e.contains("g1_stairs_lstm.toml"), "{e}");
+    let e = run(&["--rate-std", "0.3"]);
+    assert!(e.contains("[phase] rate"), "{e}");
+    let e = run(&["--rate-hold", "0"]);
+    assert!(e.contains("--rate-hold must be 1 to 10000"), "{e}");
+    let e = run(&["--rate-std=-1"]);
+    assert!(e.contains("--rate-std"), "{e}");
+    assert!(!out.join("checkpoint.safetensors").exists());
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -463,13 +463,7 @@ impl ActorCritic {
 
     /// Sets the action noise σ of every action dimension.
     pub fn set_action_std(&self, std: f64) -> anyhow::Result<()> {
-        anyhow::ensure!(
-            std.is_finite() && std > 0.0,
-            "the action noise σ must be positive (got {std})"
-        );
-        let t = Tensor::full(std.ln() as f32, self.act_dim, &Device::Cpu)?;
-        self.vars.data().lock().expect("var map lock")["log_std"].set(&t)?;
-        Ok(())
+        self.set_action_std_from(0, std)
     }
 
     /// Sets the action noise σ of the outputs from `from` on (the gait clock's rate), keeping the rest.

@@ -27,13 +27,6 @@ pub struct NoiseHold {
     pub every: usize,
 }
 
-impl NoiseHold {
-    pub const NONE: NoiseHold = NoiseHold {
-        from: usize::MAX,
-        every: 1,
-    };
-}
-
 /// One exploratory action: `mean` plus σ times unit Gaussian noise, where the last `held.len()`
 /// outputs take `held`, redrawn when `held_left` runs out (then held `every` steps).
 fn explore(

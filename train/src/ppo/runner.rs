@@ -119,6 +119,11 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         joints: spec.num_joints(),
         critic: spec.observation_dim() + CRITIC_EXTRA,
     };
+    anyhow::ensure!(
+        dims.act > dims.joints || cfg.rate_noise == RateNoise::PER_STEP,
+        "--rate-std and --rate-hold need a spec whose policy sets its gait clock ([phase] rate); {} has none",
+        cfg.spec.display()
+    );
     let (ac, mut state, mut history) = start_or_resume(cfg, &spec, dims)?;
     let mirror = if cfg.symmetry {
         Some(super::symmetry::Mirror::from_spec(
@@ -301,11 +306,6 @@ fn start_or_resume(
     let started_from = match cfg.rate_noise.std {
         None => started_from,
         Some(std) => {
-            anyhow::ensure!(
-                dims.act > dims.joints,
-                "--rate-std needs a spec whose policy sets its gait clock ([phase] rate); {} has none",
-                cfg.spec.display()
-            );
             ac.set_action_std_from(dims.joints, std)?;
             format!("{started_from}; the clock rate's action noise {std} (--rate-std)")
         }
