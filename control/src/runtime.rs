@@ -130,8 +130,8 @@ struct PendingStep {
     late: bool,
     /// Replay: the result computed at `step_tick`.
     ready: Option<PerceptionSummary>,
-    /// Replay of a late step: the tick it came back live (perception is away until then).
-    back_tick: Option<u64>,
+    /// Replay: the log's entry when it marks this step late (looked up once, at the step).
+    logged_late: Option<LateStep>,
 }
 
 impl PendingStep {
@@ -141,7 +141,7 @@ impl PendingStep {
             consume_tick,
             late: false,
             ready,
-            back_tick: None,
+            logged_late: None,
         }
     }
 }
@@ -356,12 +356,9 @@ impl Runtime {
         if !pend.late && k < pend.consume_tick {
             return;
         }
-        let (result, late) = if let Some(late_steps) = &self.replayed_late_steps {
+        let (result, late) = if self.replayed_late_steps.is_some() {
             // Computed at its tick; the log says whether it was on time, and when it came back.
-            let late = late_steps
-                .binary_search_by_key(&pend.step_tick, |l| l.step_tick)
-                .is_ok();
-            if let Some(back) = pend.back_tick {
+            if let Some(back) = pend.logged_late.and_then(|l| l.back_tick) {
                 if k < back {
                     return;
                 }
@@ -369,7 +366,7 @@ impl Runtime {
                     self.come_home(p);
                 }
             }
-            (pend.ready.take(), late)
+            (pend.ready.take(), pend.logged_late.is_some())
         } else {
             let Some(w) = self.worker.as_ref() else { return };
             let got = if wait && !pend.late {
@@ -434,11 +431,11 @@ impl Runtime {
                 if let Some(late_steps) = &self.replayed_late_steps {
                     let sum = p.step(now_ns, true, &est);
                     let mut pend = PendingStep::new(k, consume_tick, Some(sum));
-                    pend.back_tick = late_steps
+                    pend.logged_late = late_steps
                         .binary_search_by_key(&k, |l| l.step_tick)
                         .ok()
-                        .and_then(|i| late_steps[i].back_tick);
-                    if pend.back_tick.is_some() {
+                        .map(|i| late_steps[i]);
+                    if pend.logged_late.is_some_and(|l| l.back_tick.is_some()) {
                         self.replay_away = Some(p);
                     } else {
                         self.perception = Some(p);

@@ -151,7 +151,7 @@ impl PerceptionRecord {
         // Keyed by the step's tick: replay feeds `/lidar/frame` back on that tick.
         self.tick = p.step_tick;
         self.back_tick = v.summary.tick.index;
-        let back = v.summary.tick.index.saturating_sub(p.step_tick);
+        let back = self.back_tick.saturating_sub(p.step_tick);
         self.time_ns = v.summary.tick.time_ns.saturating_sub(back * v.runtime.period_ns());
         self.summary = *p;
         self.truth = v.truth.and_then(|t| t.terrain);
