@@ -3,7 +3,18 @@
 #   apt packages, a Python venv with the test-side tools, MuJoCo 3.17.0 (library + headers from the
 #   pinned PyPI wheel) and the 29-dof G1 MJCF + meshes from the pinned mjlab wheel, both sha256-checked.
 # Everything lands in .deps/ and .venv/ inside the checkout; nothing is copied from ../shared.
+#
+#   scripts/install.sh              everything
+#   scripts/install.sh --for-build  only what `cargo build` needs (the C toolchain, Rust's aarch64
+#                                   target, MuJoCo), so scripts/test.sh can start compiling while a
+#                                   second call fetches the rest (test tools, models, the HIL's QEMU)
 set -euo pipefail
+for_build=0
+case "${1:-}" in
+  "") ;;
+  --for-build) for_build=1 ;;
+  *) echo "usage: $0 [--for-build]" >&2; exit 2 ;;
+esac
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 deps="$root/.deps"
@@ -16,7 +27,9 @@ say() { printf '[install] %s\n' "$*" >&2; }
 # gcc-aarch64-linux-gnu, libc6-dev-arm64-cross, qemu-user: the robot's CPU (`cargo xtask cross-replay`, `image`)
 # libddsc0debian, cyclonedds-dev, cyclonedds-tools: CycloneDDS 0.10.2, the robot's DDS, as the
 #   independent peer of `g1fw run --dds` (tests/tests/dds_peer.rs builds its C peer with idlc + gcc)
-apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates fonts-dejavu-core
+# The first line is what `cargo build` and the MuJoCo download need; the rest only the tests need.
+apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-certificates)
+((for_build)) || apt_pkgs+=(fonts-dejavu-core
   user-mode-linux kmod iproute2 can-utils
   gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user
   libddsc0debian cyclonedds-dev cyclonedds-tools)
@@ -53,7 +66,7 @@ if [ ! -x "$py" ]; then
   say "python: creating .venv"
   /usr/bin/env python3 -m venv "$root/.venv"
 fi
-if ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime, mcap, can, cyclonedds.idl' 2>/dev/null; then
+if ((!for_build)) && ! "$py" -c 'import numpy, safetensors, onnx, onnxruntime, mcap, can, cyclonedds.idl' 2>/dev/null; then
   say "python: installing test tools into .venv"
   "$py" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
 fi
@@ -88,6 +101,11 @@ if [ ! -f "$deps/mujoco/lib/libmujoco.so.3.17.0" ]; then
   mv "$deps/tmp/mujoco/include" "$deps/mujoco/include"
   ln -sf libmujoco.so.3.17.0 "$deps/mujoco/lib/libmujoco.so"
   rm -rf "$deps/tmp"
+fi
+
+if ((for_build)); then
+  say "ready to build (MuJoCo in .deps/mujoco); the rest comes with scripts/install.sh"
+  exit 0
 fi
 
 mjlab_whl=$(fetch_wheel mjlab==1.6.0 03d003854e2f44c48330c6dcf4c2253ff7641bb569747846825a21b9efa8540b)

@@ -434,3 +434,24 @@ fn counts_are_bounded_before_anything_is_allocated() {
         "{err}"
     );
 }
+
+/// A `RUST_LOG` that is not `level,target=level,...` is named and the default filter used; a good
+/// one is taken silently. The run itself goes on either way (here: a clear error for a missing log).
+#[test]
+fn a_malformed_rust_log_is_named_and_the_default_used() {
+    for (filter, warned) in [("a=b=c", true), ("warn,rustdds=error", false), ("", false)] {
+        let out = Command::new(built_bin("g1fw"))
+            .env("RUST_LOG", filter)
+            .args(["log-info", "/nonexistent/run.mcap"])
+            .output()
+            .expect("run g1fw");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(
+            err.contains("is not `level,target=level,...`"),
+            warned,
+            "RUST_LOG={filter:?}: {err}"
+        );
+        assert!(err.contains("cannot read log"), "RUST_LOG={filter:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}

@@ -447,6 +447,22 @@ fn parse_cmd(s: &str) -> Result<[f32; 3], String> {
     }
 }
 
+/// What `RUST_LOG` asks for (`level` and `target=level`, comma-separated), or by default info, with
+/// rustdds at warnings: it narrates discovery and shutdown at info level.
+fn log_filter() -> tracing_subscriber::filter::Targets {
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    let default = Targets::new()
+        .with_default(LevelFilter::INFO)
+        .with_target("rustdds", LevelFilter::WARN);
+    match std::env::var("RUST_LOG") {
+        Ok(s) if !s.trim().is_empty() => s.parse().unwrap_or_else(|e| {
+            eprintln!("g1fw: RUST_LOG={s:?} is not `level,target=level,...` ({e}); logging at the default (info)");
+            default
+        }),
+        _ => default,
+    }
+}
+
 fn main() -> ExitCode {
     let default_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
@@ -456,12 +472,12 @@ fn main() -> ExitCode {
              is caught by its guard, which commands damping on every enabled motor and closes the log."
         );
     }));
+    use tracing_subscriber::layer::SubscriberExt as _;
+    use tracing_subscriber::util::SubscriberInitExt as _;
     tracing_subscriber::fmt()
-        // rustdds narrates discovery and shutdown at info level: keep it to warnings.
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,rustdds=warn".into()),
-        )
         .with_writer(std::io::stderr)
+        .finish()
+        .with(log_filter())
         .init();
     let cli = Cli::parse();
     // The README's commands are checked against the parser in CI (tests/tests/readme.rs).
