@@ -776,6 +776,28 @@ impl Simulator {
         Ok(())
     }
 
+    /// Training aid: a force and a torque (world frame, N and N·m) on the base body at its centre
+    /// of mass, held until changed; a reset clears it. The robot has no such thing: only
+    /// `g1-train`'s assisted episodes use it (a helping hand that explores climbs the policy cannot
+    /// yet do alone, decayed to nothing). Rejects non-finite values.
+    pub fn set_base_wrench(&mut self, force: [f64; 3], torque: [f64; 3]) -> Result<(), SimError> {
+        if let Some(bad) = force.iter().chain(&torque).find(|v| !v.is_finite()) {
+            return Err(SimError::BadParameter {
+                what: "base wrench",
+                value: *bad,
+                hint: "give finite forces and torques",
+            });
+        }
+        let b = self.pelvis_body;
+        self.data.xfrc_applied_mut()[b] = [force[0], force[1], force[2], torque[0], torque[1], torque[2]];
+        Ok(())
+    }
+
+    /// The robot's mass, kg (every body under the base, as compiled; added base mass not included).
+    pub fn robot_mass(&self) -> f64 {
+        self.data.model().body_subtreemass()[self.pelvis_body]
+    }
+
     /// From the next reset on, the robot starts moved by `(x, y)` m and turned by `yaw` rad (about
     /// its start position) from the world's start pose.
     pub fn set_initial_xy_yaw(&mut self, x: f64, y: f64, yaw: f64) -> Result<(), SimError> {

@@ -461,6 +461,45 @@ fn randomisation_hooks_change_what_they_should() {
     assert!(sim.reset_with(&off, [0.0; 6]).is_err());
 }
 
+/// The training aid's wrench (`g1-train ppo --assist-share`): twice the robot's weight, upward on
+/// the base, lifts it off the ground where without it the limp robot sinks; a reset clears it.
+#[test]
+fn a_base_wrench_of_twice_the_robots_weight_lifts_it_and_a_reset_clears_it() {
+    require_deps();
+    let mut sim = Simulator::load(ModelChoice::G1_29Dof, SimConfig::default()).unwrap();
+    let mass = sim.robot_mass();
+    let total: f64 = sim.data().model().body_mass()[1..].iter().sum();
+    assert!(
+        (mass - total).abs() < 1e-9 && mass > 20.0,
+        "robot mass {mass} kg, bodies {total} kg"
+    );
+    // Motors off for 0.4 s; the base's rise (negative: it sank).
+    let rise = |sim: &mut Simulator, lift: f64| {
+        sim.reset();
+        sim.set_base_wrench([0.0, 0.0, lift], [0.0; 3]).unwrap();
+        let z0 = sim.truth().base_pos[2];
+        for _ in 0..200 {
+            sim.step_control_tick();
+        }
+        sim.truth().base_pos[2] - z0
+    };
+    let (free, lifted) = (rise(&mut sim, 0.0), rise(&mut sim, 2.0 * mass * 9.81));
+    assert!(free < -0.01, "rises {free} m without the wrench");
+    assert!(lifted > 0.2, "rises {lifted} m at twice its weight (without: {free} m)");
+    sim.reset();
+    assert_eq!(
+        sim.data()
+            .xfrc_applied()
+            .iter()
+            .flatten()
+            .filter(|v| **v != 0.0)
+            .count(),
+        0
+    );
+    assert!(sim.set_base_wrench([f64::NAN, 0.0, 0.0], [0.0; 3]).is_err());
+    assert!(sim.set_base_wrench([0.0; 3], [0.0, f64::INFINITY, 0.0]).is_err());
+}
+
 /// Episode resets with a swapped world and randomisation replay bit for bit.
 #[test]
 fn swaps_and_randomisation_are_deterministic() {

@@ -320,6 +320,7 @@ fn in_environment_evaluation_holds_the_level_and_counts_each_episode_once() {
         episodes: 4,
         random: Randomization::NONE,
         episode_s: 20.0,
+        assist: 0.0,
         seed: 0,
         threads: 2,
     };
@@ -472,6 +473,62 @@ fn review_episodes_draw_at_or_below_the_frontier_and_move_no_level() {
     assert!(drawn.iter().any(|&l| l < 6), "no review below the frontier: {drawn:?}");
     let h = e.world().spec.step_height;
     assert!(h <= train::ppo::env::level_height(6) + 0.0101, "step height {h}");
+}
+
+/// `--assist-share`: assisted climbs draw their staircase from the assist levels, move no level,
+/// carry the strength the runner set when they started, and that strength acts: the assistant
+/// holds up a robot that falls alone.
+#[test]
+fn assisted_climbs_draw_their_levels_move_none_and_hold_the_robot_up() {
+    let Some(peer) = peer_weights() else { return };
+    let spec = stair_spec();
+    let (_, w) = warm_start(&spec, &peer);
+    let assisted_env = |strength: f64| {
+        let mut cfg = test_cfg(g1_sim::ModelChoice::G1_12Dof, spec.clone(), Column::Up);
+        cfg.settings.stand_share = 0.0;
+        cfg.settings.assist = train::ppo::assist::Assist {
+            share: 1.0,
+            levels: (6, 8),
+            decay_steps: 1_000_000,
+        };
+        let mut e = StairEnv::new(cfg, 9, &w).unwrap();
+        e.set_assist_strength(strength);
+        e.place(Column::Up, 2).unwrap();
+        e
+    };
+    let zero = vec![0.0f32; 12];
+    let mut e = assisted_env(0.7);
+    let mut drawn = Vec::new();
+    for _ in 0..8 {
+        assert_eq!(e.assist(), (true, 0.7));
+        e.step(&zero).unwrap();
+        e.reset().unwrap();
+        let end = e.last_end.unwrap();
+        assert!(end.assisted && !end.review);
+        drawn.push(end.level);
+    }
+    assert_eq!(e.level, 2, "assisted episodes moved the level: {drawn:?}");
+    assert!(drawn.iter().all(|l| (6..=8).contains(l)), "{drawn:?}");
+    let h = e.world().spec.step_height;
+    assert!(h >= train::ppo::env::level_height(6) - 0.0101, "step height {h}");
+    // The same episode (same seed) with the zero action, helped and not: the limp-armed default
+    // pose tips over alone; the assistant holds it upright.
+    let lowest_up = |strength: f64| {
+        let mut e = assisted_env(strength);
+        e.reset().unwrap();
+        let mut lowest = 1.0f32;
+        for _ in 0..50 {
+            if e.step(&zero).unwrap().terminated {
+                return 0.0;
+            }
+            let [_, x, y, _] = e.low_state().imu.quaternion;
+            lowest = lowest.min(1.0 - 2.0 * (x * x + y * y));
+        }
+        lowest
+    };
+    let (helped, alone) = (lowest_up(1.0), lowest_up(0.0));
+    assert!(helped > 0.95, "the helped base tilted to up_z {helped} (alone {alone})");
+    assert!(alone < helped - 0.05, "alone up_z {alone}, helped {helped}");
 }
 
 /// Joystick episodes on flat ground (`--joystick-share`): the command is a constant (vx, vy, wz)

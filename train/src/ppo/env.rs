@@ -268,6 +268,9 @@ pub struct EnvSettings {
     /// Weight of the `stance_lead` penalty (a lone stance foot more than
     /// `reward::STANCE_LEAD_MAX_M` ahead of the base while the token reads up). 0 (default): off.
     pub stance_lead_weight: f64,
+    /// Assisted climbs ([`super::assist`]): a share of the climbing columns' episodes at hard
+    /// levels with a decaying helping hand on the base. Off by default.
+    pub assist: super::assist::Assist,
 }
 
 /// The default share of episodes commanded to stand.
@@ -308,6 +311,7 @@ impl EnvSettings {
         base_height_weight: reward::WEIGHTS.base_height,
         up_lean_weight: reward::WEIGHTS.up_lean,
         stance_lead_weight: reward::WEIGHTS.stance_lead,
+        assist: super::assist::Assist::OFF,
     };
 }
 
@@ -344,6 +348,8 @@ pub struct EpisodeEnd {
     pub level: usize,
     /// A review episode ([`EnvSettings::review_share`]): below the frontier, moving no level.
     pub review: bool,
+    /// An assisted episode ([`EnvSettings::assist`]): moves no level, has its own success rate.
+    pub assisted: bool,
     pub success: bool,
     pub fell: bool,
     pub ret: f64,
@@ -375,6 +381,13 @@ pub struct StairEnv {
     episode_level: usize,
     /// The current episode reviews a level below the frontier and moves no level.
     review: bool,
+    /// The current episode's assistant strength (0: none; [`super::assist`]), and whether the
+    /// episode is an assisted one (it stays one once the strength has decayed to 0).
+    assist_strength: f64,
+    assisted: bool,
+    /// The strength the next assisted episode gets (the runner decays it with the env steps).
+    assist_now: f64,
+    robot_mass: f64,
     vx_cmd: f32,
     heading: f64,
     /// A joystick episode's constant command (vx, vy, wz), in place of heading hold.
@@ -424,6 +437,8 @@ pub struct StairEnv {
     held_level: Option<usize>,
     /// Command this forward speed in every episode (in-environment evaluation).
     held_vx: Option<f32>,
+    /// Assist every episode at this strength (in-environment evaluation; 0: none).
+    held_assist: f64,
     start_s: f64,
     pub last_end: Option<EpisodeEnd>,
 }
@@ -482,6 +497,10 @@ impl StairEnv {
             level,
             episode_level: level,
             review: false,
+            assist_strength: 0.0,
+            assisted: false,
+            assist_now: cfg.settings.assist.strength(0),
+            robot_mass: sim.robot_mass(),
             vx_cmd: 0.0,
             heading: 0.0,
             joystick: None,
@@ -519,6 +538,7 @@ impl StairEnv {
             ret: 0.0,
             held_level: None,
             held_vx: None,
+            held_assist: 0.0,
             start_s: 0.0,
             last_end: None,
             rng,
@@ -577,6 +597,7 @@ impl StairEnv {
                 standing: self.standing(),
                 level: self.episode_level,
                 review: self.review,
+                assisted: self.assisted,
                 success,
                 fell: self.fell,
                 cause: self.cause,
@@ -588,7 +609,7 @@ impl StairEnv {
             });
             if let Some(l) = self.held_level {
                 self.level = l;
-            } else if self.column != Column::Flat && !self.standing() && !self.review {
+            } else if self.column != Column::Flat && !self.standing() && !self.review && !self.assisted {
                 let walked_half = self.progress >= 0.5 * self.last_riser_s();
                 let floor = self.level_floor();
                 self.level = curriculum::next_level(self.level, success, walked_half, floor, &mut self.rng);
@@ -600,7 +621,21 @@ impl StairEnv {
             && self.column != Column::Flat
             && self.cfg.settings.review_share > 0.0
             && self.rng.chance(self.cfg.settings.review_share);
-        self.episode_level = curriculum::episode_level(self.level, self.level_floor(), self.review, &mut self.rng);
+        // Drawn only when enabled, so runs without assisted climbs keep their random streams.
+        let assist = self.cfg.settings.assist;
+        self.assisted =
+            self.held_level.is_none() && self.column.climbs() && assist.share > 0.0 && self.rng.chance(assist.share);
+        self.assist_strength = if self.assisted { self.assist_now } else { 0.0 };
+        self.episode_level = if self.assisted {
+            self.review = false;
+            self.rng.int(assist.levels.0 as u64, assist.levels.1 as u64) as usize
+        } else {
+            curriculum::episode_level(self.level, self.level_floor(), self.review, &mut self.rng)
+        };
+        if self.held_level.is_some() && self.held_assist > 0.0 {
+            self.assisted = true;
+            self.assist_strength = self.held_assist;
+        }
         self.world = curriculum::draw_world(self.column, self.episode_level, &mut self.rng);
         self.sim.set_world(&self.world)?;
         let r = self.cfg.settings.random;
@@ -617,7 +652,7 @@ impl StairEnv {
         self.token_phase = self.rng.int(0, self.timing.token_period as u64 - 1) as u32;
         self.vx_cmd = if let Some(vx) = self.held_vx {
             vx
-        } else if self.rng.chance(self.cfg.settings.stand_share) {
+        } else if !self.assisted && self.rng.chance(self.cfg.settings.stand_share) {
             0.0
         } else {
             self.rng.range(self.cfg.settings.vx.0, self.cfg.settings.vx.1) as f32
@@ -934,6 +969,9 @@ impl StairEnv {
         for k in 0..self.timing.decimation {
             let c = if k < self.latency { self.cmd_prev } else { self.cmd_now };
             self.sim.apply_command(&c)?;
+            if self.assist_strength > 0.0 {
+                self.apply_assist()?;
+            }
             self.sim.step_control_tick();
             self.sim.low_state(&mut self.state);
             self.watch_physics_step();
@@ -980,6 +1018,48 @@ impl StairEnv {
             terminated,
             truncated,
         })
+    }
+
+    /// The assistant's wrench on the base for the coming physics step ([`super::assist`]).
+    fn apply_assist(&mut self) -> anyhow::Result<()> {
+        let t = self.sim.truth();
+        let base = super::assist::BaseState {
+            quat: t.base_quat,
+            ang_vel_body: t.base_ang_vel_body,
+            lin_vel_world: t.base_lin_vel_world,
+            height: t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]),
+        };
+        let (force, torque) = super::assist::wrench(
+            self.assist_strength,
+            self.robot_mass,
+            &base,
+            self.target_heading(),
+            self.vx_cmd as f64,
+        );
+        self.sim.set_base_wrench(force, torque)?;
+        Ok(())
+    }
+
+    /// Assists every episode from the next reset on at `strength` (in-environment evaluation,
+    /// with [`StairEnv::hold`]; 0: none).
+    pub fn hold_assist(&mut self, strength: f64) {
+        self.held_assist = strength;
+    }
+
+    /// Sets the strength of the assisted episodes that start from now on ([`super::assist`]; the
+    /// runner decays it with the run's env steps).
+    pub fn set_assist_strength(&mut self, strength: f64) {
+        self.assist_now = strength;
+    }
+
+    /// The strength the next assisted episode starts with.
+    pub fn assist_now(&self) -> f64 {
+        self.assist_now
+    }
+
+    /// The current episode is an assisted one, and its assistant's strength.
+    pub fn assist(&self) -> (bool, f64) {
+        (self.assisted, self.assist_strength)
     }
 
     /// The supervisor's walls at one physics step. `g1fw`'s supervisor checks every 2 ms tick, so

@@ -26,6 +26,8 @@ pub struct InEnvOptions {
     pub episodes: usize,
     pub random: Randomization,
     pub episode_s: f64,
+    /// Every episode assisted at this strength ([`super::assist`]); 0: none, as on the robot.
+    pub assist: f64,
     pub seed: u64,
     pub threads: usize,
 }
@@ -79,6 +81,7 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
                     for &lane in ids {
                         let seed = opts.seed.wrapping_mul(1_000_003).wrapping_add(lane as u64);
                         let mut env = StairEnv::new(cfg.clone(), seed, weights)?;
+                        env.hold_assist(opts.assist);
                         env.hold(opts.level, opts.vx)?;
                         let mut mean = vec![0.0f32; env.net.output_dim()];
                         let mut done = 0;

@@ -30,6 +30,12 @@ pub struct IterLog {
     pub level_up: Option<f64>,
     #[serde(default)]
     pub level_down: Option<f64>,
+    /// Success of the assisted climbs (`--assist-share`; not in the rates above), and the strength
+    /// assisted episodes started with this iteration (histories before session 31 lack them).
+    #[serde(default)]
+    pub success_assisted: Option<f64>,
+    #[serde(default)]
+    pub assist_strength: f64,
     pub env_steps_per_s: f64,
     pub learner_share: f64,
     /// Wall time of this iteration's rollouts (the slowest worker) and of the update, s. They

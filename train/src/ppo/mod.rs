@@ -4,6 +4,8 @@
 //! - [`env`]: one environment (reset, step: simulator, randomisation, privileged token).
 //! - [`reward`]: every reward term and weight.
 //! - [`curriculum`]: terrain columns, levels and the worlds drawn for them.
+//! - [`assist`]: a decaying helping hand on the base for climbs the policy cannot yet do
+//!   (`--assist-share`).
 //! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
@@ -23,6 +25,7 @@
 //! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
 //!   against the paper (`g1-train success-curve`).
 pub mod algo;
+pub mod assist;
 pub mod average;
 pub mod critic_file;
 pub mod curriculum;

@@ -151,6 +151,11 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let bar = labkit::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
     while state.iteration < cfg.iterations {
+        // Assisted episodes that start from now on get the strength the run's env steps leave.
+        let strength = cfg.env.assist.strength(state.env_steps);
+        for s in slots.iter_mut() {
+            s.env.set_assist_strength(strength);
+        }
         let Some(step) = pipe.step(cfg, &mut slots, &ac, &mut learner, &mut state, dims)? else {
             continue; // nothing learned yet: the first half-rollout only primes the pipeline
         };
@@ -524,11 +529,13 @@ impl Pipeline {
 fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
     let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
     use super::curriculum::Column;
-    // Stand commands have no success to score; reviews are below the frontier these rates follow.
+    // Stand commands have no success to score; reviews are below the frontier these rates follow,
+    // and assisted climbs are helped.
     let stair_ends: Vec<_> = ends
         .iter()
-        .filter(|e| e.column != Some(Column::Flat) && !e.standing && !e.review)
+        .filter(|e| e.column != Some(Column::Flat) && !e.standing && !e.review && !e.assisted)
         .collect();
+    let assisted: Vec<_> = ends.iter().filter(|e| e.assisted).collect();
     let going_up = |c: Option<Column>| c.is_some_and(Column::climbs);
     let going_down = |c: Option<Column>| matches!(c, Some(Column::Down | Column::OutdoorDown));
     let rate = |which: &dyn Fn(Option<Column>) -> bool| {
@@ -561,12 +568,20 @@ fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) 
         mean_level: slots.iter().map(|s| s.env.level as f64).sum::<f64>() / slots.len() as f64,
         level_up: level(&going_up),
         level_down: level(&going_down),
+        success_assisted: (!assisted.is_empty())
+            .then(|| assisted.iter().filter(|e| e.success).count() as f64 / assisted.len() as f64),
+        assist_strength: assist_strength_now(slots),
         env_steps_per_s: step.env_steps as f64 / step.t_iter,
         learner_share: step.t_learn / step.t_iter,
         rollout_s: step.t_rollout,
         update_s: step.t_learn,
         update: step.stats,
     }
+}
+
+/// The strength assisted episodes start with now (the same in every environment).
+fn assist_strength_now(slots: &[Slot]) -> f64 {
+    slots.first().map_or(0.0, |s| s.env.assist_now())
 }
 
 impl IterLog {

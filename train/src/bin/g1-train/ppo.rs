@@ -230,6 +230,22 @@ pub struct Args {
     /// over the leading one). 0 (default): off.
     #[arg(long, default_value_t = penalty_size(train::ppo::reward::WEIGHTS.stance_lead), value_name = "P", value_parser = parse_stance_lead)]
     stance_lead: f64,
+    /// Share of the climbing columns' episodes that are assisted: a helping hand on the base
+    /// (a quarter of the weight carried, the torso held upright and its spin damped, a sinking base
+    /// lifted, a pull along the staircase up to the commanded speed) that decays to nothing over
+    /// --assist-decay env steps, on staircases
+    /// drawn from --assist-levels. They move no curriculum level and have their own success rate.
+    /// For climbs the policy cannot yet do alone (docs/stair_policy.md, session 31). 0 (default): off.
+    #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_assist_share)]
+    assist_share: f64,
+    /// Curriculum levels of the assisted episodes' staircases, LO,HI (0: 5 cm … 10: 26 cm; 6,8:
+    /// 17.6–22 cm).
+    #[arg(long, default_value = "6,8", value_name = "LO,HI", value_parser = parse_assist_levels)]
+    assist_levels: (usize, usize),
+    /// Env steps of the run over which the assistant's strength falls linearly from full to
+    /// nothing (counted from the run's start, across resumes).
+    #[arg(long, default_value_t = 15e6, value_name = "STEPS", value_parser = parse_assist_decay)]
+    assist_decay: f64,
     /// Checkpoint at least this often, s.
     #[arg(long, default_value_t = 120.0)]
     checkpoint_every: f64,
@@ -285,6 +301,11 @@ impl Args {
             base_height_weight: -self.base_height,
             up_lean_weight: -self.up_lean,
             stance_lead_weight: -self.stance_lead,
+            assist: train::ppo::assist::Assist {
+                share: self.assist_share,
+                levels: self.assist_levels,
+                decay_steps: self.assist_decay as u64,
+            },
         }
     }
 }
@@ -544,6 +565,34 @@ fn parse_stance_lead(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "stance-lead", "5")
 }
 
+fn parse_assist_share(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (0.0..=1.0).contains(&v),
+        "the share of climbing episodes that are assisted, in [0, 1], e.g. 0.5",
+    )
+}
+
+fn parse_assist_decay(s: &str) -> Result<f64, String> {
+    parse_number(
+        s,
+        |v| (1.0..=1e10).contains(&v),
+        "the env steps over which the assistant fades, from 1 to 1e10, e.g. 15e6",
+    )
+}
+
+/// `--assist-levels LO,HI`: curriculum levels with LO <= HI.
+fn parse_assist_levels(s: &str) -> Result<(usize, usize), String> {
+    let top = train::ppo::curriculum::LEVELS - 1;
+    let bad = || format!("'{s}': give LO,HI curriculum levels with 0 <= LO <= HI <= {top}, e.g. 6,8");
+    let (a, b) = s.split_once(',').ok_or_else(bad)?;
+    let (a, b) = (parse_level(a).map_err(|_| bad())?, parse_level(b).map_err(|_| bad())?);
+    if a > b {
+        return Err(bad());
+    }
+    Ok((a, b))
+}
+
 fn parse_drift_penalty(s: &str) -> Result<f64, String> {
     parse_penalty_size(s, "drift", "2")
 }
@@ -668,6 +717,12 @@ mod tests {
             "4",
             "--stance-lead",
             "5",
+            "--assist-share",
+            "0.5",
+            "--assist-levels",
+            "5,7",
+            "--assist-decay",
+            "12e6",
         ]);
         let want = train::ppo::env::EnvSettings {
             episode_s: 9.0,
@@ -699,6 +754,11 @@ mod tests {
             base_height_weight: -5.0,
             up_lean_weight: -4.0,
             stance_lead_weight: -5.0,
+            assist: train::ppo::assist::Assist {
+                share: 0.5,
+                levels: (5, 7),
+                decay_steps: 12_000_000,
+            },
         };
         assert_eq!(set, want);
     }
@@ -765,6 +825,16 @@ mod tests {
         assert!(parse_up_lean("-4").unwrap_err().contains("[0, 50]"));
         assert_eq!(parse_stance_lead("5"), Ok(5.0));
         assert!(parse_stance_lead("NaN").is_err());
+        assert_eq!(parse_assist_share("0.5"), Ok(0.5));
+        for bad in ["-0.1", "1.5", "NaN", "some"] {
+            assert!(parse_assist_share(bad).unwrap_err().contains("[0, 1]"), "{bad}");
+        }
+        assert_eq!(parse_assist_levels("6,8"), Ok((6, 8)));
+        for bad in ["8,6", "6", "6,11", "a,b"] {
+            assert!(parse_assist_levels(bad).unwrap_err().contains("LO,HI"), "{bad}");
+        }
+        assert_eq!(parse_assist_decay("15e6"), Ok(15e6));
+        assert!(parse_assist_decay("0").is_err() && parse_assist_decay("NaN").is_err());
         for bad in ["-1", "60", "NaN", "high"] {
             assert!(parse_riser_clearance(bad).unwrap_err().contains("[0, 50]"), "{bad}");
         }

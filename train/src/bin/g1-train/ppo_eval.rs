@@ -30,6 +30,10 @@ pub struct Args {
     randomization: bool,
     #[arg(long, default_value_t = 20.0)]
     episode_s: f64,
+    /// Run every episode assisted at this strength (0–1; `g1-train ppo --assist-share`'s helping
+    /// hand on the base). 0 (default): no help, as on the robot.
+    #[arg(long, default_value_t = 0.0)]
+    assist: f64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
     #[arg(long, default_value_t = default_jobs())]
@@ -50,10 +54,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vx,
         randomization,
         episode_s,
+        assist,
         seed,
         threads,
         json,
     } = args;
+    anyhow::ensure!((0.0..=1.0).contains(&assist), "--assist must be a strength from 0 to 1");
     anyhow::ensure!((1..=100_000).contains(&episodes), "--episodes must be 1 to 100000");
     anyhow::ensure!(
         levels.iter().all(|&l| l < train::ppo::env::LEVELS),
@@ -91,6 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                         train::ppo::env::Randomization::NONE
                     },
                     episode_s,
+                    assist,
                     seed,
                     threads,
                 },
