@@ -17,9 +17,11 @@ start=$(date +%s)
 # of downloads on a fresh machine that otherwise came before the first compile.
 scripts/install.sh --for-build
 cargo fmt --all -- --check
-# Integration tests start the g1fw and g1-sim binaries: build them first.
+# Integration tests start the g1fw and g1-sim binaries: build them first, and every test target
+# with them (what `cargo test` below would compile: unit tests, integration tests, examples), so
+# the compiler has work for both cores while the big binaries link; `cargo test` then only runs.
 kill_tree() { local c; for c in $(pgrep -P "$1"); do kill_tree "$c"; done; kill "$1" 2>/dev/null || true; }
-cargo build --release --workspace --bins &
+cargo build --release --workspace --bins --tests --examples &
 build_pid=$!
 set +e
 scripts/install.sh; install_status=$?
