@@ -1124,7 +1124,7 @@ fn axis_angle_quat(axis: usize, angle: f64) -> [f64; 4] {
 }
 
 /// Row-major rotation matrix of a unit quaternion (w, x, y, z).
-fn quat_to_mat(q: [f64; 4]) -> [f64; 9] {
+pub fn quat_to_mat(q: [f64; 4]) -> [f64; 9] {
     let [w, x, y, z] = q;
     [
         1.0 - 2.0 * (y * y + z * z),

@@ -97,11 +97,11 @@ pub fn wrench(strength: f64, mass: f64, base: &BaseState, heading: f64, vx_cmd: 
         return ([0.0; 3], [0.0; 3]);
     }
     let weight = mass * 9.81;
-    let r = rotation(base.quat);
+    let r = g1_sim::quat_to_mat(base.quat);
     // The base's up axis and its angular velocity, in the world.
-    let up = [r[0][2], r[1][2], r[2][2]];
+    let up = [r[2], r[5], r[8]];
     let w = base.ang_vel_body;
-    let w_world: [f64; 3] = std::array::from_fn(|i| r[i][0] * w[0] + r[i][1] * w[1] + r[i][2] * w[2]);
+    let w_world: [f64; 3] = std::array::from_fn(|i| r[3 * i] * w[0] + r[3 * i + 1] * w[1] + r[3 * i + 2] * w[2]);
     // up × e_z turns the up axis back to vertical, |·| = sin(tilt); yaw is left alone.
     let torque = [
         strength * (UPRIGHT_STIFFNESS * up[1] - UPRIGHT_DAMPING * w_world[0]),
@@ -124,28 +124,6 @@ pub fn wrench(strength: f64, mass: f64, base: &BaseState, heading: f64, vx_cmd: 
         strength * (SUPPORT_SHARE * weight + lift),
     ];
     (force, torque)
-}
-
-/// Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
-fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
-    let [w, x, y, z] = q;
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
 }
 
 #[cfg(test)]
