@@ -102,7 +102,7 @@ pub fn wrench(strength: f64, mass: f64, base: &BaseState, heading: f64, vx_cmd: 
     let up = [r[2], r[5], r[8]];
     let w = base.ang_vel_body;
     let w_world: [f64; 3] = std::array::from_fn(|i| r[3 * i] * w[0] + r[3 * i + 1] * w[1] + r[3 * i + 2] * w[2]);
-    // up × e_z turns the up axis back to vertical, |·| = sin(tilt); yaw is left alone.
+    // up × e_z turns the up axis back to vertical, |·| = sin(tilt); yaw is only damped.
     let torque = [
         strength * (UPRIGHT_STIFFNESS * up[1] - UPRIGHT_DAMPING * w_world[0]),
         strength * (-UPRIGHT_STIFFNESS * up[0] - UPRIGHT_DAMPING * w_world[1]),

@@ -1052,11 +1052,6 @@ impl StairEnv {
         self.assist_now = strength;
     }
 
-    /// The strength the next assisted episode starts with.
-    pub fn assist_now(&self) -> f64 {
-        self.assist_now
-    }
-
     /// The current episode is an assisted one, and its assistant's strength.
     pub fn assist(&self) -> (bool, f64) {
         (self.assisted, self.assist_strength)

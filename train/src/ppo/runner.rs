@@ -162,7 +162,13 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         state.env_steps += step.env_steps;
         state.iteration += 1;
         state.lr = learner.lr;
-        let log = iteration_log(&mut slots, &state, step, wall0 + start.elapsed().as_secs_f64());
+        let log = iteration_log(
+            &mut slots,
+            &state,
+            step,
+            strength,
+            wall0 + start.elapsed().as_secs_f64(),
+        );
         bar.set_message(log.summary());
         bar.inc(1);
         if cfg.quiet {
@@ -526,7 +532,8 @@ impl Pipeline {
 }
 
 /// The iteration's figures, from the episodes that ended since the last one.
-fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) -> IterLog {
+/// `assist_strength`: what this iteration's assisted episodes started with.
+fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, assist_strength: f64, wall_s: f64) -> IterLog {
     let ends: Vec<_> = slots.iter_mut().flat_map(|s| s.ends.drain(..)).collect();
     use super::curriculum::Column;
     // Stand commands have no success to score; reviews are below the frontier these rates follow,
@@ -570,18 +577,13 @@ fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, wall_s: f64) 
         level_down: level(&going_down),
         success_assisted: (!assisted.is_empty())
             .then(|| assisted.iter().filter(|e| e.success).count() as f64 / assisted.len() as f64),
-        assist_strength: assist_strength_now(slots),
+        assist_strength,
         env_steps_per_s: step.env_steps as f64 / step.t_iter,
         learner_share: step.t_learn / step.t_iter,
         rollout_s: step.t_rollout,
         update_s: step.t_learn,
         update: step.stats,
     }
-}
-
-/// The strength assisted episodes start with now (the same in every environment).
-fn assist_strength_now(slots: &[Slot]) -> f64 {
-    slots.first().map_or(0.0, |s| s.env.assist_now())
 }
 
 impl IterLog {

@@ -233,9 +233,9 @@ pub struct Args {
     /// Share of the climbing columns' episodes that are assisted: a helping hand on the base
     /// (a quarter of the weight carried, the torso held upright and its spin damped, a sinking base
     /// lifted, a pull along the staircase up to the commanded speed) that decays to nothing over
-    /// --assist-decay env steps, on staircases
-    /// drawn from --assist-levels. They move no curriculum level and have their own success rate.
-    /// For climbs the policy cannot yet do alone (docs/stair_policy.md, session 31). 0 (default): off.
+    /// --assist-decay env steps, on staircases drawn from --assist-levels. They move no curriculum
+    /// level and have their own success rate. For climbs the policy cannot yet do alone
+    /// (docs/stair_policy.md, session 31). 0 (default): off.
     #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_assist_share)]
     assist_share: f64,
     /// Curriculum levels of the assisted episodes' staircases, LO,HI (0: 5 cm … 10: 26 cm; 6,8:
