@@ -9,6 +9,10 @@
 //!   10 / 20 iterations);
 //! - Training + terrain pool: the same with 24 pooled boxes holding the `stairs-up` world.
 //!
+//! - and what reading the base costs beside a step, on the last setting: `truth()` (contacts,
+//!   terrain token, stair progress as well) against `base_kinematics()` (pose and velocities
+//!   only), which the trainer reads at every physics step.
+//!
 //! Each figure is the median of 5 runs of 4000 steps after 200 warm-up steps. Run:
 //! `cargo bench -p g1_sim --bench physics_step` (figures on stdout).
 use std::time::Instant;
@@ -66,6 +70,27 @@ fn sim_us(choice: ModelChoice, physics: PhysicsProfile, pool: bool) -> (f64, usi
     (us, sim.data().contact().len())
 }
 
+/// µs per `mj_step`, per `truth()` and per `base_kinematics()` on the training profile over the
+/// pooled `stairs-up` world, the robot standing at its start.
+fn readout_us() -> (f64, f64, f64) {
+    let config = SimConfig {
+        physics_dt: DT,
+        control_dt: DT,
+        physics: PhysicsProfile::Training,
+        ..SimConfig::default()
+    };
+    let mut sim = Simulator::load_with_terrain_capacity(ModelChoice::G1_12Dof, config, 24, 0).unwrap();
+    sim.set_world(&World::preset("stairs-up").unwrap()).unwrap();
+    sim.reset();
+    sim.apply_command(&sim.hold_initial_pose_command()).unwrap();
+    let step = time_us(|| sim.step_control_tick());
+    let mut sink = 0.0;
+    let truth = time_us(|| sink += std::hint::black_box(sim.truth()).base_pos[2]);
+    let base = time_us(|| sink += std::hint::black_box(sim.base_kinematics()).pos[2]);
+    assert!(sink.is_finite());
+    (step, truth, base)
+}
+
 /// The shipped 12-dof MJCF with the PD computed in the loop (what `g1_sim` did before, minus
 /// its edits).
 fn bare_12dof_us() -> (f64, usize) {
@@ -117,4 +142,12 @@ fn main() {
             }
         );
     }
+    let (step, truth, base) = readout_us();
+    println!(
+        "12-dof Training + pool: truth() {truth:.3} µs ({:.1} % of a step), base_kinematics() {base:.3} µs \
+         ({:.1} %); truth / base_kinematics = {:.1}x",
+        100.0 * truth / step,
+        100.0 * base / step,
+        truth / base
+    );
 }

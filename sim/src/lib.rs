@@ -51,6 +51,21 @@ use model::{PoolGeom, SlotMap};
 use mujoco_rs::prelude::*;
 pub use sim_hal::bridge::Truth;
 
+/// The floating base's pose and velocities ([`Simulator::base_kinematics`]), as in [`Truth`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BaseKinematics {
+    /// Position in the world, m.
+    pub pos: [f64; 3],
+    /// Orientation, w x y z.
+    pub quat: [f64; 4],
+    /// Linear velocity, world frame, m/s.
+    pub lin_vel_world: [f64; 3],
+    /// Linear velocity, body frame, m/s.
+    pub lin_vel_body: [f64; 3],
+    /// Angular velocity, body frame, rad/s.
+    pub ang_vel_body: [f64; 3],
+}
+
 /// Keeps MuJoCo from writing `MUJOCO_LOG.TXT` into the working directory: its warnings still go to
 /// the console. Call first thing in `main`, before any thread or MuJoCo object exists.
 pub fn no_mujoco_log_file() {
@@ -954,12 +969,13 @@ impl Simulator {
         out.reserve = [0; 4];
     }
 
-    /// Privileged ground truth of the current state.
-    pub fn truth(&self) -> Truth {
+    /// The floating base's pose and velocities now: the part of [`Simulator::truth`] that needs
+    /// no contact scan and no terrain query, for code that reads the base at every physics step
+    /// (the trainer's supervisor walls and its assistant).
+    pub fn base_kinematics(&self) -> BaseKinematics {
         let d = &self.data;
-        let m = d.model();
         let quat = self.base_quat();
-        let (pos, v_world, w_body) = match (self.root_qpos_adr, self.root_dof_adr) {
+        let (pos, lin_vel_world, ang_vel_body) = match (self.root_qpos_adr, self.root_dof_adr) {
             (Some(qa), Some(da)) => {
                 let (q, v) = (d.qpos(), d.qvel());
                 // Free joint: qvel[0..3] is the world-frame linear velocity, qvel[3..6] the
@@ -979,8 +995,21 @@ impl Simulator {
                 (d.xpos()[self.pelvis_body], [c[3], c[4], c[5]], mat_t_vec(&r, &w_world))
             }
         };
-        let r = quat_to_mat(quat);
-        let v_body = mat_t_vec(&r, &v_world);
+        BaseKinematics {
+            pos,
+            quat,
+            lin_vel_world,
+            lin_vel_body: mat_t_vec(&quat_to_mat(quat), &lin_vel_world),
+            ang_vel_body,
+        }
+    }
+
+    /// Privileged ground truth of the current state.
+    pub fn truth(&self) -> Truth {
+        let d = &self.data;
+        let m = d.model();
+        let base = self.base_kinematics();
+        let (pos, quat) = (base.pos, base.quat);
 
         let mut foot_contact = [false; 2];
         let (gb, rootid) = (m.geom_bodyid(), m.body_rootid());
@@ -1006,9 +1035,9 @@ impl Simulator {
             sim_time_s: d.time(),
             base_pos: pos,
             base_quat: quat,
-            base_lin_vel_world: v_world,
-            base_lin_vel_body: v_body,
-            base_ang_vel_body: w_body,
+            base_lin_vel_world: base.lin_vel_world,
+            base_lin_vel_body: base.lin_vel_body,
+            base_ang_vel_body: base.ang_vel_body,
             foot_contact,
             terrain,
             ground_height_m: self.world.as_ref().map_or(0.0, |w| w.ground_height(pos[0], pos[1])),

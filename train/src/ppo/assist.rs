@@ -54,9 +54,9 @@ impl Assist {
     };
 
     /// The assistant's strength after `env_steps` of the run: 1 at the start, 0 from
-    /// `decay_steps` on.
+    /// `decay_steps` on, and always 0 in a run without assisted episodes (as its log says).
     pub fn strength(&self, env_steps: u64) -> f64 {
-        if self.decay_steps == 0 {
+        if self.decay_steps == 0 || self.share <= 0.0 {
             return 0.0;
         }
         (1.0 - env_steps as f64 / self.decay_steps as f64).clamp(0.0, 1.0)
@@ -151,6 +151,7 @@ mod tests {
         assert_eq!(a.strength(1000), 0.0);
         assert_eq!(a.strength(5000), 0.0);
         assert_eq!(Assist { decay_steps: 0, ..a }.strength(0), 0.0);
+        assert_eq!(Assist::OFF.strength(0), 0.0);
     }
 
     #[test]

@@ -725,8 +725,8 @@ impl StairEnv {
                 .map(|f| feet[f][2] - self.ground(feet[f][0], feet[f][1]))
                 .sum::<f64>();
         self.refresh_token(true);
-        let t = self.sim.truth();
-        self.start_s = self.axis_s(t.base_pos[0], t.base_pos[1]);
+        let b = self.sim.base_kinematics();
+        self.start_s = self.axis_s(b.pos[0], b.pos[1]);
         Ok(())
     }
 
@@ -813,9 +813,9 @@ impl StairEnv {
         if !force && !(self.step as u32 + self.token_phase).is_multiple_of(self.timing.token_period) {
             return;
         }
-        let t = self.sim.truth();
-        let yaw = yaw_of(t.base_quat);
-        let (mut z, riser) = self.world.labelled_truth(t.base_pos[0], t.base_pos[1], yaw);
+        let b = self.sim.base_kinematics();
+        let yaw = yaw_of(b.quat);
+        let (mut z, riser) = self.world.labelled_truth(b.pos[0], b.pos[1], yaw);
         let n = self.cfg.settings.random.token_noise;
         if z.class != TerrainClass::Flat {
             z.step_height_m += (n[0] * self.rng.gaussian()) as f32;
@@ -870,7 +870,7 @@ impl StairEnv {
 
     /// The base's position in the world (the simulator's; the robot starts at the origin), m.
     pub fn base_position(&self) -> [f64; 3] {
-        self.sim.truth().base_pos
+        self.sim.base_kinematics().pos
     }
 
     /// The target heading of a heading-hold episode (the staircase axis, or 0 on flat ground, with
@@ -1022,12 +1022,12 @@ impl StairEnv {
 
     /// The assistant's wrench on the base for the coming physics step ([`super::assist`]).
     fn apply_assist(&mut self) -> anyhow::Result<()> {
-        let t = self.sim.truth();
+        let b = self.sim.base_kinematics();
         let base = super::assist::BaseState {
-            quat: t.base_quat,
-            ang_vel_body: t.base_ang_vel_body,
-            lin_vel_world: t.base_lin_vel_world,
-            height: t.base_pos[2] - self.ground(t.base_pos[0], t.base_pos[1]),
+            quat: b.quat,
+            ang_vel_body: b.ang_vel_body,
+            lin_vel_world: b.lin_vel_world,
+            height: b.pos[2] - self.ground(b.pos[0], b.pos[1]),
         };
         let (force, torque) = super::assist::wrench(
             self.assist_strength,
@@ -1068,9 +1068,9 @@ impl StairEnv {
             too_fast |= self.limits.joint_too_fast(slot, dq);
         }
         if self.physics_step_trip.is_none() {
-            let t = self.sim.truth();
-            let g = estimator::projected_gravity(t.base_quat.map(|x| x as f32));
-            let w = t.base_ang_vel_body.map(|x| x as f32);
+            let b = self.sim.base_kinematics();
+            let g = estimator::projected_gravity(b.quat.map(|x| x as f32));
+            let w = b.ang_vel_body.map(|x| x as f32);
             // The base height is the field's termination, not the supervisor's: judged per policy step.
             self.physics_step_trip = termination::cause(&self.limits, -g[2], too_fast, f64::INFINITY, w);
         }
