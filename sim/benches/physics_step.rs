@@ -7,10 +7,9 @@
 //!   implicit PD actuators, implicitfast);
 //! - Training: `PhysicsProfile::Training` (feet and shins against the world only, frictionloss 0,
 //!   10 / 20 iterations);
-//! - Training + terrain pool: the same with 24 pooled boxes holding the `stairs-up` world.
-//!
-//! - and what reading the base costs beside a step, on the last setting: `truth()` (contacts,
-//!   terrain token, stair progress as well) against `base_kinematics()` (pose and velocities
+//! - Training + terrain pool: the same with 24 pooled boxes holding the `stairs-up` world;
+//! - and, on that last setting, what reading the base costs beside a step: `truth()` (contacts,
+//!   terrain token and stair progress as well) against `base_kinematics()` (pose and velocities
 //!   only), which the trainer reads at every physics step.
 //!
 //! Each figure is the median of 5 runs of 4000 steps after 200 warm-up steps. Run:
