@@ -87,7 +87,8 @@ fn whole_loop(
             vx: (0.4, 0.8),
             ..EnvSettings::DEFAULT
         },
-        checkpoint_every_s: f64::INFINITY,
+        checkpoint_every: usize::MAX,
+        accept_recipe_change: false,
         quiet: true,
         max_wall_s: f64::INFINITY,
         judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),

@@ -41,7 +41,8 @@ fn flat_run(out: &std::path::Path, judge: JudgeConfig) -> RunConfig {
         critic_warmup: 2,
         ppo: Default::default(),
         env: common::flat_settings(2.0),
-        checkpoint_every_s: f64::INFINITY,
+        checkpoint_every: usize::MAX,
+        accept_recipe_change: false,
         quiet: true,
         max_wall_s: f64::INFINITY,
         judge,
@@ -108,7 +109,7 @@ fn a_judge_that_fails_does_not_end_training() {
         envs: 2,
         threads: 1,
         seed: 5,
-        checkpoint_every_s: 0.0,
+        checkpoint_every: 1,
         ..flat_run(
             &out,
             JudgeConfig {

@@ -41,7 +41,8 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
             ..Default::default()
         },
         env: common::flat_settings(2.0),
-        checkpoint_every_s: f64::INFINITY,
+        checkpoint_every: usize::MAX,
+        accept_recipe_change: false,
         quiet: true,
         max_wall_s: f64::INFINITY,
         judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),
@@ -72,11 +73,12 @@ fn ppo_return_rises_on_a_small_budget_and_resumes() {
     // Resume: two more iterations continue the count and the history.
     cfg.iterations = 32;
     let h2 = train(&cfg).expect("resumes");
-    // --max-wall: a run out of time checkpoints and stops after the iteration it is in.
+    // --max-wall: a run out of time stops at its next checkpoint (here after every iteration).
     let mut capped = cfg.clone();
     capped.out = out.with_extension("capped");
     capped.iterations = 1000;
     capped.max_wall_s = 0.0;
+    capped.checkpoint_every = 1;
     let _ = std::fs::remove_dir_all(&capped.out);
     let hc = train(&capped).expect("a capped run");
     assert_eq!(hc.len(), 1, "--max-wall 0 stops after the first iteration");
@@ -203,7 +205,8 @@ fn short_run(out: &Path, threads: usize) -> (Vec<u8>, Vec<f64>) {
             vx: (0.4, 0.8),
             ..EnvSettings::DEFAULT
         },
-        checkpoint_every_s: f64::INFINITY,
+        checkpoint_every: usize::MAX,
+        accept_recipe_change: false,
         quiet: true,
         max_wall_s: f64::INFINITY,
         judge: train::ppo::judge::JudgeConfig::standard(0, "g1-12dof"),

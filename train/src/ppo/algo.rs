@@ -4,8 +4,9 @@
 //! started from, resetting where an episode started), with the clipped surrogate, clipped value
 //! loss, entropy bonus, gradient-norm clipping and the adaptive-KL learning rate.
 use candle_core::{Device, Tensor, Var};
-use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use labkit::rng::Rng;
+
+use super::adam::Adam;
 
 use super::policy::ActorCritic;
 use super::symmetry::{Mirror, SignedPermutation};
@@ -215,26 +216,19 @@ pub struct UpdateStats {
     pub mean_std: f64,
 }
 
+/// The learning side of a run: everything a checkpoint must hold to step as the run that went on
+/// would have (the optimizers' moments and step counts, the adaptive rate, the minibatch shuffle).
 pub struct Learner {
     pub cfg: PpoConfig,
-    opt: AdamW,
-    critic_opt: AdamW,
-    vars: Vec<Var>,
+    /// Every variable (actor, noise, critic).
+    pub opt: Adam,
+    /// The critic alone, for the critic's warm-up.
+    pub critic_opt: Adam,
     pub lr: f64,
-    rng: Rng,
+    /// Shuffles the minibatches.
+    pub rng: Rng,
     /// Symmetry augmentation (MLP actors only: a mirrored LSTM state is not defined).
     mirror: Option<Mirror>,
-}
-
-fn adam(vars: Vec<Var>, lr: f64) -> candle_core::Result<AdamW> {
-    AdamW::new(
-        vars,
-        ParamsAdamW {
-            lr,
-            weight_decay: 0.0,
-            ..ParamsAdamW::default()
-        },
-    )
 }
 
 impl Learner {
@@ -248,9 +242,8 @@ impl Learner {
             "symmetry augmentation and a spec with [policy] mirror = \"average\" do not go together: that policy is symmetric by construction"
         );
         Ok(Self {
-            opt: adam(ac.all_vars(), cfg.lr)?,
-            critic_opt: adam(ac.critic_vars(), 1e-3)?,
-            vars: ac.all_vars(),
+            opt: Adam::new(ac.named_vars(), cfg.lr),
+            critic_opt: Adam::new(ac.named_critic_vars(), 1e-3),
             lr: cfg.lr,
             cfg,
             rng: Rng(seed ^ 0x11EA_12E2),
@@ -382,7 +375,7 @@ impl Learner {
                 } else if kl < 0.5 * cfg.desired_kl && kl > 0.0 {
                     self.lr = (self.lr * 1.5).min(1e-2);
                 }
-                self.opt.set_learning_rate(self.lr);
+                self.opt.lr = self.lr;
 
                 let inv_std = log_std.neg()?.exp()?;
                 let z = (&act - &mean)?.broadcast_mul(&inv_std)?;
@@ -396,7 +389,7 @@ impl Learner {
                     (log_std.sum_all()? + a as f64 * 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln())?;
                 let loss = ((&surrogate + (&vl * cfg.value_coef)?)? - (&entropy * cfg.entropy_coef)?)?;
                 let mut grads = loss.backward()?;
-                clip_grad_norm(&mut grads, &self.vars, cfg.max_grad_norm)?;
+                clip_grad_norm(&mut grads, &self.opt.vars, cfg.max_grad_norm)?;
                 self.opt.step(&grads)?;
 
                 stats.surrogate += surrogate.to_scalar::<f32>()? as f64;
@@ -491,9 +484,15 @@ fn pair(s: &State0) -> Option<(&Tensor, &Tensor)> {
     s.as_ref().map(|(h, c)| (h, c))
 }
 
-fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[Var], max: f64) -> candle_core::Result<()> {
+/// Scales the gradients down to norm `max` when above it; `vars` in a fixed order, so the sum of
+/// squares (and so the result) is the same in every process.
+fn clip_grad_norm(
+    grads: &mut candle_core::backprop::GradStore,
+    vars: &[(String, Var)],
+    max: f64,
+) -> candle_core::Result<()> {
     let mut sq = 0.0f64;
-    for v in vars {
+    for (_, v) in vars {
         if let Some(g) = grads.get(v.as_tensor()) {
             sq += g.sqr()?.sum_all()?.to_scalar::<f32>()? as f64;
         }
@@ -501,7 +500,7 @@ fn clip_grad_norm(grads: &mut candle_core::backprop::GradStore, vars: &[Var], ma
     let norm = sq.sqrt();
     if norm > max {
         let k = max / (norm + 1e-6);
-        for v in vars {
+        for (_, v) in vars {
             if let Some(g) = grads.get(v.as_tensor()) {
                 let scaled = (g * k)?;
                 grads.insert(v.as_tensor(), scaled);

@@ -577,6 +577,16 @@ impl StairEnv {
         self.reset()
     }
 
+    /// Drops the episode in progress without scoring it, takes a new random stream from `seed`,
+    /// and starts afresh in `column` at `level`: what a freshly made environment does after
+    /// `place`, whatever this one ran before (a checkpoint restarts every environment this way,
+    /// in the run that goes on and in the one that resumes it).
+    pub fn restart(&mut self, seed: u64, column: Column, level: usize) -> anyhow::Result<()> {
+        self.rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5747_5254);
+        self.last_end = None;
+        self.place(column, level)
+    }
+
     /// Holds the curriculum at `level` and the forward command at `vx` from now on, and starts a
     /// new episode there (in-environment evaluation).
     pub fn hold(&mut self, level: usize, vx: f32) -> anyhow::Result<()> {

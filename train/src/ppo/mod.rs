@@ -9,12 +9,14 @@
 //! - [`termination`]: when an episode ends early (the supervisor's walls, a base too low).
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
+//! - [`checkpoint`]: the whole run in one file (weights, optimizers, normaliser, counters, streams).
 //! - [`critic_file`]: the critic, its normaliser and the action noise, saved beside each actor.
 //! - [`elu_op`]: ELU as one op with a one-loop backward.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`stair_turn`]: commanded turns off a staircase's axis (`--stair-turns`).
 //! - [`rollout`]: environments stepping the actor with exploration noise.
+//! - [`adam`]: Adam with its moments in the open (checkpoints hold them).
 //! - [`algo`]: rollout storage, GAE and the PPO update.
 //! - [`runner`]: the loop (a pipeline of rollout and update on worker threads), checkpoints, curves.
 //! - [`iter_log`]: one iteration's figures.
@@ -24,9 +26,11 @@
 //! - [`average`]: the weighted average of snapshots of one fine-tune (`g1-train average-actors`).
 //! - [`success_curve`]: stair success through `g1fw eval` against env steps, and per riser height
 //!   against the paper (`g1-train success-curve`).
+pub mod adam;
 pub mod algo;
 pub mod assist;
 pub mod average;
+pub mod checkpoint;
 pub mod critic_file;
 pub mod curriculum;
 pub mod elu_op;

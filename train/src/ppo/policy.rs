@@ -559,17 +559,21 @@ impl ActorCritic {
         crate::tensor_file::serialize(&tensors, None)
     }
 
-    /// All trainable variables.
-    pub fn all_vars(&self) -> Vec<Var> {
-        self.vars.all_vars()
+    /// Every variable with its name, in name order (a hash map's order differs between
+    /// processes; sums over the variables must not).
+    pub fn named_vars(&self) -> Vec<(String, Var)> {
+        let data = self.vars.data().lock().expect("var map lock");
+        let mut v: Vec<_> = data.iter().map(|(k, v)| (k.clone(), v.clone())).collect();
+        v.sort_by(|a, b| a.0.cmp(&b.0));
+        v
     }
 
-    /// Critic variables only (the critic warm-up trains the critic alone).
-    pub fn critic_vars(&self) -> Vec<Var> {
-        let data = self.vars.data().lock().unwrap();
-        let mut names: Vec<_> = data.keys().filter(|k| k.starts_with("critic.")).cloned().collect();
-        names.sort();
-        names.iter().map(|n| data[n].clone()).collect()
+    /// The critic's variables with their names, in name order.
+    pub fn named_critic_vars(&self) -> Vec<(String, Var)> {
+        self.named_vars()
+            .into_iter()
+            .filter(|(k, _)| k.starts_with("critic."))
+            .collect()
     }
 
     pub fn save(&self, path: &Path) -> Result<()> {

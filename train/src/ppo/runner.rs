@@ -60,10 +60,16 @@ pub struct RunConfig {
     pub ppo: PpoConfig,
     /// How environments are drawn, commanded and rewarded.
     pub env: super::env::EnvSettings,
-    pub checkpoint_every_s: f64,
+    /// Checkpoint every this many iterations. Each checkpoint restarts every environment (see
+    /// [`super::checkpoint`]), so this is part of the recipe: the grid is what makes a resumed
+    /// run the run that went on.
+    pub checkpoint_every: usize,
     pub quiet: bool,
-    /// Stop after this many seconds of wall time (checkpointing first).
+    /// Stop at the first checkpoint after this many seconds of wall time.
     pub max_wall_s: f64,
+    /// Resume even though the checkpoint was written under other settings (a change of recipe
+    /// mid-run, on purpose); otherwise such a resume is refused, naming the difference.
+    pub accept_recipe_change: bool,
     /// Judge checkpoints through `g1fw` (`judge.json`, `best.safetensors`); `every` 0: never.
     pub judge: super::judge::JudgeConfig,
 }
@@ -107,9 +113,33 @@ pub struct RunState {
     pub started_from: String,
 }
 
+/// The settings that decide what a run computes, one per line (the checkpoint keeps them; a resume
+/// under others is refused, naming the lines). What only decides how long, where, on how many
+/// threads, or how it is judged, is left out: none of it changes a bit of the run.
+pub fn recipe_text(cfg: &RunConfig) -> String {
+    let mut c = cfg.clone();
+    c.out = PathBuf::new();
+    c.threads = 0;
+    c.iterations = 0;
+    c.max_wall_s = 0.0;
+    c.quiet = false;
+    c.accept_recipe_change = false;
+    // The spec counts by its content (its sha256, checked beside); the start's files only start.
+    c.spec = PathBuf::new();
+    c.init_actor = None;
+    c.init_critic = None;
+    c.judge = super::judge::JudgeConfig::standard(0, "");
+    format!("{c:#?}")
+}
+
 /// The training loop: start (or resume), then iterations of a pipelined rollout and update, each
-/// logged, checkpointed every few minutes and judged through `g1fw` every few checkpoints.
+/// logged, checkpointed every `checkpoint_every` iterations and judged through `g1fw` every few
+/// checkpoints.
 pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
+    anyhow::ensure!(
+        cfg.checkpoint_every > 0,
+        "--checkpoint-every must be at least 1 iteration"
+    );
     std::fs::create_dir_all(&cfg.out).with_context(|| format!("creating {}", cfg.out.display()))?;
     let spec =
         DeploySpec::load(&cfg.spec).with_context(|| format!("loading the deploy spec {}", cfg.spec.display()))?;
@@ -118,13 +148,21 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         act: spec.action_dim(),
         joints: spec.num_joints(),
         critic: spec.observation_dim() + CRITIC_EXTRA,
+        state: 0,
     };
     anyhow::ensure!(
         dims.act > dims.joints || cfg.rate_noise == RateNoise::PER_STEP,
         "--rate-std and --rate-hold need a spec whose policy sets its gait clock ([phase] rate); {} has none",
         cfg.spec.display()
     );
-    let (ac, mut state, mut history) = start_or_resume(cfg, &spec, dims)?;
+    let spec_sha256 =
+        firmware::nn::sha256_hex(&std::fs::read(&cfg.spec).with_context(|| format!("reading {}", cfg.spec.display()))?);
+    let recipe = recipe_text(cfg);
+    let (ac, mut state, mut history, loaded) = start_or_resume(cfg, &spec, dims, &recipe, &spec_sha256)?;
+    let dims = Dims {
+        state: ac.state_len(),
+        ..dims
+    };
     let mirror = if cfg.symmetry {
         Some(super::symmetry::Mirror::from_spec(
             &spec,
@@ -139,14 +177,23 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         .weights
         .file_name()
         .map_or_else(|| "policy.safetensors".into(), |n| n.to_os_string());
-    let mut slots = make_envs(cfg, spec, &ac, &state, dims)?;
-    let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed ^ state.iteration as u64, mirror)?;
+    let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed, mirror)?;
     learner.lr = state.lr;
+    if let Some(l) = &loaded {
+        state.normalizer = l.apply(&ac, &mut learner)?;
+        state.lr = learner.lr;
+    }
+    drop(loaded);
+    let mut slots = make_envs(cfg, spec, &ac, &state)?;
+    restart_envs(cfg, &mut slots, &state, dims)?;
     let mut pipe = Pipeline::new(slots.len(), state.iteration)?;
+    let identity = super::checkpoint::Identity {
+        recipe: &recipe,
+        spec_sha256: &spec_sha256,
+    };
 
     let start = Instant::now();
     let wall0 = state.wall_s;
-    let mut last_ckpt = Instant::now();
     let mut checkpoints = 0usize;
     let bar = labkit::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
@@ -175,15 +222,18 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             tracing::info!(?log, "iteration");
         }
         history.push(log);
-        // This run's own time (`--max-wall`), not the total across resumed chunks.
+        // This run's own time (`--max-wall`), not the total across resumed chunks; it stops at
+        // the next checkpoint, so a stop for time falls on the grid like any other.
         let out_of_time = start.elapsed().as_secs_f64() > cfg.max_wall_s;
         state.wall_s = wall0 + start.elapsed().as_secs_f64();
-        if last_ckpt.elapsed().as_secs_f64() > cfg.checkpoint_every_s
-            || state.iteration == cfg.iterations
-            || out_of_time
-        {
+        let on_grid = state.iteration.is_multiple_of(cfg.checkpoint_every);
+        if on_grid || state.iteration == cfg.iterations {
+            // The pending half-rollout is dropped and every episode restarts, here as in the
+            // run that resumes from this checkpoint.
+            restart_envs(cfg, &mut slots, &state, dims)?;
+            pipe = Pipeline::new(slots.len(), state.iteration)?;
             state.levels = slots.iter().map(|s| s.env.level).collect();
-            let actor = save(&ac, &state, &history, &cfg.out, &weights_name)?;
+            let actor = save(&ac, &learner, &state, &history, &cfg.out, &weights_name, &identity)?;
             checkpoints += 1;
             if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
                 // A judge that cannot run (a missing g1-sim, a full disk) must not end hours of
@@ -195,9 +245,8 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
                     );
                 }
             }
-            last_ckpt = Instant::now();
         }
-        if out_of_time {
+        if out_of_time && on_grid {
             tracing::warn!("wall-time limit reached; checkpoint written, resume with the same command");
             break;
         }
@@ -222,18 +271,50 @@ struct Dims {
     /// The joint outputs; `act` has the clock's rate beyond them.
     joints: usize,
     critic: usize,
+    /// The actor's recurrent state (the rollout's `state0`); 0 for an MLP.
+    state: usize,
 }
 
 /// The actor-critic, run state and history: from `--out`'s checkpoint when there is one, else new
 /// (warm-started from `--init-actor` when given).
+type Started = (ActorCritic, RunState, Vec<IterLog>, Option<super::checkpoint::Loaded>);
+
 fn start_or_resume(
     cfg: &RunConfig,
     spec: &DeploySpec,
     dims: Dims,
-) -> anyhow::Result<(ActorCritic, RunState, Vec<IterLog>)> {
+    recipe: &str,
+    spec_sha256: &str,
+) -> anyhow::Result<Started> {
     let ckpt = cfg.out.join(CHECKPOINT);
-    let state_path = cfg.out.join(STATE);
-    let resuming = ckpt.exists() && state_path.exists();
+    let resuming = ckpt.exists();
+    let loaded = if resuming {
+        let l = super::checkpoint::read(&ckpt)?;
+        anyhow::ensure!(
+            l.spec_sha256 == spec_sha256,
+            "{} was trained under a deploy spec with sha256 {}, and {} has {spec_sha256}: resume with the spec it was trained with",
+            ckpt.display(),
+            l.spec_sha256,
+            cfg.spec.display()
+        );
+        if l.recipe != recipe {
+            let diff = super::checkpoint::recipe_difference(&l.recipe, recipe, 8);
+            anyhow::ensure!(
+                cfg.accept_recipe_change,
+                "{} was trained under other settings ({}); resume with the run's own recipe, or pass --accept-recipe-change to change it mid-run on purpose",
+                ckpt.display(),
+                diff.join("; ")
+            );
+            tracing::warn!(
+                "resuming {} under a changed recipe: {}",
+                ckpt.display(),
+                diff.join("; ")
+            );
+        }
+        Some(l)
+    } else {
+        None
+    };
     // The actor's layers are the spec's; their sizes come from the weights it continues from.
     let sized_by = if resuming {
         Some(ckpt.clone())
@@ -254,19 +335,37 @@ fn start_or_resume(
     ac.recurrence = cfg.ppo.recurrence;
     // The policy as the spec runs it: with `mirror = "average"` the update replays the twin too.
     ac.mirror = firmware::mirror::PolicyMirror::averaged_with(spec)?;
-    if resuming {
-        ac.load(&ckpt)?;
-        let st: RunState = serde_json::from_str(&std::fs::read_to_string(&state_path)?)?;
-        let history = std::fs::read_to_string(cfg.out.join(HISTORY))
-            .map(|h| serde_json::from_str(&h).unwrap_or_default())
+    if let Some(l) = loaded {
+        let c = &l.counters;
+        let st = RunState {
+            iteration: c.iteration,
+            env_steps: c.env_steps,
+            wall_s: c.wall_s,
+            lr: f64::from_bits(c.lr_bits),
+            normalizer: Normalizer::new(dims.critic), // the checkpoint's, once the learner exists
+            levels: c.levels.clone(),
+            started_from: c.started_from.clone(),
+        };
+        anyhow::ensure!(
+            st.levels.len() == cfg.envs,
+            "{} holds {} environments' levels and the recipe asks for {} environments",
+            ckpt.display(),
+            st.levels.len(),
+            cfg.envs
+        );
+        // The history is the curves' record; the checkpoint's own counters say where it stands.
+        let history: Vec<IterLog> = std::fs::read_to_string(cfg.out.join(HISTORY))
+            .ok()
+            .and_then(|h| serde_json::from_str(&h).ok())
             .unwrap_or_default();
+        let history = history.into_iter().filter(|h| h.iteration <= st.iteration).collect();
         tracing::info!(
             "resuming {} at iteration {} ({} env steps)",
             cfg.out.display(),
             st.iteration,
             st.env_steps
         );
-        return Ok((ac, st, history));
+        return Ok((ac, st, history, Some(l)));
     }
     let started_from = match &cfg.init_actor {
         Some(p) => {
@@ -330,17 +429,11 @@ fn start_or_resume(
         levels: Vec::new(),
         started_from,
     };
-    Ok((ac, state, Vec::new()))
+    Ok((ac, state, Vec::new(), None))
 }
 
 /// `cfg.envs` environments with the actor's weights, at the levels a resumed run left them.
-fn make_envs(
-    cfg: &RunConfig,
-    spec: DeploySpec,
-    ac: &ActorCritic,
-    state: &RunState,
-    dims: Dims,
-) -> anyhow::Result<Vec<Slot>> {
+fn make_envs(cfg: &RunConfig, spec: DeploySpec, ac: &ActorCritic, state: &RunState) -> anyhow::Result<Vec<Slot>> {
     let weights = ac.actor_safetensors()?;
     let env_cfg = EnvConfig {
         model: cfg.model.clone(),
@@ -350,10 +443,7 @@ fn make_envs(
     let bar = labkit::progress::bar(cfg.envs, cfg.quiet, "creating environments");
     let mut slots = Vec::with_capacity(cfg.envs);
     for i in 0..cfg.envs {
-        let seed = cfg
-            .seed
-            .wrapping_mul(1_000_003)
-            .wrapping_add(i as u64 + state.iteration as u64 * 7919);
+        let seed = cfg.seed.wrapping_mul(1_000_003).wrapping_add(i as u64);
         let cfg_i = match &cfg.mixed_model {
             Some((model, share)) if takes_mixed_model(i, *share) => EnvConfig {
                 model: model.clone(),
@@ -362,15 +452,15 @@ fn make_envs(
             _ => env_cfg.clone(),
         };
         let mut env = StairEnv::new(cfg_i, seed, &weights)?;
-        let level = state.levels.get(i).copied().unwrap_or(env.level);
-        env.place(
-            super::curriculum::Column::for_env(i, cfg.envs, cfg.env.only, cfg.env.mix),
-            level,
-        )?;
+        // A new run's level is the one the environment drew; a resumed run's, the checkpoint's.
+        // `restart_envs` places it.
+        if let Some(&level) = state.levels.get(i) {
+            env.level = level;
+        }
         slots.push(Slot {
             env,
-            roll: EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, ac.state_len()),
-            rng: Rng(seed ^ 0xAC7_10A5),
+            roll: EnvRollout::new(0, 0, 0, 0, 0),
+            rng: Rng(0),
             ends: Vec::new(),
             held: Vec::new(),
             held_left: 0,
@@ -387,6 +477,32 @@ fn make_envs(
         );
     }
     Ok(slots)
+}
+
+/// Restarts every environment at its column and level with random streams drawn from (run seed,
+/// environment, iteration), and empties its rollout buffer and noise: at the start of a run and at
+/// every checkpoint, so that a run resumed from a checkpoint and the run that went on past it
+/// continue from the same state.
+fn restart_envs(cfg: &RunConfig, slots: &mut [Slot], state: &RunState, dims: Dims) -> anyhow::Result<()> {
+    let strength = cfg.env.assist.strength(state.env_steps);
+    let state_len = dims.state;
+    for (i, s) in slots.iter_mut().enumerate() {
+        let seed = cfg
+            .seed
+            .wrapping_mul(1_000_003)
+            .wrapping_add(i as u64)
+            .wrapping_add((state.iteration as u64).wrapping_mul(0x9E37_79B9));
+        let column = super::curriculum::Column::for_env(i, cfg.envs, cfg.env.only, cfg.env.mix);
+        s.env.set_assist_strength(strength);
+        let level = s.env.level;
+        s.env.restart(seed, column, level)?;
+        s.rng = Rng(seed ^ 0xAC7_10A5);
+        s.held.clear();
+        s.held_left = 0;
+        s.ends.clear();
+        s.roll = EnvRollout::new(cfg.ppo.steps, dims.obs, dims.critic, dims.act, state_len);
+    }
+    Ok(())
 }
 
 /// Whether environment `i` runs the mixed-in model at `share` of the environments: spread evenly
@@ -605,17 +721,38 @@ impl IterLog {
 
 fn save(
     ac: &ActorCritic,
+    learner: &Learner,
     state: &RunState,
     history: &[IterLog],
     out: &Path,
     weights_name: &std::ffi::OsStr,
+    identity: &super::checkpoint::Identity,
 ) -> anyhow::Result<PathBuf> {
-    // Write then rename, so a run killed mid-write keeps the previous checkpoint.
-    let tmp = out.join(format!("{CHECKPOINT}.tmp"));
-    ac.save(&tmp)?;
-    std::fs::rename(&tmp, out.join(CHECKPOINT))?;
-    std::fs::write(out.join(STATE), serde_json::to_string_pretty(state)?)?;
-    std::fs::write(out.join(HISTORY), serde_json::to_string(history)?)?;
+    // The history first: a run killed between the two resumes from the older checkpoint and
+    // drops the history's newer lines.
+    write_atomically(&out.join(HISTORY), serde_json::to_string(history)?.as_bytes())?;
+    let counters = super::checkpoint::Counters {
+        iteration: state.iteration,
+        env_steps: state.env_steps,
+        wall_s: state.wall_s,
+        lr_bits: learner.lr.to_bits(),
+        learner_rng: learner.rng.0,
+        adam_step: learner.opt.step,
+        critic_adam_step: learner.critic_opt.step,
+        normalizer_count_bits: state.normalizer.count.to_bits(),
+        levels: state.levels.clone(),
+        started_from: state.started_from.clone(),
+    };
+    super::checkpoint::write(
+        &out.join(CHECKPOINT),
+        ac,
+        learner,
+        &state.normalizer,
+        &counters,
+        identity,
+    )?;
+    // For people: the counters in plain JSON (resuming reads the checkpoint alone).
+    write_atomically(&out.join(STATE), serde_json::to_string_pretty(state)?.as_bytes())?;
     let actor = ac.actor_safetensors()?;
     std::fs::write(out.join(weights_name), &actor)?;
     let from = super::critic_file::Provenance {
@@ -638,6 +775,13 @@ fn save(
     super::critic_file::save(&super::critic_file::beside(&kept), ac, &state.normalizer, &from)?;
     crate::plot::ppo_curves_png(&out.join(CURVES), history, &read_judgements(out))?;
     Ok(kept)
+}
+
+/// Writes `bytes` to a temporary file beside `path`, then renames it over `path`.
+fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
 }
 
 /// The judged checkpoints of a run so far (`judge.json`; none if absent).

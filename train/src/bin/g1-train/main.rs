@@ -9,6 +9,7 @@ mod fit;
 mod ppo;
 mod ppo_eval;
 mod ppo_export;
+mod recipe;
 mod success_curve;
 mod widen_actor;
 
@@ -90,7 +91,9 @@ fn keep_freed_tensors_in_the_heap() {
 fn main() -> anyhow::Result<()> {
     keep_freed_tensors_in_the_heap();
     g1_sim::no_mujoco_log_file();
-    let cli = Cli::parse();
+    // `ppo --resume DIR` and `ppo --recipe FILE` become the recipe's options.
+    let argv = recipe::expand(std::env::args_os().collect())?;
+    let cli = Cli::parse_from(&argv);
     // The README's commands are checked against the parser in CI (tests/tests/readme.rs).
     if std::env::var_os("G1_CHECK_ARGS").is_some() {
         eprintln!("G1_CHECK_ARGS is set: the arguments parse; nothing was run");
@@ -102,7 +105,7 @@ fn main() -> anyhow::Result<()> {
         Cmd::EvalTerrain(args) => eval_terrain::run(args),
         Cmd::Ppo(args) => {
             train::ppo::runner::learner_on_one_thread();
-            ppo::run(*args)
+            ppo::run(*args, &argv[2..])
         }
         Cmd::PpoEval(args) => ppo_eval::run(args),
         Cmd::PpoExport(args) => ppo_export::run(args),

@@ -1,4 +1,5 @@
 //! `g1-train ppo`: Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
+use anyhow::Context;
 use labkit::progress::default_jobs;
 use std::path::PathBuf;
 
@@ -15,8 +16,22 @@ pub struct Args {
     #[arg(long, value_name = "MODEL:SHARE", value_parser = parse_mixed_model)]
     mix_model: Option<(g1_sim::ModelChoice, f64)>,
     /// Run directory: created if missing; a run whose directory holds a checkpoint resumes from it
+    /// (under the same settings; see --resume). A new run writes its recipe.toml there.
+    #[arg(long, required_unless_present = "resume")]
+    out: Option<PathBuf>,
+    /// Continue the run in DIR from its checkpoint with its own recipe.toml: nothing else is
+    /// needed (--iterations, --max-wall, --threads and --judge-every may be given).
+    #[arg(long, value_name = "DIR")]
+    resume: Option<PathBuf>,
+    /// Take the options from a recipe file (TOML, one key per option, as a run's recipe.toml);
+    /// options on the command line win over the file's.
+    #[arg(long, value_name = "FILE")]
+    recipe: Option<PathBuf>,
+    /// Resume a run whose checkpoint was written under other settings than the recipe's now (a
+    /// change of recipe mid-run, on purpose); without it such a resume is refused, naming the
+    /// difference.
     #[arg(long)]
-    out: PathBuf,
+    accept_recipe_change: bool,
     /// Parallel environments.
     #[arg(long, default_value_t = 256)]
     envs: usize,
@@ -246,10 +261,12 @@ pub struct Args {
     /// nothing (counted from the run's start, across resumes).
     #[arg(long, default_value_t = 15e6, value_name = "STEPS", value_parser = parse_assist_decay)]
     assist_decay: f64,
-    /// Checkpoint at least this often, s.
-    #[arg(long, default_value_t = 120.0)]
-    checkpoint_every: f64,
-    /// Stop (after a checkpoint) once this run has spent this many seconds.
+    /// Checkpoint every this many iterations. Every checkpoint restarts every environment (so
+    /// that a resumed run is bit for bit the run that went on; docs/stair_policy.md), so it is
+    /// part of the recipe.
+    #[arg(long, default_value_t = 100, value_name = "ITERATIONS")]
+    checkpoint_every: usize,
+    /// Stop at the first checkpoint after this run has spent this many seconds.
     #[arg(long, default_value_t = f64::INFINITY)]
     max_wall: f64,
     /// Judge every Nth checkpoint through g1fw (up and down at 12, 16 and 20 cm, 2 episodes
@@ -310,7 +327,8 @@ impl Args {
     }
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+/// `args`: the options as given after `ppo` (recipe expanded), for the run's recipe.toml.
+pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
     let env = args.env_settings();
     let Args {
         spec,
@@ -339,8 +357,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_wall,
         judge_every,
         quiet,
+        accept_recipe_change,
         ..
     } = args;
+    let out = out.ok_or_else(|| anyhow::anyhow!("give --out DIR (a new run) or --resume DIR"))?;
     let episode_s = env.episode_s;
     tracing_subscriber::fmt().with_writer(std::io::stderr).init();
     // Counts that size allocations are bounded before anything is built: each environment
@@ -375,6 +395,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })?;
     }
     let judge_model = model.to_string();
+    // A new run states its recipe; a resumed one keeps the one it was started with.
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let recipe = out.join(crate::recipe::RECIPE);
+    if !out.join(train::ppo::runner::CHECKPOINT).exists() || !recipe.exists() {
+        let tmp = recipe.with_extension("tmp");
+        std::fs::write(&tmp, crate::recipe::text(argv)?).with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, &recipe)?;
+    }
     let cfg = train::ppo::runner::RunConfig {
         spec,
         model,
@@ -404,9 +432,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         },
         env,
-        checkpoint_every_s: checkpoint_every,
+        checkpoint_every,
         quiet,
         max_wall_s: max_wall,
+        accept_recipe_change,
         judge: train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model),
     };
     let history = train::ppo::runner::train(&cfg)?;
