@@ -1016,7 +1016,7 @@ impl StairEnv {
             stance_lead: self.cfg.settings.stance_lead_weight,
             ..WEIGHTS
         };
-        let reward = terms.total(&weights, self.timing.policy_dt);
+        let reward = super::reward::bounded(terms.total(&weights, self.timing.policy_dt));
         self.ret += reward;
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);

@@ -10,6 +10,7 @@
 //! - [`policy`]: the actor (the spec's layers: the peer walker's LSTM, or an MLP over a short
 //!   history) and critic in candle; export.
 //! - [`checkpoint`]: the whole run in one file (weights, optimizers, normaliser, counters, streams).
+//! - [`chunks`]: a run's table of chunks (each invocation that trained it).
 //! - [`critic_file`]: the critic, its normaliser and the action noise, saved beside each actor.
 //! - [`elu_op`]: ELU as one op with a one-loop backward.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
@@ -31,6 +32,7 @@ pub mod algo;
 pub mod assist;
 pub mod average;
 pub mod checkpoint;
+pub mod chunks;
 pub mod critic_file;
 pub mod curriculum;
 pub mod elu_op;

@@ -190,6 +190,22 @@ pub const WEIGHTS: Weights = Weights {
     success: 3.0,
 };
 
+/// The lowest reward one policy step may give. A plain step stays within a few units (a fall's
+/// termination is −200 · 0.02 = −4); a physics blow-up does not: one in a from-scratch run drove
+/// q̈ to ~3e6 rad/s² and its joint-acceleration penalty alone gave its episode a return of −24 455,
+/// which reached the critic and the advantages. Such a step counts as a bad fall, not as that.
+pub const STEP_REWARD_FLOOR: f64 = -20.0;
+
+/// A step's reward bounded below by [`STEP_REWARD_FLOOR`] (a NaN, from a simulator that blew up,
+/// counts as the floor).
+pub fn bounded(reward: f64) -> f64 {
+    if reward.is_nan() {
+        STEP_REWARD_FLOOR
+    } else {
+        reward.max(STEP_REWARD_FLOOR)
+    }
+}
+
 /// Tracking kernels' standard deviation (m/s, rad/s).
 pub const TRACKING_STD: f64 = 0.5;
 /// Air-time threshold, s.
@@ -637,6 +653,23 @@ mod tests {
         assert_eq!(WEIGHTS.foothold_edge, 0.0);
         assert_eq!(WEIGHTS.token_clearance, 0.0);
         assert_eq!(WEIGHTS.swing_apex, 0.0);
+    }
+
+    #[test]
+    fn a_blown_up_step_is_bounded_and_a_plain_one_is_not_touched() {
+        let blown = Terms {
+            joint_acc: 1e13,
+            ..Terms::default()
+        };
+        assert!(blown.total(&WEIGHTS, 0.02) < -1e4);
+        assert_eq!(bounded(blown.total(&WEIGHTS, 0.02)), STEP_REWARD_FLOOR);
+        assert_eq!(bounded(f64::NAN), STEP_REWARD_FLOOR);
+        let fall = Terms {
+            termination: 1.0,
+            ..Terms::default()
+        };
+        assert_eq!(bounded(fall.total(&WEIGHTS, 0.02)), fall.total(&WEIGHTS, 0.02));
+        assert_eq!(bounded(3.0), 3.0);
     }
 
     #[test]

@@ -177,6 +177,27 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         .weights
         .file_name()
         .map_or_else(|| "policy.safetensors".into(), |n| n.to_os_string());
+    let note = match &loaded {
+        None => format!("new run: {}", state.started_from),
+        Some(l) if l.recipe != recipe => format!(
+            "resumed under a changed recipe: {}",
+            super::checkpoint::recipe_difference(&l.recipe, &recipe, 8).join("; ")
+        ),
+        Some(_) => "resumed".to_string(),
+    };
+    let mut chunks = super::chunks::read(&cfg.out);
+    chunks.push(super::chunks::Chunk {
+        started_utc: super::chunks::now_utc(),
+        commit: super::chunks::commit(),
+        cpu: super::chunks::cpu_model(),
+        threads: cfg.threads,
+        from_iteration: state.iteration,
+        to_iteration: state.iteration,
+        from_env_steps: state.env_steps,
+        to_env_steps: state.env_steps,
+        wall_s: 0.0,
+        note,
+    });
     let mut learner = Learner::new(&ac, cfg.ppo, cfg.seed, mirror)?;
     learner.lr = state.lr;
     if let Some(l) = &loaded {
@@ -234,6 +255,12 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             pipe = Pipeline::new(slots.len(), state.iteration)?;
             state.levels = slots.iter().map(|s| s.env.level).collect();
             let actor = save(&ac, &learner, &state, &history, &cfg.out, &weights_name, &identity)?;
+            if let Some(c) = chunks.last_mut() {
+                c.to_iteration = state.iteration;
+                c.to_env_steps = state.env_steps;
+                c.wall_s = start.elapsed().as_secs_f64();
+            }
+            super::chunks::write(&cfg.out, &chunks)?;
             checkpoints += 1;
             if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
                 // A judge that cannot run (a missing g1-sim, a full disk) must not end hours of
