@@ -39,27 +39,55 @@ impl Adam {
 
     /// One step on the variables that have a gradient in `grads` (the others keep their moments).
     pub fn step(&mut self, grads: &GradStore) -> candle_core::Result<()> {
-        self.step += 1;
-        let t = self.step.min(i32::MAX as u64) as i32;
-        let scale_m = (1.0 / (1.0 - BETA1.powi(t))) as f32;
-        let scale_v = (1.0 / (1.0 - BETA2.powi(t))) as f32;
-        let (b1, b2, lr, eps) = (BETA1 as f32, BETA2 as f32, self.lr as f32, EPS as f32);
+        let scales = self.next_step();
         for (k, (_, var)) in self.vars.iter().enumerate() {
             let Some(g) = grads.get(var.as_tensor()) else {
                 continue;
             };
             let g: Vec<f32> = g.flatten_all()?.to_vec1()?;
             let mut theta: Vec<f32> = var.as_tensor().flatten_all()?.to_vec1()?;
-            let (m, v) = (&mut self.m[k], &mut self.v[k]);
-            for i in 0..theta.len() {
-                m[i] = m[i] * b1 + g[i] * (1.0 - b1);
-                v[i] = v[i] * b2 + g[i] * g[i] * (1.0 - b2);
-                let (m_hat, v_hat) = (m[i] * scale_m, v[i] * scale_v);
-                theta[i] -= m_hat / (v_hat.sqrt() + eps) * lr;
-            }
+            scales.apply(&mut self.m[k], &mut self.v[k], &mut theta, &g);
             var.set(&Tensor::from_vec(theta, var.shape(), var.device())?)?;
         }
         Ok(())
+    }
+
+    /// One step on parameters held outside the variables (the fused update's buffers), `params[k]`
+    /// and `grads[k]` being variable `k`'s, in [`Adam::vars`] order.
+    pub fn step_flat(&mut self, params: &mut [Vec<f32>], grads: &[Vec<f32>]) {
+        let scales = self.next_step();
+        for k in 0..self.vars.len() {
+            scales.apply(&mut self.m[k], &mut self.v[k], &mut params[k], &grads[k]);
+        }
+    }
+
+    fn next_step(&mut self) -> Scales {
+        self.step += 1;
+        let t = self.step.min(i32::MAX as u64) as i32;
+        Scales {
+            m: (1.0 / (1.0 - BETA1.powi(t))) as f32,
+            v: (1.0 / (1.0 - BETA2.powi(t))) as f32,
+            lr: self.lr as f32,
+        }
+    }
+}
+
+/// One step's bias corrections and rate.
+struct Scales {
+    m: f32,
+    v: f32,
+    lr: f32,
+}
+
+impl Scales {
+    fn apply(&self, m: &mut [f32], v: &mut [f32], theta: &mut [f32], g: &[f32]) {
+        let (b1, b2, eps) = (BETA1 as f32, BETA2 as f32, EPS as f32);
+        for i in 0..theta.len() {
+            m[i] = m[i] * b1 + g[i] * (1.0 - b1);
+            v[i] = v[i] * b2 + g[i] * g[i] * (1.0 - b2);
+            let (m_hat, v_hat) = (m[i] * self.m, v[i] * self.v);
+            theta[i] -= m_hat / (v_hat.sqrt() + eps) * self.lr;
+        }
     }
 }
 

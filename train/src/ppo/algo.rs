@@ -7,6 +7,7 @@ use candle_core::{Device, Tensor, Var};
 use labkit::rng::Rng;
 
 use super::adam::Adam;
+use super::mlp_update::{FusedMlp, Minibatch, StepSettings};
 
 use super::policy::ActorCritic;
 use super::symmetry::{Mirror, SignedPermutation};
@@ -26,6 +27,9 @@ pub struct PpoConfig {
     pub lr: f64,
     /// How an LSTM actor's recurrence is differentiated (the fused op; the bench compares).
     pub recurrence: super::policy::Recurrence,
+    /// A feed-forward actor's update without a tensor graph ([`super::mlp_update`]); off: candle's
+    /// ops (the reference the fused step is checked against, and the bench's baseline).
+    pub fused_mlp: bool,
 }
 
 impl Default for PpoConfig {
@@ -44,6 +48,7 @@ impl Default for PpoConfig {
             desired_kl: 0.01,
             lr: 1e-4,
             recurrence: super::policy::Recurrence::Fused,
+            fused_mlp: true,
         }
     }
 }
@@ -214,6 +219,9 @@ pub struct UpdateStats {
     pub kl: f64,
     pub lr: f64,
     pub mean_std: f64,
+    /// The gradient's norm before clipping, mean over the update's steps.
+    #[serde(default)]
+    pub grad_norm: f64,
 }
 
 /// The learning side of a run: everything a checkpoint must hold to step as the run that went on
@@ -229,6 +237,38 @@ pub struct Learner {
     pub rng: Rng,
     /// Symmetry augmentation (MLP actors only: a mirrored LSTM state is not defined).
     mirror: Option<Mirror>,
+    /// The fused step of a feed-forward actor ([`PpoConfig::fused_mlp`]; `None`: candle's ops).
+    fused: Option<FusedMlp>,
+    /// Where the critic's variables are among all of them (the fused critic warm-up).
+    critic_idx: Vec<usize>,
+}
+
+/// A KL divergence below this is the float noise of means computed twice, not a step (the
+/// fused path's reference means come from products of other shapes than its minibatches').
+const KL_RESOLUTION: f64 = 1e-12;
+
+/// The adaptive learning rate after a step that measured `kl` (rsl_rl's rule and bounds; no
+/// change on a step that has not moved the policy yet, the first of an update).
+fn adapted_lr(lr: f64, kl: f64, desired: f64) -> f64 {
+    if kl > 2.0 * desired {
+        (lr / 1.5).max(1e-5)
+    } else if kl < 0.5 * desired && kl > KL_RESOLUTION {
+        (lr * 1.5).min(1e-2)
+    } else {
+        lr
+    }
+}
+
+/// An Adam step of `opt` (a subset of the variables, e.g. the critic's) on the fused buffers,
+/// `idx[k]` being `opt`'s variable `k` among them.
+fn step_subset(opt: &mut Adam, f: &mut FusedMlp, idx: &[usize]) {
+    let mut params: Vec<Vec<f32>> = idx.iter().map(|&k| std::mem::take(&mut f.params[k])).collect();
+    let grads: Vec<Vec<f32>> = idx.iter().map(|&k| std::mem::take(&mut f.grads[k])).collect();
+    opt.step_flat(&mut params, &grads);
+    for ((&k, p), g) in idx.iter().zip(params).zip(grads) {
+        f.params[k] = p;
+        f.grads[k] = g;
+    }
 }
 
 impl Learner {
@@ -241,7 +281,24 @@ impl Learner {
             mirror.is_none() || ac.mirror.is_none(),
             "symmetry augmentation and a spec with [policy] mirror = \"average\" do not go together: that policy is symmetric by construction"
         );
+        let names: Vec<String> = ac.named_vars().into_iter().map(|(n, _)| n).collect();
+        // The spec's mirror averaging runs a twin through the actor: candle's path has it.
+        let fused = (cfg.fused_mlp && ac.mirror.is_none())
+            .then(|| FusedMlp::new(&ac.arch, &names))
+            .flatten();
+        let critic_idx = ac
+            .named_critic_vars()
+            .iter()
+            .map(|(c, _)| {
+                names
+                    .iter()
+                    .position(|n| n == c)
+                    .expect("a critic variable is a variable")
+            })
+            .collect();
         Ok(Self {
+            fused,
+            critic_idx,
             opt: Adam::new(ac.named_vars(), cfg.lr),
             critic_opt: Adam::new(ac.named_critic_vars(), 1e-3),
             lr: cfg.lr,
@@ -272,8 +329,14 @@ impl Learner {
         // rollouts are one update old (the runner overlaps rollout and update), and measuring from
         // there counted the previous update's step too, so the rate fell to its floor every other
         // iteration (run 6: 1e-5 for most of 20 M steps).
+        if let Some(f) = self.fused.as_mut() {
+            f.load(&self.opt, c)?;
+        }
         let reference = if critic_only {
             Vec::new()
+        } else if let Some(f) = self.fused.as_mut() {
+            // The fused forward's own means: the first step's KL is then exactly 0, as in candle's.
+            rolls.iter().map(|r| f.means(&r.obs, t).to_vec()).collect()
         } else {
             self.reference_means(ac, rolls, mb)?
         };
@@ -312,8 +375,8 @@ impl Learner {
                     Some(m) => (Some(&m.obs), Some(&m.action), Some(&m.critic)),
                     None => (None, None, None),
                 };
-                let obs = Tensor::from_vec(gather(&|r| &r.obs, o, m_obs), (t, b2, o), &dev)?;
-                let act = Tensor::from_vec(gather(&|r| &r.actions, a, m_act), (t, b2, a), &dev)?;
+                let obs_rows = gather(&|r| &r.obs, o, m_obs);
+                let act_rows = gather(&|r| &r.actions, a, m_act);
                 let old_mean: Vec<f32> = if critic_only {
                     Vec::new()
                 } else {
@@ -325,8 +388,7 @@ impl Learner {
                     }
                     v
                 };
-                let masks = Tensor::from_vec(gather(&|r| &r.masks, 1, None), (t, b2, 1), &dev)?;
-                let old_logp = Tensor::from_vec(gather(&|r| &r.logp, 1, None), (t, b2), &dev)?;
+                let old_logp_rows = gather(&|r| &r.logp, 1, None);
                 let mut adv = gather(&|r| &r.advantages, 1, None);
                 let mean_adv = adv.iter().map(|&x| x as f64).sum::<f64>() / adv.len() as f64;
                 let std_adv = (adv.iter().map(|&x| (x as f64 - mean_adv).powi(2)).sum::<f64>() / adv.len() as f64)
@@ -334,10 +396,56 @@ impl Learner {
                     .max(1e-8);
                 adv.iter_mut()
                     .for_each(|x| *x = ((*x as f64 - mean_adv) / std_adv) as f32);
+                let ret_rows = gather(&|r| &r.returns, 1, None);
+                let old_v_rows = gather(&|r| &r.values, 1, None);
+                let cobs_rows = norm.apply(&gather(&|r| &r.critic_obs, c, m_critic));
+                if let Some(f) = self.fused.as_mut() {
+                    let mb = Minibatch {
+                        n: t * b2,
+                        obs: &obs_rows,
+                        actions: &act_rows,
+                        old_logp: &old_logp_rows,
+                        advantages: &adv,
+                        returns: &ret_rows,
+                        old_values: &old_v_rows,
+                        critic_obs: &cobs_rows,
+                        old_means: &old_mean,
+                        per_step: b2,
+                        own_per_step: b,
+                    };
+                    let settings = StepSettings {
+                        clip: cfg.clip,
+                        value_coef: cfg.value_coef,
+                        entropy_coef: cfg.entropy_coef,
+                        max_grad_norm: cfg.max_grad_norm,
+                    };
+                    let mut lr = self.lr;
+                    let losses = f.gradients(&mb, settings, critic_only, &mut |kl| {
+                        lr = adapted_lr(lr, kl, cfg.desired_kl)
+                    });
+                    self.lr = lr;
+                    if critic_only {
+                        step_subset(&mut self.critic_opt, f, &self.critic_idx);
+                    } else {
+                        stats.grad_norm += f.clip_gradients(cfg.max_grad_norm);
+                        self.opt.lr = self.lr;
+                        self.opt.step_flat(&mut f.params, &f.grads);
+                        stats.surrogate += losses.surrogate;
+                        stats.entropy += losses.entropy;
+                        stats.kl += losses.kl;
+                    }
+                    stats.value_loss += losses.value_loss;
+                    n += 1.0;
+                    continue;
+                }
+                let obs = Tensor::from_vec(obs_rows, (t, b2, o), &dev)?;
+                let act = Tensor::from_vec(act_rows, (t, b2, a), &dev)?;
+                let masks = Tensor::from_vec(gather(&|r| &r.masks, 1, None), (t, b2, 1), &dev)?;
+                let old_logp = Tensor::from_vec(old_logp_rows, (t, b2), &dev)?;
                 let adv = Tensor::from_vec(adv, (t, b2), &dev)?;
-                let ret = Tensor::from_vec(gather(&|r| &r.returns, 1, None), t * b2, &dev)?;
-                let old_v = Tensor::from_vec(gather(&|r| &r.values, 1, None), t * b2, &dev)?;
-                let cobs = Tensor::from_vec(norm.apply(&gather(&|r| &r.critic_obs, c, m_critic)), (t * b2, c), &dev)?;
+                let ret = Tensor::from_vec(ret_rows, t * b2, &dev)?;
+                let old_v = Tensor::from_vec(old_v_rows, t * b2, &dev)?;
+                let cobs = Tensor::from_vec(cobs_rows, (t * b2, c), &dev)?;
                 let (state0, twin0) = lstm_states0(ac, rolls, chunk)?;
 
                 // Value loss (clipped around the rollout's values).
@@ -370,11 +478,7 @@ impl Learner {
                     }
                 }
                 kl /= (t * b) as f64;
-                if kl > 2.0 * cfg.desired_kl {
-                    self.lr = (self.lr / 1.5).max(1e-5);
-                } else if kl < 0.5 * cfg.desired_kl && kl > 0.0 {
-                    self.lr = (self.lr * 1.5).min(1e-2);
-                }
+                self.lr = adapted_lr(self.lr, kl, cfg.desired_kl);
                 self.opt.lr = self.lr;
 
                 let inv_std = log_std.neg()?.exp()?;
@@ -389,7 +493,7 @@ impl Learner {
                     (log_std.sum_all()? + a as f64 * 0.5 * (2.0 * std::f64::consts::PI * std::f64::consts::E).ln())?;
                 let loss = ((&surrogate + (&vl * cfg.value_coef)?)? - (&entropy * cfg.entropy_coef)?)?;
                 let mut grads = loss.backward()?;
-                clip_grad_norm(&mut grads, &self.opt.vars, cfg.max_grad_norm)?;
+                stats.grad_norm += clip_grad_norm(&mut grads, &self.opt.vars, cfg.max_grad_norm)?;
                 self.opt.step(&grads)?;
 
                 stats.surrogate += surrogate.to_scalar::<f32>()? as f64;
@@ -399,11 +503,15 @@ impl Learner {
                 n += 1.0;
             }
         }
+        if let Some(f) = &self.fused {
+            f.store(&self.opt)?;
+        }
         for v in [
             &mut stats.surrogate,
             &mut stats.value_loss,
             &mut stats.entropy,
             &mut stats.kl,
+            &mut stats.grad_norm,
         ] {
             *v /= n.max(1.0);
         }
@@ -484,13 +592,13 @@ fn pair(s: &State0) -> Option<(&Tensor, &Tensor)> {
     s.as_ref().map(|(h, c)| (h, c))
 }
 
-/// Scales the gradients down to norm `max` when above it; `vars` in a fixed order, so the sum of
+/// Scales the gradients down to norm `max` when above it and returns their norm before; `vars` in a fixed order, so the sum of
 /// squares (and so the result) is the same in every process.
 fn clip_grad_norm(
     grads: &mut candle_core::backprop::GradStore,
     vars: &[(String, Var)],
     max: f64,
-) -> candle_core::Result<()> {
+) -> candle_core::Result<f64> {
     let mut sq = 0.0f64;
     for (_, v) in vars {
         if let Some(g) = grads.get(v.as_tensor()) {
@@ -507,5 +615,5 @@ fn clip_grad_norm(
             }
         }
     }
-    Ok(())
+    Ok(norm)
 }

@@ -235,18 +235,25 @@ impl Loaded {
     }
 }
 
-/// The lines where two recipes differ, as `was → now` (at most `max`).
+/// The settings where two recipes differ, as `was → now` (a line only one side has shows as
+/// `—` on the other), at most `max`.
 pub fn recipe_difference(was: &str, now: &str, max: usize) -> Vec<String> {
+    let key = |l: &str| l.trim().split(':').next().unwrap_or("").to_string();
     let (a, b): (Vec<&str>, Vec<&str>) = (was.lines().collect(), now.lines().collect());
     let mut out = Vec::new();
-    for i in 0..a.len().max(b.len()) {
-        let (x, y) = (a.get(i).copied().unwrap_or(""), b.get(i).copied().unwrap_or(""));
-        if x != y {
-            out.push(format!("`{}` → `{}`", x.trim(), y.trim()));
-            if out.len() == max {
-                break;
-            }
-        }
+    for x in a.iter().filter(|x| !b.contains(x)) {
+        let y = b
+            .iter()
+            .find(|y| !a.contains(y) && key(y) == key(x))
+            .map_or("—", |y| y.trim());
+        out.push(format!("`{}` → `{y}`", x.trim()));
     }
+    for y in b
+        .iter()
+        .filter(|y| !a.contains(y) && !a.iter().any(|x| !b.contains(x) && key(x) == key(y)))
+    {
+        out.push(format!("— → `{}`", y.trim()));
+    }
+    out.truncate(max);
     out
 }

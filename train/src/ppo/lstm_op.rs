@@ -21,62 +21,10 @@
 use std::sync::Mutex;
 
 use candle_core::{CpuStorage, CustomOp2, Layout, Result, Shape, Tensor};
+
+use super::matmul::MatMul;
 // The firmware executor's own activations: the replay computes what the rollout's actor computed.
 use firmware::nn::activation::{sigmoid, tanh};
-
-/// `dst[m×n] (+)= lhs[m×k] · rhs[k×n]`, each matrix given by its row and column strides.
-struct MatMul {
-    m: usize,
-    n: usize,
-    k: usize,
-    accumulate: bool,
-}
-
-/// A matrix in a slice: `(slice, row stride, column stride)`.
-type Strided<'a> = (&'a [f32], usize, usize);
-
-impl MatMul {
-    fn run(&self, dst: (&mut [f32], usize, usize), lhs: Strided<'_>, rhs: Strided<'_>) {
-        let (m, n, k) = (self.m, self.n, self.k);
-        if m == 0 || n == 0 {
-            return;
-        }
-        let last = |rows: usize, cols: usize, rs: usize, cs: usize| (rows - 1) * rs + (cols - 1) * cs;
-        assert!(dst.0.len() > last(m, n, dst.1, dst.2), "matmul: destination too short");
-        if k > 0 {
-            assert!(lhs.0.len() > last(m, k, lhs.1, lhs.2), "matmul: left operand too short");
-            assert!(
-                rhs.0.len() > last(k, n, rhs.1, rhs.2),
-                "matmul: right operand too short"
-            );
-        }
-        // SAFETY: the asserts above keep every element the strides address inside its slice; the
-        // destination is borrowed mutably and the operands immutably, so they do not alias.
-        unsafe {
-            gemm::gemm(
-                m,
-                n,
-                k,
-                dst.0.as_mut_ptr(),
-                dst.2 as isize,
-                dst.1 as isize,
-                self.accumulate,
-                lhs.0.as_ptr(),
-                lhs.2 as isize,
-                lhs.1 as isize,
-                rhs.0.as_ptr(),
-                rhs.2 as isize,
-                rhs.1 as isize,
-                1.0,
-                1.0,
-                false,
-                false,
-                false,
-                gemm::Parallelism::None,
-            );
-        }
-    }
-}
 
 /// Everything the backward pass needs, per step, flat `[T, B, ·]`.
 struct Trace {

@@ -13,6 +13,9 @@
 //! - [`chunks`]: a run's table of chunks (each invocation that trained it).
 //! - [`critic_file`]: the critic, its normaliser and the action noise, saved beside each actor.
 //! - [`elu_op`]: ELU as one op with a one-loop backward.
+//! - [`matmul`]: strided matrix products on the calling thread (the fused ops' kernel).
+//! - [`mlp_update`]: the whole PPO step of a feed-forward actor and critic over preallocated
+//!   buffers (forward, losses, backward, gradient clip, Adam) without a tensor graph.
 //! - [`lstm_op`]: the LSTM's recurrence over a sequence as one op with a hand-written backward.
 //! - [`symmetry`]: the G1's left–right mirror, for data augmentation.
 //! - [`stair_turn`]: commanded turns off a staircase's axis (`--stair-turns`).
@@ -41,6 +44,8 @@ pub mod in_env;
 pub mod iter_log;
 pub mod judge;
 pub mod lstm_op;
+pub mod matmul;
+pub mod mlp_update;
 pub mod policy;
 pub mod reward;
 pub mod rollout;
