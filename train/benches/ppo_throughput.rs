@@ -177,12 +177,16 @@ fn main() -> anyhow::Result<()> {
         minibatches: 2,
         ..field
     };
+    let candle = |p: train::ppo::algo::PpoConfig| train::ppo::algo::PpoConfig { fused_mlp: false, ..p };
     let lstm = |ppo| whole_loop(&lstm_path, Some(peer.clone()), Vec::new(), false, ppo, threads, 128);
     let lstm_runs = lstm(runs)?;
     let lstm_steps = lstm(step_by_step)?;
-    let lstm_field = lstm(field)?;
-    let big_loop = whole_loop(&mlp_path, None, vec![256, 128, 128], true, field, threads, 128)?;
-    let mlp_loop = whole_loop(&mlp_path, None, MLP_HIDDEN.to_vec(), true, lean, threads, 128)?;
+    let mlp_run = |hidden: &[usize], ppo| whole_loop(&mlp_path, None, hidden.to_vec(), true, ppo, threads, 128);
+    let mlp_loop = mlp_run(&MLP_HIDDEN, lean)?;
+    let mlp_candle = mlp_run(&MLP_HIDDEN, candle(lean))?;
+    let ref_loop = mlp_run(&MLP_HIDDEN, field)?;
+    let ref_candle = mlp_run(&MLP_HIDDEN, candle(field))?;
+    let big_loop = mlp_run(&[256, 128, 128], field)?;
 
     println!("PPO throughput (12-dof G1, physics dt {PHYSICS_DT} s, decimation {decimation}, {threads} threads)");
     println!("  bare mj_step (stairs world), one thread  {mj_us:8.1} µs/step  = {bare_one:8.0} env steps/s");
@@ -199,9 +203,11 @@ fn main() -> anyhow::Result<()> {
     for (name, (rate, share, roll, upd)) in [
         ("LSTM-64, 32 steps, 4 × 2, fused recurrence (the runs)", lstm_runs),
         ("LSTM-64, 32 steps, 4 × 2, candle step by step        ", lstm_steps),
-        ("LSTM-64, 24 steps, 5 × 4 (rsl_rl's update), fused     ", lstm_field),
-        ("MLP [256, 128, 128] + symmetry, 5 × 4                 ", big_loop),
-        ("MLP [128, 64, 64] + symmetry, 2 × 2                   ", mlp_loop),
+        ("MLP [128, 64, 64] + symmetry, 2 × 2, fused            ", mlp_loop),
+        ("MLP [128, 64, 64] + symmetry, 2 × 2, candle's ops     ", mlp_candle),
+        ("MLP [128, 64, 64] + symmetry, 5 × 4, fused            ", ref_loop),
+        ("MLP [128, 64, 64] + symmetry, 5 × 4, candle's ops     ", ref_candle),
+        ("MLP [256, 128, 128] + symmetry, 5 × 4, fused          ", big_loop),
     ] {
         println!(
             "  g1-train ppo, {name} {rate:6.0} env steps/s = {:.2} × the ceiling; per iteration rollout {roll:.3} s, update {upd:.3} s; learner busy {:.0} % of the iteration, {:.0} % of the CPU",
@@ -215,7 +221,78 @@ fn main() -> anyhow::Result<()> {
         lstm_runs.3 / lstm_steps.3,
         lstm_runs.0 / lstm_steps.0
     );
+    for (name, fused, candle, epochs, minibatches) in [
+        ("2 × 2", mlp_loop, mlp_candle, lean.epochs, lean.minibatches),
+        ("5 × 4", ref_loop, ref_candle, field.epochs, field.minibatches),
+    ] {
+        // Rows an update passes over: half the environments' rollout (the pipeline's half),
+        // mirrored too; ≈ 6 flops per multiply-add and row (forward 2, backward 4).
+        let rows = (field.steps * 64 * 2 * epochs) as f64;
+        let gflop = rows * 6.0 * mlp_macs(mlp.observation_dim(), &MLP_HIDDEN, mlp.num_joints()) / 1e9;
+        let m = field.steps * 64 * 2 / minibatches;
+        println!(
+            "  MLP {name}: fused / candle's ops: update {:.2}×, env steps/s {:.2}×; the update ≈ {gflop:.2} GFLOP, {:.1} GFLOP/s fused, {:.1} candle; a plain product of its layers' shapes ({m} rows), one core: {:.1} GFLOP/s",
+            fused.3 / candle.3,
+            fused.0 / candle.0,
+            gflop / fused.3,
+            gflop / candle.3,
+            plain_gflops(m, mlp.observation_dim(), &MLP_HIDDEN, mlp.num_joints()),
+        );
+    }
     Ok(())
+}
+
+/// Multiply-adds of one row through the actor (`obs → hidden → act`) and the critic.
+fn mlp_macs(obs: usize, hidden: &[usize], act: usize) -> f64 {
+    let chain = |widths: &[usize]| widths.windows(2).map(|w| (w[0] * w[1]) as f64).sum::<f64>();
+    let actor: Vec<usize> = std::iter::once(obs)
+        .chain(hidden.iter().copied())
+        .chain([act])
+        .collect();
+    let critic_in = obs + train::ppo::env::CRITIC_EXTRA;
+    let critic: Vec<usize> = std::iter::once(critic_in)
+        .chain(train::ppo::policy::CRITIC_HIDDEN)
+        .chain([1])
+        .collect();
+    chain(&actor) + chain(&critic)
+}
+
+/// GFLOP/s of the forward products of the actor's and critic's layers over `m` rows on this
+/// thread (the same kernel the fused update calls), the best of a few repetitions.
+fn plain_gflops(m: usize, obs: usize, hidden: &[usize], act: usize) -> f64 {
+    let mut widths: Vec<(usize, usize)> = Vec::new();
+    let actor: Vec<usize> = std::iter::once(obs)
+        .chain(hidden.iter().copied())
+        .chain([act])
+        .collect();
+    let critic: Vec<usize> = std::iter::once(obs + train::ppo::env::CRITIC_EXTRA)
+        .chain(train::ppo::policy::CRITIC_HIDDEN)
+        .chain([1])
+        .collect();
+    for w in actor.windows(2).chain(critic.windows(2)) {
+        widths.push((w[0], w[1]));
+    }
+    let bufs: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = widths
+        .iter()
+        .map(|&(i, o)| (vec![0.5f32; m * i], vec![0.01f32; o * i], vec![0.0f32; m * o]))
+        .collect();
+    let mut bufs = bufs;
+    let flops: f64 = widths.iter().map(|&(i, o)| 2.0 * (m * i * o) as f64).sum();
+    let mut best = f64::INFINITY;
+    for _ in 0..20 {
+        let t = Instant::now();
+        for ((i, o), (x, w, y)) in widths.iter().zip(bufs.iter_mut()) {
+            train::ppo::matmul::MatMul {
+                m,
+                n: *o,
+                k: *i,
+                accumulate: false,
+            }
+            .run((y, *o, 1), (x, *i, 1), (w, 1, *i));
+        }
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    flops / best / 1e9
 }
 
 /// The MLP's hidden sizes in the recipe (docs/stair_policy.md).

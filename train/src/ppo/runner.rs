@@ -243,6 +243,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
             tracing::info!(?log, "iteration");
         }
         history.push(log);
+        thin_history(&mut history);
         // This run's own time (`--max-wall`), not the total across resumed chunks; it stops at
         // the next checkpoint, so a stop for time falls on the grid like any other.
         let out_of_time = start.elapsed().as_secs_f64() > cfg.max_wall_s;
@@ -288,6 +289,21 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         );
     }
     Ok(history)
+}
+
+/// Iterations of the history kept whole; before them, one in [`HISTORY_STRIDE`]. A run of
+/// ~200 000 iterations keeps its curves in ~1.5 MB (each iteration's line is ~650 bytes).
+pub const HISTORY_RECENT: usize = 2000;
+pub const HISTORY_STRIDE: usize = 100;
+
+/// Drops the older iterations' lines but every [`HISTORY_STRIDE`]th (the curves keep their shape;
+/// the file stays small enough for a run that lives in the repository).
+fn thin_history(history: &mut Vec<IterLog>) {
+    let Some(last) = history.last().map(|l| l.iteration) else {
+        return;
+    };
+    let cutoff = last.saturating_sub(HISTORY_RECENT);
+    history.retain(|l| l.iteration >= cutoff || l.iteration.is_multiple_of(HISTORY_STRIDE));
 }
 
 /// Widths of the actor's observation, the action and the critic's observation.
@@ -860,6 +876,22 @@ pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
 mod tests {
     use super::super::curriculum::{Column, ColumnMix};
     use super::*;
+
+    #[test]
+    fn the_history_keeps_recent_iterations_whole_and_one_in_a_stride_before() {
+        let mut h = Vec::new();
+        for i in 1..=(HISTORY_RECENT + 5 * HISTORY_STRIDE) {
+            h.push(IterLog {
+                iteration: i,
+                ..Default::default()
+            });
+            thin_history(&mut h);
+        }
+        assert_eq!(h.len(), HISTORY_RECENT + 1 + 4, "the last 2001 and 100, 200, 300, 400");
+        assert_eq!(h[0].iteration, HISTORY_STRIDE);
+        assert!(h.windows(2).all(|w| w[0].iteration < w[1].iteration));
+        assert_eq!(h.last().unwrap().iteration, HISTORY_RECENT + 5 * HISTORY_STRIDE);
+    }
 
     #[test]
     fn a_mixed_model_gets_its_share_of_every_column_and_of_both_pipeline_halves() {
