@@ -78,9 +78,8 @@ impl Net {
             if let Some(alpha) = d.elu {
                 let (h, gh) = (&self.acts[l + 1], &mut self.grads[l + 1]);
                 for (gv, &hv) in gh.iter_mut().zip(h) {
-                    if hv <= 0.0 {
-                        *gv *= hv + alpha;
-                    }
+                    // A select, not a branch: the loop vectorises.
+                    *gv *= if hv > 0.0 { 1.0 } else { hv + alpha };
                 }
             }
             let gz = &self.grads[l + 1];
