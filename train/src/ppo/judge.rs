@@ -23,18 +23,21 @@ pub struct JudgeConfig {
     pub sim_bin: Option<PathBuf>,
     /// Robot model of the judged runs (`g1fw eval --model`).
     pub model: String,
+    /// More models the same set runs on (rows labelled `up/MODEL`, `down/MODEL`, `flat/MODEL`).
+    pub also_models: Vec<String>,
 }
 
 impl JudgeConfig {
-    /// Up and down at 12, 16 and 20 cm, 2 episodes each, and a flat run: 13 episodes.
+    /// Up and down at 12, 16, 20 and 22 cm, 2 episodes each, and a flat run: 17 episodes.
     pub fn standard(every: usize, model: &str) -> Self {
         Self {
             every,
-            heights: vec![0.12, 0.16, 0.20],
+            heights: vec![0.12, 0.16, 0.20, 0.22],
             per_height: 2,
             seed: 29,
             sim_bin: None,
             model: model.to_string(),
+            also_models: Vec::new(),
         }
     }
 }
@@ -64,8 +67,40 @@ pub struct Judgement {
 /// The forward speed every judged episode is commanded, m/s.
 pub const JUDGE_VX: f32 = 0.5;
 
-/// Runs the judged set on `actor` (weights for `spec`).
+/// Runs the judged set on `actor` (weights for `spec`), on `cfg.model` and each of
+/// `cfg.also_models`: one judgement whose rows name the other models, whose stair success and
+/// score count every model, and whose flat run is clean only when it is on every model.
 pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_s: f64) -> anyhow::Result<Judgement> {
+    let mut j = judge_one(cfg, &cfg.model, spec, actor, env_steps, wall_s)?;
+    for model in &cfg.also_models {
+        let o = judge_one(cfg, model, spec, actor, env_steps, wall_s)?;
+        j.rows.extend(
+            o.rows
+                .into_iter()
+                .map(|(kind, cm, s, e)| (format!("{kind}/{model}"), cm, s, e)),
+        );
+        j.flat_ok &= o.flat_ok;
+        j.eval_wall_s += o.eval_wall_s;
+    }
+    // Over every model: stair successes per episode, and one point when every flat run is clean.
+    let (ok, n) = j
+        .rows
+        .iter()
+        .filter(|r| !r.0.starts_with("flat"))
+        .fold((0u64, 0u64), |(a, b), r| (a + r.2, b + r.3));
+    j.stair_success = if n > 0 { ok as f64 / n as f64 } else { 0.0 };
+    j.score = ok as f64 + j.flat_ok as u8 as f64;
+    Ok(j)
+}
+
+fn judge_one(
+    cfg: &JudgeConfig,
+    model: &str,
+    spec: &Path,
+    actor: &Path,
+    env_steps: u64,
+    wall_s: f64,
+) -> anyhow::Result<Judgement> {
     let (mut episodes, _scratch) = random_sweep(
         &cfg.heights,
         &[true, false],
@@ -80,7 +115,7 @@ pub fn judge(cfg: &JudgeConfig, spec: &Path, actor: &Path, env_steps: u64, wall_
     let opts = EvalOptions {
         spec: spec.to_path_buf(),
         weights: Some(actor.to_path_buf()),
-        model: cfg.model.clone(),
+        model: model.to_string(),
         terrain_source: None,
         vx: JUDGE_VX,
         time_limit_s: 20.0,

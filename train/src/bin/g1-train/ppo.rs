@@ -395,6 +395,8 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
         })?;
     }
     let judge_model = model.to_string();
+    // The judge runs on every model the run trains.
+    let judge_also: Vec<String> = mix_model.iter().map(|(m, _)| m.to_string()).collect();
     // A new run states its recipe; a resumed one keeps the one it was started with.
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let recipe = out.join(crate::recipe::RECIPE);
@@ -436,7 +438,10 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
         quiet,
         max_wall_s: max_wall,
         accept_recipe_change,
-        judge: train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model),
+        judge: train::ppo::judge::JudgeConfig {
+            also_models: judge_also,
+            ..train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model)
+        },
     };
     let history = train::ppo::runner::train(&cfg)?;
     if let Some(l) = history.last() {
