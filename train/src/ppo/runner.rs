@@ -128,8 +128,27 @@ pub fn recipe_text(cfg: &RunConfig) -> String {
     c.spec = PathBuf::new();
     c.init_actor = None;
     c.init_critic = None;
-    c.judge = super::judge::JudgeConfig::standard(0, "");
-    format!("{c:#?}")
+    without_judge(&format!("{c:#?}"))
+}
+
+/// A recipe's text without its `judge` block (how a run is judged changes nothing it computes;
+/// checkpoints written before it was left out hold it).
+fn without_judge(recipe: &str) -> String {
+    let mut out = String::new();
+    let mut skipping = false;
+    for line in recipe.lines() {
+        if line.starts_with("    judge: ") {
+            skipping = !line.ends_with(',');
+            continue;
+        }
+        if skipping {
+            skipping = line != "    },";
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
 }
 
 /// The training loop: start (or resume), then iterations of a pipelined rollout and update, each
@@ -179,9 +198,9 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         .map_or_else(|| "policy.safetensors".into(), |n| n.to_os_string());
     let note = match &loaded {
         None => format!("new run: {}", state.started_from),
-        Some(l) if l.recipe != recipe => format!(
+        Some(l) if without_judge(&l.recipe) != recipe => format!(
             "resumed under a changed recipe: {}",
-            super::checkpoint::recipe_difference(&l.recipe, &recipe, 8).join("; ")
+            super::checkpoint::recipe_difference(&without_judge(&l.recipe), &recipe, 8).join("; ")
         ),
         Some(_) => "resumed".to_string(),
     };
@@ -340,8 +359,8 @@ fn start_or_resume(
             l.spec_sha256,
             cfg.spec.display()
         );
-        if l.recipe != recipe {
-            let diff = super::checkpoint::recipe_difference(&l.recipe, recipe, 8);
+        if without_judge(&l.recipe) != recipe {
+            let diff = super::checkpoint::recipe_difference(&without_judge(&l.recipe), recipe, 8);
             anyhow::ensure!(
                 cfg.accept_recipe_change,
                 "{} was trained under other settings ({}); resume with the run's own recipe, or pass --accept-recipe-change to change it mid-run on purpose",
@@ -876,6 +895,12 @@ pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
 mod tests {
     use super::super::curriculum::{Column, ColumnMix};
     use super::*;
+
+    #[test]
+    fn the_recipe_leaves_the_judge_out() {
+        let text = "RunConfig {\n    envs: 4,\n    judge: JudgeConfig {\n        every: 5,\n        heights: [\n            0.12,\n        ],\n    },\n    quiet: false,\n}";
+        assert_eq!(without_judge(text), "RunConfig {\n    envs: 4,\n    quiet: false,\n}\n");
+    }
 
     #[test]
     fn the_history_keeps_recent_iterations_whole_and_one_in_a_stride_before() {
