@@ -272,6 +272,7 @@ pub fn load(
             j.set_frictionloss(0.0);
         }
         add_leg_capsules(&mut spec)?;
+        strip_meshes(&mut spec)?;
     }
 
     add_floor_if_missing(&mut spec)?;
@@ -459,6 +460,23 @@ fn make_pd_actuator<C>(a: &mut mujoco_rs::wrappers::mj_editing::MjsActuator<C>, 
     a.set_ctrllimited(mjtLimited::mjLIMITED_FALSE);
     a.set_forcelimited(mjtLimited::mjLIMITED_TRUE);
     *a.forcerange_mut() = [lo, hi];
+}
+
+/// Training profile: no mesh geoms and no meshes. Training collides only primitives
+/// ([`lean_collisions`]) and renders nothing, and the G1's meshes (~200 000 vertices) were ~70 of
+/// the ~80 MB of each environment's compiled model. Body masses and inertias are the MJCF's own
+/// `inertial` elements, not the geoms' (a test compares them with the deploy profile's).
+fn strip_meshes(spec: &mut MjSpec) -> Result<(), SimError> {
+    while let Some(g) = spec.geom_iter_mut().find(|g| g.type_() == _mjtGeomBase::mjGEOM_MESH) {
+        // SAFETY: `g` is the live geom just found; it is deleted once and no other handle of the
+        // spec is held across the call (the next round walks the spec afresh).
+        unsafe { g.delete() }.map_err(|e| edit_err("removing a mesh geom (training profile)", e))?;
+    }
+    while let Some(m) = spec.mesh_iter_mut().next() {
+        // SAFETY: as above, for the first mesh left; no geom refers to it any more.
+        unsafe { m.delete() }.map_err(|e| edit_err("removing a mesh (training profile)", e))?;
+    }
+    Ok(())
 }
 
 /// Training profile: a shin capsule on each knee link that has no primitive collider (the 12-dof

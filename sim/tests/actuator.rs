@@ -252,6 +252,22 @@ fn training_profile_collides_feet_and_shins_with_the_world_and_the_legs_with_eac
     }
     for choice in models {
         let mut sim = Simulator::load(choice.clone(), training()).unwrap();
+        // No meshes (training renders nothing and collides primitives), and the same bodies: the
+        // masses and inertias are the deploy profile's, bit for bit.
+        let deploy = Simulator::load(choice.clone(), SimConfig::default()).unwrap();
+        let (m, d) = (sim.data().model(), deploy.data().model());
+        assert_eq!(m.ffi().nmesh, 0, "{choice}");
+        assert!(d.ffi().nmesh > 0, "{choice}");
+        assert!(
+            (m.ffi().nbuffer as f64) < 0.2 * d.ffi().nbuffer as f64,
+            "{choice}: model {} bytes against the deploy profile's {}",
+            m.ffi().nbuffer,
+            d.ffi().nbuffer
+        );
+        assert_eq!(m.body_mass(), d.body_mass(), "{choice}");
+        assert_eq!(m.body_inertia(), d.body_inertia(), "{choice}");
+        assert_eq!(m.body_ipos(), d.body_ipos(), "{choice}");
+        drop(deploy);
         let m = sim.data().model();
         assert_eq!(m.opt().iterations, 10);
         assert!(m.dof_frictionloss().iter().all(|&f| f == 0.0));
