@@ -234,7 +234,6 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
 
     let start = Instant::now();
     let wall0 = state.wall_s;
-    let mut checkpoints = 0usize;
     let bar = labkit::progress::bar(cfg.iterations, cfg.quiet, "PPO");
     bar.set_position(state.iteration.min(cfg.iterations) as u64);
     while state.iteration < cfg.iterations {
@@ -281,8 +280,10 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
                 c.wall_s = start.elapsed().as_secs_f64();
             }
             super::chunks::write(&cfg.out, &chunks)?;
-            checkpoints += 1;
-            if cfg.judge.every > 0 && checkpoints.is_multiple_of(cfg.judge.every) {
+            // Every `every`th checkpoint of the run's grid (counted from its start, so a run that
+            // is stopped and resumed often is judged as one that is not).
+            let grid_index = state.iteration / cfg.checkpoint_every;
+            if cfg.judge.every > 0 && grid_index.is_multiple_of(cfg.judge.every) {
                 // A judge that cannot run (a missing g1-sim, a full disk) must not end hours of
                 // training: say so, and go on; the checkpoint is written.
                 if let Err(e) = judge_checkpoint(cfg, &actor, &state, &history) {
