@@ -348,10 +348,12 @@ where
 /// episode return (raw faint, smoothed solid), and the checkpoints judged through `g1fw` (success
 /// per kind and step height, points on their own axis, and the flat run's mean speed against its
 /// command); x: env steps and wall time.
+/// `reference`: the deployed policy judged on the same set, drawn as a level line.
 pub fn ppo_curves_png(
     path: &Path,
     log: &[crate::ppo::iter_log::IterLog],
     judged: &[crate::ppo::judge::Judgement],
+    reference: Option<&crate::ppo::judge::Judgement>,
 ) -> anyhow::Result<()> {
     check_png(path)?;
     let root = BitMapBackend::new(path, (1500, 1300)).into_drawing_area();
@@ -450,7 +452,7 @@ pub fn ppo_curves_png(
             }
         })
         .collect();
-    let judged_series: Vec<Series> = keys
+    let mut judged_series: Vec<Series> = keys
         .iter()
         .enumerate()
         .map(|(i, (k, h))| {
@@ -466,6 +468,20 @@ pub fn ppo_curves_png(
             (names[i].as_str(), palette[i % palette.len()], pts)
         })
         .collect();
+    // Every stair row together, the run's and the deployed policy's (a level line across).
+    let all: Vec<(f64, f64)> = judged
+        .iter()
+        .map(|j| (j.env_steps as f64 / 1e6, 100.0 * j.stair_success))
+        .collect();
+    judged_series.push(("all stairs", BLACK, all));
+    if let (Some(r), Some(first), Some(last)) = (reference, judged.first(), judged.last()) {
+        let level = 100.0 * r.stair_success;
+        let line = vec![
+            (first.env_steps as f64 / 1e6, level),
+            (last.env_steps as f64 / 1e6, level),
+        ];
+        judged_series.push(("deployed policy, all stairs", RGBColor(127, 127, 127), line));
+    }
     ppo_panel(
         &areas[4],
         "g1fw eval of checkpoints: success (%)",

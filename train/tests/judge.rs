@@ -104,10 +104,18 @@ fn a_run_judges_its_checkpoints_and_keeps_the_best() {
     }
     let out = std::env::temp_dir().join(format!("g1_ppo_judge_{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let cfg = flat_run(&out, small(1));
+    // With the deployed policy judged once on the same set, as the level line to pass.
+    let judge = JudgeConfig {
+        reference: Some(root().join("specs/stairs/g1_stairs_lstm.toml")),
+        ..small(1)
+    };
+    let cfg = flat_run(&out, judge);
     train(&cfg).expect("training runs");
     let judged = read_judgements(&out);
     assert_eq!(judged.len(), 1, "one checkpoint (the last), judged");
+    let reference = train::ppo::runner::read_reference(&out).expect("reference.json");
+    assert_eq!(reference.rows.len(), 3, "{reference:?}");
+    assert!(reference.actor.ends_with("g1_stairs_lstm.safetensors"), "{reference:?}");
     assert_eq!(judged[0].rows.len(), 3);
     assert!(out.join(BEST).is_file() && out.join("best.json").is_file() && out.join(JUDGE).is_file());
     // Critic warm-up only: the actor is the peer walker's, which walks on flat ground.

@@ -25,6 +25,9 @@ pub struct JudgeConfig {
     pub model: String,
     /// More models the same set runs on (rows labelled `up/MODEL`, `down/MODEL`, `flat/MODEL`).
     pub also_models: Vec<String>,
+    /// The deployed policy's spec (with its own weights), judged once on the same set into
+    /// `reference.json`: the level a run must pass (a line in `curves.png`).
+    pub reference: Option<PathBuf>,
 }
 
 impl JudgeConfig {
@@ -38,6 +41,7 @@ impl JudgeConfig {
             sim_bin: None,
             model: model.to_string(),
             also_models: Vec::new(),
+            reference: None,
         }
     }
 }

@@ -27,6 +27,8 @@ pub const CURVES: &str = "curves.png";
 /// Checkpoints judged through `g1fw` ([`super::judge`]), and the best of them.
 pub const JUDGE: &str = "judge.json";
 pub const BEST: &str = "best.safetensors";
+/// The deployed policy judged on the same set ([`super::judge::JudgeConfig::reference`]).
+pub const REFERENCE: &str = "reference.json";
 
 #[derive(Clone, Debug)]
 pub struct RunConfig {
@@ -836,7 +838,12 @@ fn save(
     std::fs::write(&kept, &actor)?;
     // Its critic beside it: whichever actor is committed keeps the critic to fine-tune it with.
     super::critic_file::save(&super::critic_file::beside(&kept), ac, &state.normalizer, &from)?;
-    crate::plot::ppo_curves_png(&out.join(CURVES), history, &read_judgements(out))?;
+    crate::plot::ppo_curves_png(
+        &out.join(CURVES),
+        history,
+        &read_judgements(out),
+        read_reference(out).as_ref(),
+    )?;
     Ok(kept)
 }
 
@@ -845,6 +852,13 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     let tmp = path.with_extension("tmp");
     std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+}
+
+/// The deployed policy judged on the run's set (`reference.json`), if it has been.
+pub fn read_reference(out: &Path) -> Option<Judgement> {
+    std::fs::read_to_string(out.join(REFERENCE))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
 }
 
 /// The judged checkpoints of a run so far (`judge.json`; none if absent).
@@ -858,6 +872,21 @@ pub fn read_judgements(out: &Path) -> Vec<Judgement> {
 /// Runs the judged set on a checkpoint's actor, appends it to `judge.json`, keeps the best actor as
 /// `best.safetensors` (+ `best.json`), and redraws the curves with the point.
 fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[IterLog]) -> anyhow::Result<()> {
+    // The deployed policy on the same set, once per run.
+    let mut reference = read_reference(&cfg.out);
+    if let (None, Some(spec)) = (&reference, &cfg.judge.reference) {
+        let weights = DeploySpec::load(spec)
+            .with_context(|| format!("the judge's reference spec {}", spec.display()))?
+            .weights_path();
+        let r = super::judge::judge(&cfg.judge, spec, &weights, 0, 0.0)?;
+        tracing::info!(
+            "g1fw judged the deployed policy {}: stair success {:.0} %",
+            spec.display(),
+            100.0 * r.stair_success
+        );
+        std::fs::write(cfg.out.join(REFERENCE), serde_json::to_string_pretty(&r)?)?;
+        reference = Some(r);
+    }
     let j = super::judge::judge(&cfg.judge, &cfg.spec, actor, state.env_steps, state.wall_s)?;
     tracing::info!(
         "g1fw judged {} env steps: stair success {:.0} %, flat {}, score {} ({:.0} s)",
@@ -875,7 +904,7 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
     }
     all.push(j);
     std::fs::write(cfg.out.join(JUDGE), serde_json::to_string_pretty(&all)?)?;
-    crate::plot::ppo_curves_png(&cfg.out.join(CURVES), history, &all)?;
+    crate::plot::ppo_curves_png(&cfg.out.join(CURVES), history, &all, reference.as_ref())?;
     Ok(())
 }
 

@@ -274,6 +274,10 @@ pub struct Args {
     /// judge.json, best.safetensors and the points in curves.png. 0: never.
     #[arg(long, default_value_t = 5)]
     judge_every: usize,
+    /// The deployed policy (a spec, run with its own weights), judged once on the same set
+    /// (reference.json): the level line in curves.png that a run must pass. `none`: no line.
+    #[arg(long, default_value = "specs/stairs/g1_stairs_lstm.toml", value_name = "SPEC")]
+    judge_reference: String,
     #[arg(long)]
     quiet: bool,
 }
@@ -358,6 +362,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
         judge_every,
         quiet,
         accept_recipe_change,
+        judge_reference,
         ..
     } = args;
     let out = out.ok_or_else(|| anyhow::anyhow!("give --out DIR (a new run) or --resume DIR"))?;
@@ -440,6 +445,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
         accept_recipe_change,
         judge: train::ppo::judge::JudgeConfig {
             also_models: judge_also,
+            reference: (judge_reference != "none").then(|| PathBuf::from(&judge_reference)),
             ..train::ppo::judge::JudgeConfig::standard(judge_every, &judge_model)
         },
     };
