@@ -76,11 +76,14 @@ pub fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".into())
 }
 
-/// The checkout's commit (`git rev-parse --short HEAD`, `+changes` when tracked files differ from
-/// it), or `unknown` outside a checkout.
-pub fn commit() -> String {
+/// The commit of the checkout that holds `dir` (`git rev-parse --short HEAD`), with `+changes`
+/// when tracked files outside `dir` differ from it (the run's own folder changes as it trains),
+/// or `unknown` outside a checkout.
+pub fn commit(dir: &Path) -> String {
     let git = |args: &[&str]| {
         std::process::Command::new("git")
+            .arg("-C")
+            .arg(dir)
             .args(args)
             .output()
             .ok()
@@ -89,7 +92,15 @@ pub fn commit() -> String {
     };
     match git(&["rev-parse", "--short", "HEAD"]) {
         Some(h) if !h.is_empty() => {
-            let dirty = git(&["status", "--porcelain", "--untracked-files=no"]).is_some_and(|s| !s.is_empty());
+            let dirty = git(&[
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+                ":(top)",
+                ":(exclude).",
+            ])
+            .is_some_and(|s| !s.is_empty());
             if dirty {
                 format!("{h}+changes")
             } else {
@@ -127,6 +138,17 @@ pub fn now_utc() -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_commit_of_a_checkout_and_of_no_checkout() {
+        let here = commit(Path::new(env!("CARGO_MANIFEST_DIR")));
+        let hash = here.trim_end_matches("+changes");
+        assert!(hash.len() >= 7 && hash.chars().all(|c| c.is_ascii_hexdigit()), "{here}");
+        let outside = std::env::temp_dir().join(format!("g1_chunks_{}", std::process::id()));
+        std::fs::create_dir_all(&outside).unwrap();
+        assert_eq!(commit(&outside), "unknown");
+        std::fs::remove_dir_all(&outside).unwrap();
+    }
 
     #[test]
     fn dates_and_the_table() {

@@ -209,7 +209,7 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
     let mut chunks = super::chunks::read(&cfg.out);
     chunks.push(super::chunks::Chunk {
         started_utc: super::chunks::now_utc(),
-        commit: super::chunks::commit(),
+        commit: super::chunks::commit(&cfg.out),
         cpu: super::chunks::cpu_model(),
         threads: cfg.threads,
         from_iteration: state.iteration,
