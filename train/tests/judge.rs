@@ -111,9 +111,11 @@ fn a_run_judges_its_checkpoints_and_keeps_the_best() {
     };
     let cfg = flat_run(&out, judge);
     train(&cfg).expect("training runs");
-    let judged = read_judgements(&out);
+    let judged = read_judgements(&out).unwrap();
     assert_eq!(judged.len(), 1, "one checkpoint (the last), judged");
-    let reference = train::ppo::runner::read_reference(&out).expect("reference.json");
+    let reference = train::ppo::runner::read_reference(&out)
+        .unwrap()
+        .expect("reference.json");
     assert_eq!(reference.rows.len(), 3, "{reference:?}");
     assert!(reference.actor.ends_with("g1_stairs_lstm.safetensors"), "{reference:?}");
     assert_eq!(judged[0].rows.len(), 3);
@@ -150,7 +152,7 @@ fn a_judge_that_fails_does_not_end_training() {
     cfg.env.episode_s = 1.0;
     let history = train(&cfg).expect("training outlives a failing judge");
     assert_eq!(history.last().map(|h| h.iteration), Some(2));
-    assert!(read_judgements(&out).is_empty(), "nothing was judged");
+    assert!(read_judgements(&out).unwrap().is_empty(), "nothing was judged");
     assert!(out.join("checkpoint.safetensors").is_file());
     std::fs::remove_dir_all(&out).unwrap();
 }

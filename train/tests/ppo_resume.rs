@@ -179,8 +179,21 @@ fn a_damaged_truncated_or_mismatched_checkpoint_is_refused_by_name() {
     let e = resume(&cfg);
     assert!(e.contains("not a run checkpoint"), "{e}");
 
-    // The good one still resumes, and a changed recipe does with --accept-recipe-change.
+    // A damaged record beside a good checkpoint: refused by name, not read as empty.
     std::fs::write(&ckpt, &good).unwrap();
+    let history = run.join(train::ppo::runner::HISTORY);
+    let whole = std::fs::read(&history).unwrap();
+    std::fs::write(&history, &whole[..whole.len() / 2]).unwrap();
+    let e = resume(&cfg);
+    assert!(e.contains("history.json is damaged"), "{e}");
+    std::fs::write(&history, &whole).unwrap();
+    let judged = run.join(train::ppo::runner::JUDGE);
+    std::fs::write(&judged, "[{\"env_steps\": 12").unwrap();
+    let e = resume(&cfg);
+    assert!(e.contains("judge.json is damaged"), "{e}");
+    std::fs::remove_file(&judged).unwrap();
+
+    // The good one still resumes, and a changed recipe does with --accept-recipe-change.
     other.accept_recipe_change = true;
     other.iterations = 4;
     let h = train(&other).expect("resumes on purpose");

@@ -419,11 +419,11 @@ fn start_or_resume(
             cfg.envs
         );
         // The history is the curves' record; the checkpoint's own counters say where it stands.
-        let history: Vec<IterLog> = std::fs::read_to_string(cfg.out.join(HISTORY))
-            .ok()
-            .and_then(|h| serde_json::from_str(&h).ok())
-            .unwrap_or_default();
+        // A damaged record is refused here, not read as empty (and then overwritten).
+        let history: Vec<IterLog> = read_run_json(&cfg.out, HISTORY)?.unwrap_or_default();
         let history = history.into_iter().filter(|h| h.iteration <= st.iteration).collect();
+        read_judgements(&cfg.out)?;
+        read_reference(&cfg.out)?;
         tracing::info!(
             "resuming {} at iteration {} ({} env steps)",
             cfg.out.display(),
@@ -841,8 +841,9 @@ fn save(
     crate::plot::ppo_curves_png(
         &out.join(CURVES),
         history,
-        &read_judgements(out),
-        read_reference(out).as_ref(),
+        // Checked on resuming; here a record damaged since is drawn without (and not rewritten).
+        &read_judgements(out).unwrap_or_default(),
+        read_reference(out).ok().flatten().as_ref(),
     )?;
     Ok(kept)
 }
@@ -854,26 +855,42 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
 }
 
+/// A JSON record of the run in `out`: `None` when the file is absent; an error naming it when it
+/// cannot be read or parsed (a truncated `judge.json` read as empty would let a worse actor become
+/// `best.safetensors`).
+fn read_run_json<T: serde::de::DeserializeOwned>(out: &Path, name: &str) -> anyhow::Result<Option<T>> {
+    let path = out.join(name);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let damaged = |why: String| {
+        anyhow::anyhow!(
+            "{} is damaged ({why}); restore it (e.g. `git checkout -- {}`) or move it away to start that record afresh",
+            path.display(),
+            path.display()
+        )
+    };
+    let text = input_file::read_text_capped(&path, 256 << 20).map_err(|e| damaged(e.to_string()))?;
+    serde_json::from_str(&text)
+        .map(Some)
+        .map_err(|e| damaged(e.to_string()))
+}
+
 /// The deployed policy judged on the run's set (`reference.json`), if it has been.
-pub fn read_reference(out: &Path) -> Option<Judgement> {
-    std::fs::read_to_string(out.join(REFERENCE))
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
+pub fn read_reference(out: &Path) -> anyhow::Result<Option<Judgement>> {
+    read_run_json(out, REFERENCE)
 }
 
 /// The judged checkpoints of a run so far (`judge.json`; none if absent).
-pub fn read_judgements(out: &Path) -> Vec<Judgement> {
-    std::fs::read_to_string(out.join(JUDGE))
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or_default()
+pub fn read_judgements(out: &Path) -> anyhow::Result<Vec<Judgement>> {
+    Ok(read_run_json(out, JUDGE)?.unwrap_or_default())
 }
 
 /// Runs the judged set on a checkpoint's actor, appends it to `judge.json`, keeps the best actor as
 /// `best.safetensors` (+ `best.json`), and redraws the curves with the point.
 fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[IterLog]) -> anyhow::Result<()> {
     // The deployed policy on the same set, once per run.
-    let mut reference = read_reference(&cfg.out);
+    let mut reference = read_reference(&cfg.out)?;
     if let (None, Some(spec)) = (&reference, &cfg.judge.reference) {
         let weights = DeploySpec::load(spec)
             .with_context(|| format!("the judge's reference spec {}", spec.display()))?
@@ -884,7 +901,7 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
             spec.display(),
             100.0 * r.stair_success
         );
-        std::fs::write(cfg.out.join(REFERENCE), serde_json::to_string_pretty(&r)?)?;
+        write_atomically(&cfg.out.join(REFERENCE), serde_json::to_string_pretty(&r)?.as_bytes())?;
         reference = Some(r);
     }
     let j = super::judge::judge(&cfg.judge, &cfg.spec, actor, state.env_steps, state.wall_s)?;
@@ -896,14 +913,14 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
         j.score,
         j.eval_wall_s
     );
-    let mut all = read_judgements(&cfg.out);
+    let mut all = read_judgements(&cfg.out)?;
     let best = all.iter().map(|b| b.score).fold(f64::NEG_INFINITY, f64::max);
     if j.score > best {
-        std::fs::copy(actor, cfg.out.join(BEST))?;
-        std::fs::write(cfg.out.join("best.json"), serde_json::to_string_pretty(&j)?)?;
+        write_atomically(&cfg.out.join(BEST), &std::fs::read(actor)?)?;
+        write_atomically(&cfg.out.join("best.json"), serde_json::to_string_pretty(&j)?.as_bytes())?;
     }
     all.push(j);
-    std::fs::write(cfg.out.join(JUDGE), serde_json::to_string_pretty(&all)?)?;
+    write_atomically(&cfg.out.join(JUDGE), serde_json::to_string_pretty(&all)?.as_bytes())?;
     crate::plot::ppo_curves_png(&cfg.out.join(CURVES), history, &all, reference.as_ref())?;
     Ok(())
 }
