@@ -27,12 +27,29 @@ impl Rng {
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
         lo + (hi - lo) * (1.0 - self.uniform())
     }
-    /// Uniform integer in [lo, hi].
+    /// Uniform integer in [lo, hi] (the whole of u64 for `int(0, u64::MAX)`, whose span does not
+    /// fit in a u64).
     pub fn int(&mut self, lo: u64, hi: u64) -> u64 {
-        lo + self.next_u64() % (hi - lo + 1)
+        match (hi - lo).checked_add(1) {
+            Some(span) => lo + self.next_u64() % span,
+            None => self.next_u64(),
+        }
     }
     /// True with probability p.
     pub fn chance(&mut self, p: f64) -> bool {
         self.uniform() <= p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_integer_over_the_whole_range_does_not_divide_by_zero() {
+        let mut a = Rng(3);
+        let mut b = Rng(3);
+        assert_eq!(a.int(0, u64::MAX), b.next_u64());
+        assert!((5..=9).contains(&a.int(5, 9)));
     }
 }
