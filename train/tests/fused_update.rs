@@ -1,6 +1,8 @@
 //! The fused update of a feed-forward actor ([`train::ppo::mlp_update`]) against candle's ops on
 //! the same batch: the same losses, gradient norm and Adam steps, within float tolerance, with and
 //! without symmetry augmentation and through the critic's warm-up.
+// The trainer never runs on the robot: std's math is fine here (see clippy.toml).
+#![allow(clippy::disallowed_methods)]
 use labkit::rng::Rng;
 use train::ppo::algo::{compute_gae, gaussian_logp, EnvRollout, Learner, Normalizer, PpoConfig, UpdateStats};
 use train::ppo::policy::{ActorArch, ActorCritic, ActorLayer};
@@ -77,10 +79,10 @@ fn rollouts(ac: &ActorCritic, norm: &mut Normalizer, cfg: &PpoConfig) -> Vec<Env
             .to_vec1()
             .unwrap();
         for s in 0..T {
-            for j in 0..ACT {
+            for (j, ls) in log_std.iter().enumerate() {
                 let k = s * ACT + j;
                 r.means[k] = mean[k];
-                r.actions[k] = mean[k] + (log_std[j] as f64).exp() as f32 * rng.gaussian() as f32;
+                r.actions[k] = mean[k] + (*ls as f64).exp() as f32 * rng.gaussian() as f32;
             }
             r.logp[s] = gaussian_logp(
                 &r.actions[s * ACT..(s + 1) * ACT],
@@ -100,7 +102,10 @@ fn rollouts(ac: &ActorCritic, norm: &mut Normalizer, cfg: &PpoConfig) -> Vec<Env
     rolls
 }
 
-fn params(ac: &ActorCritic) -> Vec<(String, Vec<f32>)> {
+/// Every variable's name and values.
+type Params = Vec<(String, Vec<f32>)>;
+
+fn params(ac: &ActorCritic) -> Params {
     ac.named_vars()
         .into_iter()
         .map(|(n, v)| (n, v.as_tensor().flatten_all().unwrap().to_vec1().unwrap()))
@@ -108,7 +113,7 @@ fn params(ac: &ActorCritic) -> Vec<(String, Vec<f32>)> {
 }
 
 /// One update by each path from the same actor-critic; returns both stats and parameters.
-fn both(cfg: PpoConfig, symmetry: bool, critic_only: bool) -> [(UpdateStats, Vec<(String, Vec<f32>)>); 2] {
+fn both(cfg: PpoConfig, symmetry: bool, critic_only: bool) -> [(UpdateStats, Params); 2] {
     let mut norm = Normalizer::new(CRITIC);
     let probe = ActorCritic::with_arch(arch(), CRITIC, 0.6, 3).unwrap();
     let rolls = rollouts(&probe, &mut norm, &cfg);

@@ -224,18 +224,18 @@ impl FusedMlp {
         let act = actor.last()?.output;
         let mut critic = Vec::new();
         let n = CRITIC_HIDDEN.len();
-        let mut input = None;
-        for i in 0..=n {
+        // The critic's input width is set by `load` (it is the normalised critic observation's).
+        let mut input = 0;
+        for (i, &output) in CRITIC_HIDDEN.iter().chain(&[1]).enumerate() {
             let (w, b) = (format!("critic.{i}.weight"), format!("critic.{i}.bias"));
-            let output = if i < n { CRITIC_HIDDEN[i] } else { 1 };
             critic.push(Dense {
                 weight: idx(&w)?,
                 bias: idx(&b)?,
-                input: input.unwrap_or(0),
+                input,
                 output,
                 elu: (i < n).then_some(1.0),
             });
-            input = Some(output);
+            input = output;
         }
         let net = |layers: Vec<Dense>| Net {
             acts: vec![Vec::new(); layers.len() + 1],
