@@ -14,7 +14,6 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use anyhow::Context;
 use candle_core::Tensor;
 use safetensors::tensor::Dtype;
 use serde::{Deserialize, Serialize};
@@ -85,10 +84,7 @@ pub fn write(
         ("data_sha256".to_string(), data_sha256(&tensors)),
     ]);
     let bytes = serialize(&tensors, Some(meta))?;
-    let tmp = path.with_extension("safetensors.tmp");
-    std::fs::write(&tmp, &bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))?;
-    Ok(())
+    super::runner::write_atomically(path, &bytes)
 }
 
 /// sha256 over every tensor's name, type, shape and bytes, in name order: damage anywhere in the

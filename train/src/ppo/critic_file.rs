@@ -69,10 +69,7 @@ pub fn to_bytes(ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) ->
 
 /// Writes [`to_bytes`] to `path` (write, then rename: a killed run keeps the previous file).
 pub fn save(path: &Path, ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) -> anyhow::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, to_bytes(ac, normalizer, from)?).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    super::runner::write_atomically(path, &to_bytes(ac, normalizer, from)?)
 }
 
 fn f64s(st: &safetensors::SafeTensors<'_>, name: &str, len: usize, path: &Path) -> anyhow::Result<Vec<f64>> {

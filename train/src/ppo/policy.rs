@@ -576,10 +576,6 @@ impl ActorCritic {
             .collect()
     }
 
-    pub fn save(&self, path: &Path) -> Result<()> {
-        self.vars.save(path)
-    }
-
     pub fn load(&mut self, path: &Path) -> Result<()> {
         self.vars.load(path)
     }

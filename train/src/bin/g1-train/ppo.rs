@@ -406,9 +406,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let recipe = out.join(crate::recipe::RECIPE);
     if !out.join(train::ppo::runner::CHECKPOINT).exists() || !recipe.exists() {
-        let tmp = recipe.with_extension("tmp");
-        std::fs::write(&tmp, crate::recipe::text(argv)?).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, &recipe)?;
+        train::ppo::runner::write_atomically(&recipe, crate::recipe::text(argv)?.as_bytes())?;
     }
     let cfg = train::ppo::runner::RunConfig {
         spec,
