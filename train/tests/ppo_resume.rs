@@ -198,5 +198,11 @@ fn a_damaged_truncated_or_mismatched_checkpoint_is_refused_by_name() {
     other.iterations = 4;
     let h = train(&other).expect("resumes on purpose");
     assert_eq!(h.last().unwrap().iteration, 4);
+    // More environments on purpose (the field's batch, reached mid-run): they start at the levels
+    // the run had reached.
+    more.accept_recipe_change = true;
+    more.iterations = 5;
+    let h = train(&more).expect("resumes with more environments on purpose");
+    assert_eq!(h.last().unwrap().iteration, 5);
     std::fs::remove_dir_all(&dir).unwrap();
 }

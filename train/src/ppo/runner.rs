@@ -402,7 +402,7 @@ fn start_or_resume(
     ac.mirror = firmware::mirror::PolicyMirror::averaged_with(spec)?;
     if let Some(l) = loaded {
         let c = &l.counters;
-        let st = RunState {
+        let mut st = RunState {
             iteration: c.iteration,
             env_steps: c.env_steps,
             wall_s: c.wall_s,
@@ -411,13 +411,18 @@ fn start_or_resume(
             levels: c.levels.clone(),
             started_from: c.started_from.clone(),
         };
-        anyhow::ensure!(
-            st.levels.len() == cfg.envs,
-            "{} holds {} environments' levels and the recipe asks for {} environments",
-            ckpt.display(),
-            st.levels.len(),
-            cfg.envs
-        );
+        if st.levels.len() != cfg.envs {
+            anyhow::ensure!(
+                cfg.accept_recipe_change && !st.levels.is_empty(),
+                "{} holds {} environments' levels and the recipe asks for {} environments \
+                 (--accept-recipe-change resumes with the levels repeated or cut)",
+                ckpt.display(),
+                st.levels.len(),
+                cfg.envs
+            );
+            // More environments start at the levels the run had reached, in turn; fewer keep the first.
+            st.levels = (0..cfg.envs).map(|i| st.levels[i % st.levels.len()]).collect();
+        }
         // The history is the curves' record; the checkpoint's own counters say where it stands.
         // A damaged record is refused here, not read as empty (and then overwritten).
         let history: Vec<IterLog> = read_run_json(&cfg.out, HISTORY)?.unwrap_or_default();
