@@ -36,6 +36,7 @@ pub mod robot;
 pub mod rt;
 pub mod runtime;
 pub mod spec;
+pub mod spec_limits;
 pub mod supervisor;
 pub mod terrain_net;
 

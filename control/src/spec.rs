@@ -870,6 +870,9 @@ impl DeploySpec {
         self.validate_estimator()?;
         self.validate_perception()?;
         self.validate_rates_and_startup()?;
+        if let Some((field, message)) = crate::spec_limits::first_violation(self) {
+            return Err(self.invalid(field, message));
+        }
         let used = self.validate_policy()?;
         self.validate_held(used)?;
         self.validate_commands_and_phase()?;
