@@ -435,6 +435,77 @@ fn counts_are_bounded_before_anything_is_allocated() {
     );
 }
 
+/// Issue 73: numbers a run reads from its flags are bounded (NaN, ∞, negatives and 1e30 used to
+/// pass: a 1e30 s ramp, a max-init-level that overflowed the curriculum), and a spec's guards and
+/// rates too (a 3 GHz control rate hung `g1fw run`, flooding the robot).
+#[test]
+fn hostile_numbers_in_flags_and_specs_are_refused_by_name() {
+    let spec = "specs/stairs/g1_stairs_lstm.toml";
+    for (args, says) in [
+        (vec!["sim", "--spec", spec, "--ramp", "1e30"], "--ramp"),
+        (vec!["sim", "--spec", spec, "--duration", "nan"], "--duration"),
+        (vec!["sim", "--spec", spec, "--physics-dt", "0"], "--physics-dt"),
+        (vec!["run", "--spec", spec, "--end-damping", "inf"], "--end-damping"),
+        (vec!["run", "--spec", spec, "--startup-timeout=-1"], "--startup-timeout"),
+        (vec!["eval", "--spec", spec, "--vx", "1e9"], "--vx"),
+        (
+            vec![
+                "run",
+                "--spec",
+                spec,
+                "--set",
+                "rates.control_hz=3000000000",
+                "--duration",
+                "1",
+                "--dds",
+                "lo",
+            ],
+            "rates.control_hz",
+        ),
+        (
+            vec![
+                "run",
+                "--spec",
+                spec,
+                "--set",
+                "safety.state_timeout_s=1e9",
+                "--duration",
+                "1",
+                "--dds",
+                "lo",
+            ],
+            "safety.state_timeout_s",
+        ),
+    ] {
+        let out = g1fw(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{args:?}: {err}");
+    }
+    let dir = scratch_dir("hostile_numbers");
+    for (flag, value, says) in [
+        (
+            "--max-init-level",
+            "18446744073709551615",
+            "--max-init-level must be 0 to 10",
+        ),
+        ("--entropy-coef", "nan", "--entropy-coef NaN"),
+        ("--max-wall", "-1", "--max-wall -1"),
+        ("--checkpoint-every", "0", "--checkpoint-every must be 1"),
+        ("--iterations", "0", "--iterations must be 1"),
+    ] {
+        let out = std::process::Command::new(built_bin("g1-train"))
+            .args(["ppo", "--judge-every", "0", "--quiet", "--out"])
+            .arg(dir.join("run"))
+            .arg(format!("{flag}={value}"))
+            .current_dir(repo_root())
+            .output()
+            .expect("g1-train runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{flag} {value}: {err}");
+        assert!(!err.contains("panicked"), "{flag} {value}: {err}");
+    }
+}
+
 /// A `RUST_LOG` that is not `level,target=level,...` is named and the default filter used; a good
 /// one is taken silently. The run itself goes on either way (here: a clear error for a missing log).
 #[test]

@@ -77,7 +77,7 @@ enum Cmd {
         /// A log written by `g1fw sim --world ... --log`.
         log: PathBuf,
         /// Log time of the frame, s (the nearest frame; default: the last).
-        #[arg(long)]
+        #[arg(long, value_parser = parse_at_s)]
         at: Option<f64>,
         /// Output PNG.
         #[arg(long, short)]
@@ -161,7 +161,7 @@ struct SimArgs {
     #[command(flatten)]
     rt: RtArgs,
     /// Simulated seconds to run.
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 20.0, value_parser = parse_run_s)]
     duration: f64,
     /// Seed for the simulator (same seed, spec and command: bit-identical run).
     #[arg(long, default_value_t = 0)]
@@ -170,14 +170,14 @@ struct SimArgs {
     #[arg(long)]
     report: Option<PathBuf>,
     /// Physics time step of the simulator, seconds.
-    #[arg(long, default_value_t = 0.002)]
+    #[arg(long, default_value_t = 0.002, value_parser = parse_physics_dt)]
     physics_dt: f64,
     /// Skip the start-up ramp: targets are the default pose from the first tick and the policy
     /// first runs one policy period later (as Unitree's reference loop).
     #[arg(long, conflicts_with = "ramp")]
     no_ramp: bool,
     /// Start-up ramp duration in seconds (overrides the spec's `startup.ramp_s`).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_ramp_s)]
     ramp: Option<f64>,
     /// Do not load or run the policy: ramp to the spec's default pose and hold it.
     #[arg(long)]
@@ -211,7 +211,7 @@ struct SimArgs {
     /// heading) by replacing the command's wz every tick with 0.5·wrap(target − IMU yaw), clamped
     /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0 or from
     /// --cmd-schedule (whose vy and wz it then ignores).
-    #[arg(long, value_name = "DEG", allow_hyphen_values = true)]
+    #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = parse_heading_deg)]
     heading: Option<f64>,
     /// With --heading: also steer back to the line through the start along that heading, from
     /// the estimator's position: the target heading turns toward the line by 1 rad per metre
@@ -225,7 +225,7 @@ struct SimArgs {
     profile_plot: Option<PathBuf>,
     /// Stop once the base has stood on the staircase's end landing this long (s) with no fall and
     /// no trip (the run has succeeded; `stairs` in the report).
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", value_parser = parse_wait_s)]
     stop_after_landing: Option<f64>,
 }
 
@@ -263,10 +263,10 @@ struct EvalArgs {
     #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
     terrain_source: Option<firmware::perception::TerrainSource>,
     /// Forward velocity command, m/s (vy = 0; wz from the heading correction).
-    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = parse_vx)]
     vx: f32,
     /// Simulated seconds per episode.
-    #[arg(long, default_value_t = 20.0, value_name = "S")]
+    #[arg(long, default_value_t = 20.0, value_name = "S", value_parser = parse_run_s)]
     time_limit: f64,
     /// Episodes run at once, each with its own g1-sim (results do not depend on it).
     #[arg(long, default_value_t = 1, value_name = "N")]
@@ -281,7 +281,7 @@ struct EvalArgs {
     /// Random sweep: riser heights (m), comma-separated; each episode draws depth 0.22-0.40 m,
     /// yaw ±30°, start distance 0.6-2.0 m, 3-8 steps and width 1.2-2.0 m from --seed and writes
     /// a scenario file into a scratch directory removed afterwards.
-    #[arg(long, value_delimiter = ',', value_name = "H,...")]
+    #[arg(long, value_delimiter = ',', value_name = "H,...", value_parser = parse_riser_m)]
     heights: Vec<f64>,
     /// Random sweep: staircase kinds, comma-separated: up, down.
     #[arg(long, value_delimiter = ',', default_value = "up,down", value_name = "up,down")]
@@ -291,7 +291,7 @@ struct EvalArgs {
     episodes_per_height: usize,
     /// End an episode once the base has stood on the end landing this long (s); 0 runs every
     /// episode to --time-limit.
-    #[arg(long, default_value_t = firmware::eval::LANDING_HOLD_S, value_name = "S")]
+    #[arg(long, default_value_t = firmware::eval::LANDING_HOLD_S, value_name = "S", value_parser = parse_wait_s)]
     stop_after_landing: f64,
     /// Write the JSON report here.
     #[arg(long)]
@@ -357,12 +357,12 @@ struct RunArgs {
     #[arg(long, value_name = "IF[,IF…]", value_delimiter = ',', requires = "can_config")]
     can: Vec<String>,
     /// Seconds of control ticks to run (default: until SIGINT/SIGTERM).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_run_s)]
     duration: Option<f64>,
     /// After every end (the duration ran out, a signal, a safety trip, a lost link, a crash of the
     /// loop): send the damping command (kp 0, the spec's damping kd) every control period for this
     /// many seconds, then exit. At least one is sent.
-    #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
+    #[arg(long, value_name = "SECONDS", default_value_t = 1.0, value_parser = parse_end_damping_s)]
     end_damping: f64,
     /// Velocity command vx,vy,wz (m/s, m/s, rad/s), held for the whole run.
     #[arg(long, default_value = "0,0,0", value_parser = parse_cmd, allow_hyphen_values = true, conflicts_with = "cmd_schedule")]
@@ -377,13 +377,13 @@ struct RunArgs {
     #[arg(long)]
     report: Option<PathBuf>,
     /// Start-up ramp duration in seconds (overrides the spec's `startup.ramp_s`).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_ramp_s)]
     ramp: Option<f64>,
     /// Do not load or run the policy: ramp to the default pose and hold it.
     #[arg(long)]
     hold: bool,
     /// Seconds to wait at start-up for every motor to answer and the first IMU sample.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = parse_wait_s)]
     startup_timeout: f64,
     /// Override the layout's `tick_timeout_ms` (no IMU sample for this long ends the run with
     /// damping); e.g. for emulated buses on a loaded machine.
@@ -434,6 +434,72 @@ impl RtArgs {
             mlockall: self.mlockall,
         }
     }
+}
+
+/// A finite number within `lo..=hi` (clap's f64 parser takes NaN, ∞ and 1e30).
+fn finite_in(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} is outside {lo} to {hi} {unit}"))
+    }
+}
+
+/// A run's length, s: up to a week.
+fn parse_run_s(s: &str) -> Result<f64, String> {
+    finite_in(s, 1e-3, 7.0 * 86400.0, "s")
+}
+
+/// A start-up ramp, s, within what a spec may hold (`startup.ramp_s`).
+fn parse_ramp_s(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, control::spec::MAX_STARTUP_S, "s")
+}
+
+/// The damping after a run, s: a stop must stop.
+fn parse_end_damping_s(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 10.0, "s")
+}
+
+/// A wait or a hold, s.
+fn parse_wait_s(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 600.0, "s")
+}
+
+#[cfg(feature = "lab")]
+/// A time into a log, s.
+fn parse_at_s(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 1e9, "s")
+}
+
+#[cfg(feature = "lab")]
+/// The simulator's physics step, s.
+fn parse_physics_dt(s: &str) -> Result<f64, String> {
+    finite_in(s, 1e-4, 0.01, "s")
+}
+
+#[cfg(feature = "lab")]
+/// A heading, degrees.
+fn parse_heading_deg(s: &str) -> Result<f64, String> {
+    finite_in(s, -360.0, 360.0, "degrees")
+}
+
+#[cfg(feature = "lab")]
+/// A riser height, m.
+fn parse_riser_m(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 0.5, "m")
+}
+
+#[cfg(feature = "lab")]
+/// A forward speed, m/s, within any spec's command limits.
+fn parse_vx(s: &str) -> Result<f32, String> {
+    finite_in(
+        s,
+        -(control::spec::MAX_COMMAND as f64),
+        control::spec::MAX_COMMAND as f64,
+        "m/s",
+    )
+    .map(|v| v as f32)
 }
 
 fn parse_cmd(s: &str) -> Result<[f32; 3], String> {

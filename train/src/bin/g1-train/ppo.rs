@@ -380,6 +380,22 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
     bounded("--epochs", epochs, 1, 100)?;
     bounded("--minibatches", minibatches, 1, envs)?;
     bounded("--rate-hold", rate_hold, 1, 10_000)?;
+    bounded("--iterations", iterations, 1, usize::MAX)?;
+    bounded("--checkpoint-every", checkpoint_every, 1, usize::MAX)?;
+    bounded(
+        "--max-init-level",
+        env.max_init_level,
+        0,
+        train::ppo::curriculum::LEVELS - 1,
+    )?;
+    anyhow::ensure!(
+        entropy_coef.is_finite() && (0.0..=1.0).contains(&entropy_coef),
+        "--entropy-coef {entropy_coef}: give a number in [0, 1] (rsl_rl's G1 recipes: 0.005–0.01)"
+    );
+    anyhow::ensure!(
+        max_wall > 0.0,
+        "--max-wall {max_wall}: give seconds > 0 (the run stops at the first checkpoint after them)"
+    );
     anyhow::ensure!(
         lr.is_finite()
             && lr > 0.0
