@@ -4,7 +4,7 @@
 #![allow(clippy::disallowed_methods)]
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use common::{have_12dof, require_deps};
 use g1_sim::world::World;
@@ -129,4 +129,84 @@ fn an_unwritable_cache_is_reported_and_the_model_still_loads() {
         Simulator::load_with_model_cache(ModelChoice::G1_29Dof, SimConfig::default(), None, Some(&blocker)).unwrap();
     let note = sim.model_cache_note().unwrap();
     assert!(note.contains("the cache could not be written"), "{note}");
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let p = e.unwrap().path();
+        let dest = to.join(p.file_name().unwrap());
+        if p.is_dir() {
+            copy_tree(&p, &dest);
+        } else {
+            std::fs::copy(&p, &dest).unwrap();
+        }
+    }
+}
+
+/// Nothing read from the cache is trusted unchecked: a model edited under the same size and
+/// modification time (as `cp -p` or `rsync -t` make) gets its own entry; an entry with flipped bytes
+/// or that is a FIFO is said and compiled again (no hang); dead processes' temporary entries go.
+#[test]
+fn the_cache_keys_on_content_and_checks_what_it_reads() {
+    require_deps();
+    let dir = TempDir::new("content");
+    let cache = dir.path().join("cache");
+    let model_dir = dir.path().join("g1");
+    let xml_src = g1_sim::ModelChoice::G1_29Dof.path();
+    copy_tree(xml_src.parent().unwrap(), &model_dir);
+    let xml = model_dir.join(xml_src.file_name().unwrap());
+    let choice = ModelChoice::Path(xml.clone());
+    let config = SimConfig::default();
+    let load = || Simulator::load_with_model_cache(choice.clone(), config, None, Some(&cache)).unwrap();
+
+    let mut first = load();
+    assert!(first.model_cache_note().unwrap().starts_with("model compiled and cached"));
+    let old = trace(&mut first);
+
+    // The pelvis 100 g heavier, the file's size and time unchanged.
+    let text = std::fs::read_to_string(&xml).unwrap();
+    let mtime = std::fs::metadata(&xml).unwrap().modified().unwrap();
+    let edited = text.replacen("mass=\"3.813\"", "mass=\"3.913\"", 1);
+    assert_eq!(edited.len(), text.len());
+    assert_ne!(edited, text, "the model has no pelvis mass of 3.813 to edit");
+    std::fs::write(&xml, &edited).unwrap();
+    std::fs::File::options()
+        .write(true)
+        .open(&xml)
+        .unwrap()
+        .set_modified(mtime)
+        .unwrap();
+    let mut second = load();
+    let note = second.model_cache_note().unwrap().to_string();
+    assert!(note.starts_with("model compiled and cached"), "the edited model came from the old entry: {note}");
+    let new = trace(&mut second);
+    assert!(new != old, "the edit changed nothing");
+    let mut fresh = Simulator::load_with_model_cache(choice.clone(), config, None, None).unwrap();
+    assert!(new == trace(&mut fresh));
+    let entry = PathBuf::from(note.trim_start_matches("model compiled and cached in "));
+
+    // 64 bytes flipped in the middle of the entry: same length, caught by the checksum.
+    let mut bytes = std::fs::read(&entry).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid..mid + 64].iter_mut().for_each(|b| *b ^= 0xa5);
+    std::fs::write(&entry, &bytes).unwrap();
+    let mut third = load();
+    let note = third.model_cache_note().unwrap().to_string();
+    assert!(note.contains("checksum") && note.contains("compiled again"), "{note}");
+    assert!(trace(&mut third) == new);
+
+    // An entry that is a FIFO: refused without blocking, replaced by a good entry.
+    std::fs::remove_file(&entry).unwrap();
+    let c = std::ffi::CString::new(entry.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a valid NUL-terminated path; mkfifo only creates a file.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let stale = PathBuf::from(format!("{}.tmp4194000", entry.display()));
+    std::fs::write(&stale, b"half an entry of a killed process").unwrap();
+    let mut fourth = load();
+    let note = fourth.model_cache_note().unwrap().to_string();
+    assert!(note.contains("FIFO") && note.contains("compiled again"), "{note}");
+    assert!(trace(&mut fourth) == new);
+    assert!(std::fs::metadata(&entry).unwrap().is_file(), "the FIFO was not replaced");
+    assert!(!stale.exists(), "a dead process's temporary entry was kept");
 }
