@@ -184,7 +184,8 @@ pub fn ensure_font() -> Result<(), PlotError> {
     };
     let mut rejected = Vec::new();
     for path in &candidates {
-        let Ok(bytes) = std::fs::read(path) else {
+        // A font is a few MB; $G1_PLOT_FONT naming a FIFO or a device must not hang a plot.
+        let Ok(bytes) = crate::read_capped(path, 64 << 20) else {
             continue;
         };
         // plotters keeps `&'static` font data; leaking is bounded by the READY guard.

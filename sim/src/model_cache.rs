@@ -48,7 +48,11 @@ fn stamp(h: &mut Sha256, path: &Path) {
                 w.0.update(b"unreadable");
             }
         }
-        None => h.update(if regular { &b"unreadable"[..] } else { &b"not a regular file"[..] }),
+        None => h.update(if regular {
+            &b"unreadable"[..]
+        } else {
+            &b"not a regular file"[..]
+        }),
     }
 }
 
@@ -193,7 +197,9 @@ fn remove_dead_temporaries(dir: &Path) {
             .and_then(|e| e.to_str())
             .and_then(|e| e.strip_prefix(TMP_PREFIX))
             .and_then(|n| n.parse::<u32>().ok());
-        let is_entry = p.file_stem().is_some_and(|s| Path::new(s).extension().is_some_and(|e| e == "g1mjb"));
+        let is_entry = p
+            .file_stem()
+            .is_some_and(|s| Path::new(s).extension().is_some_and(|e| e == "g1mjb"));
         if let (Some(pid), true) = (pid, is_entry) {
             if !Path::new(&format!("/proc/{pid}")).exists() {
                 let _ = std::fs::remove_file(&p);

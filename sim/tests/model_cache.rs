@@ -161,7 +161,10 @@ fn the_cache_keys_on_content_and_checks_what_it_reads() {
     let load = || Simulator::load_with_model_cache(choice.clone(), config, None, Some(&cache)).unwrap();
 
     let mut first = load();
-    assert!(first.model_cache_note().unwrap().starts_with("model compiled and cached"));
+    assert!(first
+        .model_cache_note()
+        .unwrap()
+        .starts_with("model compiled and cached"));
     let old = trace(&mut first);
 
     // The pelvis 100 g heavier, the file's size and time unchanged.
@@ -179,7 +182,10 @@ fn the_cache_keys_on_content_and_checks_what_it_reads() {
         .unwrap();
     let mut second = load();
     let note = second.model_cache_note().unwrap().to_string();
-    assert!(note.starts_with("model compiled and cached"), "the edited model came from the old entry: {note}");
+    assert!(
+        note.starts_with("model compiled and cached"),
+        "the edited model came from the old entry: {note}"
+    );
     let new = trace(&mut second);
     assert!(new != old, "the edit changed nothing");
     let mut fresh = Simulator::load_with_model_cache(choice.clone(), config, None, None).unwrap();
@@ -207,6 +213,9 @@ fn the_cache_keys_on_content_and_checks_what_it_reads() {
     let note = fourth.model_cache_note().unwrap().to_string();
     assert!(note.contains("FIFO") && note.contains("compiled again"), "{note}");
     assert!(trace(&mut fourth) == new);
-    assert!(std::fs::metadata(&entry).unwrap().is_file(), "the FIFO was not replaced");
+    assert!(
+        std::fs::metadata(&entry).unwrap().is_file(),
+        "the FIFO was not replaced"
+    );
     assert!(!stale.exists(), "a dead process's temporary entry was kept");
 }

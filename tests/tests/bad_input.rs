@@ -2,8 +2,9 @@
 //! frame from the bridge, a bridge that dies mid-run, a spec with a wrong dimension.
 use std::os::unix::net::UnixListener;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::thread;
+use std::time::Duration;
 
 use hal::LowState;
 use integration_tests::*;
@@ -503,6 +504,53 @@ fn hostile_numbers_in_flags_and_specs_are_refused_by_name() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains(says), "{flag} {value}: {err}");
         assert!(!err.contains("panicked"), "{flag} {value}: {err}");
+    }
+}
+
+/// Issue 73: weights named by the trainer go through the bounded reader: a FIFO used to hang
+/// `g1-train ppo --init-actor`, and `/dev/zero` was read until 4.2 GB.
+#[test]
+fn a_fifo_or_a_device_as_weights_is_refused_without_blocking() {
+    let dir = scratch_dir("fifo_weights");
+    let fifo = dir.join("actor.safetensors");
+    let _ = std::fs::remove_file(&fifo);
+    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    for weights in [fifo.as_path(), Path::new("/dev/zero")] {
+        let mut child = Command::new(built_bin("g1-train"))
+            .args([
+                "ppo",
+                "--judge-every",
+                "0",
+                "--quiet",
+                "--envs",
+                "4",
+                "--iterations",
+                "1",
+                "--out",
+            ])
+            .arg(dir.join("run"))
+            .arg("--init-actor")
+            .arg(weights)
+            .current_dir(repo_root())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("g1-train starts");
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if start.elapsed() > Duration::from_secs(60) {
+                child.kill().unwrap();
+                panic!("g1-train hung on --init-actor {}", weights.display());
+            }
+            thread::sleep(Duration::from_millis(50));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert!(!status.success(), "{err}");
+        assert!(err.contains("not a regular file"), "{}: {err}", weights.display());
     }
 }
 

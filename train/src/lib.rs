@@ -17,3 +17,11 @@ pub mod cnn;
 pub mod plot;
 pub mod ppo;
 pub mod tensor_file;
+
+pub use tensor_file::read_safetensors;
+
+/// The most a JSON, TOML or text file the trainer reads may hold (`input_file` refuses more, and
+/// anything that is not a regular file, before reading).
+pub const MAX_TEXT_BYTES: u64 = 256 << 20;
+/// The most a dataset shard may hold.
+pub const MAX_DATA_BYTES: u64 = 2 << 30;

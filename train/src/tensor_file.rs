@@ -101,3 +101,14 @@ mod tests {
         assert_eq!(n, NamedTensor::f32("x", vec![2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]));
     }
 }
+
+/// Every tensor of the safetensors file at `path`, read through the bounded reader (a FIFO or
+/// `/dev/zero` named as weights is refused, not read forever) and capped at the firmware's limit
+/// for weights.
+pub fn read_safetensors(path: &std::path::Path, dev: &candle_core::Device) -> anyhow::Result<HashMap<String, Tensor>> {
+    use anyhow::Context;
+    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading {}", path.display()))?;
+    candle_core::safetensors::load_buffer(&bytes, dev)
+        .with_context(|| format!("{} is not a safetensors file", path.display()))
+}

@@ -84,7 +84,7 @@ impl Dataset {
     /// Appends every shard that `dir/manifest.json` lists.
     fn append_dir(&mut self, dir: &Path) -> anyhow::Result<()> {
         let mpath = dir.join("manifest.json");
-        let text = std::fs::read_to_string(&mpath).with_context(|| {
+        let text = input_file::read_text_capped(&mpath, crate::MAX_TEXT_BYTES).with_context(|| {
             format!(
                 "reading {} (make a dataset with `g1-dataset export --out {}`)",
                 mpath.display(),
@@ -102,7 +102,8 @@ impl Dataset {
 
     /// Appends one shard file.
     pub fn append_shard(&mut self, path: &Path) -> anyhow::Result<()> {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let bytes = input_file::read_capped(path, crate::MAX_DATA_BYTES)
+            .with_context(|| format!("reading {}", path.display()))?;
         let st = SafeTensors::deserialize(&bytes).with_context(|| format!("{} is not safetensors", path.display()))?;
         let ctx = |e: anyhow::Error| e.context(format!("in {}", path.display()));
         let bev = tensor_bytes(&st, "bev", Dtype::F32, &[BEV_CHANNELS, BEV_CELLS, BEV_CELLS]).map_err(ctx)?;

@@ -99,7 +99,8 @@ pub fn fold(vm: &VarMap) -> anyhow::Result<Exported> {
 /// Whether the safetensors file at `path` is an export (conv biases, no BatchNorm) rather than a
 /// training checkpoint.
 pub fn is_export(path: &Path) -> anyhow::Result<bool> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading {}", path.display()))?;
     let st = safetensors::SafeTensors::deserialize(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: not a safetensors file ({e})", path.display()))?;
     Ok(is_export_layout(&st.names()))
@@ -185,7 +186,8 @@ impl Exported {
 
 /// Reads a description file written by [`Exported::write`].
 pub fn read_desc(path: &Path) -> anyhow::Result<NetworkDesc> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = input_file::read_text_capped(path, crate::MAX_TEXT_BYTES)
+        .with_context(|| format!("reading {}", path.display()))?;
     toml::from_str(&text).with_context(|| format!("parsing network description {}", path.display()))
 }
 

@@ -162,8 +162,8 @@ pub fn seeded_init(varmap: &VarMap, seed: u64, dev: &Device) -> anyhow::Result<(
 /// [`crate::cnn::export::unfold`] so that BatchNorm in inference mode computes exactly the
 /// export.
 pub fn load_init(varmap: &VarMap, path: &std::path::Path, dev: &Device) -> anyhow::Result<()> {
-    let loaded = candle_core::safetensors::load(path, dev)
-        .map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
+    let loaded =
+        crate::read_safetensors(path, dev).map_err(|e| anyhow::anyhow!("loading --init {}: {e}", path.display()))?;
     let names: Vec<&String> = loaded.keys().collect();
     let tensors = if crate::cnn::export::is_export_layout(&names) {
         crate::cnn::export::unfold(&loaded)

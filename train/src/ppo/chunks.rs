@@ -26,7 +26,7 @@ pub struct Chunk {
 
 /// The chunks of the run in `dir` so far (none if it has no table).
 pub fn read(dir: &Path) -> Vec<Chunk> {
-    std::fs::read_to_string(dir.join(CHUNKS_JSON))
+    input_file::read_text_capped(&dir.join(CHUNKS_JSON), crate::MAX_TEXT_BYTES)
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
         .unwrap_or_default()

@@ -93,7 +93,8 @@ fn f64s(st: &safetensors::SafeTensors<'_>, name: &str, len: usize, path: &Path) 
 /// provenance. Every tensor must have the shape of `ac`'s: a critic of another spec's observation
 /// layout is refused, naming the tensor, before anything is overwritten.
 pub fn load(ac: &ActorCritic, path: &Path) -> anyhow::Result<(Normalizer, Provenance)> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading the critic file {}", path.display()))?;
+    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading the critic file {}", path.display()))?;
     let st = safetensors::SafeTensors::deserialize(&bytes)
         .with_context(|| format!("{}: not a safetensors file", path.display()))?;
     let mut loaded: Vec<(String, Tensor)> = Vec::new();

@@ -423,7 +423,7 @@ impl ActorCritic {
     /// Returns how many zero input columns and output rows were added (none for an actor already
     /// in the spec's layout).
     pub fn load_actor_widened(&self, path: &Path) -> anyhow::Result<Widened> {
-        let src = candle_core::safetensors::load(path, &Device::Cpu)?;
+        let src = crate::read_safetensors(path, &Device::Cpu)?;
         let mut widened_by = 0;
         let mut outputs_added = 0;
         let input = self.arch.input_matrix().map(str::to_string);
@@ -576,7 +576,17 @@ impl ActorCritic {
             .collect()
     }
 
-    pub fn load(&mut self, path: &Path) -> Result<()> {
-        self.vars.load(path)
+    /// Every variable from the safetensors file at `path` (each must be there, in its shape).
+    pub fn load(&mut self, path: &Path) -> anyhow::Result<()> {
+        let tensors = crate::read_safetensors(path, &Device::Cpu)?;
+        let data = self.vars.data().lock().expect("var map lock");
+        for (name, var) in data.iter() {
+            let t = tensors
+                .get(name)
+                .ok_or_else(|| anyhow::anyhow!("{} has no tensor {name}", path.display()))?;
+            var.set(t)
+                .map_err(|e| anyhow::anyhow!("{name} of {}: {e}", path.display()))?;
+        }
+        Ok(())
     }
 }

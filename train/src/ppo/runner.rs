@@ -176,8 +176,10 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         "--rate-std and --rate-hold need a spec whose policy sets its gait clock ([phase] rate); {} has none",
         cfg.spec.display()
     );
-    let spec_sha256 =
-        firmware::nn::sha256_hex(&std::fs::read(&cfg.spec).with_context(|| format!("reading {}", cfg.spec.display()))?);
+    let spec_sha256 = firmware::nn::sha256_hex(
+        &input_file::read_capped(&cfg.spec, firmware::spec::MAX_SPEC_BYTES as u64)
+            .with_context(|| format!("reading {}", cfg.spec.display()))?,
+    );
     let recipe = recipe_text(cfg);
     let (ac, mut state, mut history, loaded) = start_or_resume(cfg, &spec, dims, &recipe, &spec_sha256)?;
     let dims = Dims {
@@ -387,7 +389,10 @@ fn start_or_resume(
         cfg.init_actor.clone()
     };
     let bytes = match &sized_by {
-        Some(p) => Some(std::fs::read(p).with_context(|| format!("reading {}", p.display()))?),
+        Some(p) => Some(
+            input_file::read_capped(p, firmware::nn::MAX_WEIGHTS_BYTES)
+                .with_context(|| format!("reading {}", p.display()))?,
+        ),
         None => None,
     };
     let sizes = match &bytes {
@@ -922,7 +927,10 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
     let mut all = read_judgements(&cfg.out)?;
     let best = all.iter().map(|b| b.score).fold(f64::NEG_INFINITY, f64::max);
     if j.score > best {
-        write_atomically(&cfg.out.join(BEST), &std::fs::read(actor)?)?;
+        write_atomically(
+            &cfg.out.join(BEST),
+            &input_file::read_capped(actor, firmware::nn::MAX_WEIGHTS_BYTES)?,
+        )?;
         write_atomically(&cfg.out.join("best.json"), serde_json::to_string_pretty(&j)?.as_bytes())?;
     }
     all.push(j);
@@ -935,7 +943,8 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
 pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
     let spec = DeploySpec::load(spec_path)?;
     let obs = spec.observation_dim();
-    let bytes = std::fs::read(checkpoint).with_context(|| format!("reading {}", checkpoint.display()))?;
+    let bytes = input_file::read_capped(checkpoint, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading {}", checkpoint.display()))?;
     let arch = ActorArch::from_desc(&spec.policy.network, spec.action_dim(), Sizes::Weights(&bytes))?;
     let mut ac = ActorCritic::with_arch(arch, obs + CRITIC_EXTRA, 1.0, 0)?;
     ac.load(checkpoint)?;

@@ -113,7 +113,8 @@ pub fn parse_point_arg(arg: &str) -> Result<(String, f64, PathBuf)> {
 
 /// Reads a `g1fw eval --report` file.
 pub fn load_report(path: &Path) -> Result<EvalReport> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = input_file::read_text_capped(path, crate::MAX_TEXT_BYTES)
+        .with_context(|| format!("reading {}", path.display()))?;
     let report: EvalReport = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a `g1fw eval --report` JSON file", path.display()))?;
     ensure!(

@@ -32,7 +32,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut files = Vec::with_capacity(args.actors.len());
     for a in &args.actors {
         let (path, w) = parse_actor(a);
-        let bytes = std::fs::read(&path).with_context(|| format!("reading the actor {}", path.display()))?;
+        let bytes = input_file::read_capped(&path, firmware::nn::MAX_WEIGHTS_BYTES)
+            .with_context(|| format!("reading the actor {}", path.display()))?;
         files.push((path, bytes, w));
     }
     let inputs: Vec<(&[u8], f64)> = files.iter().map(|(_, b, w)| (b.as_slice(), *w)).collect();

@@ -27,7 +27,8 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let spec = firmware::spec::DeploySpec::load(&args.spec)
         .with_context(|| format!("loading the deploy spec {}", args.spec.display()))?;
-    let weights = std::fs::read(&args.actor).with_context(|| format!("reading {}", args.actor.display()))?;
+    let weights = input_file::read_capped(&args.actor, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading {}", args.actor.display()))?;
     let wide = train::ppo::widen::widen_actor(
         &spec.policy.network,
         spec.action_dim(),
