@@ -90,6 +90,10 @@ pub struct RunReport {
     pub trip: Option<TripReport>,
     /// `completed`, `stopped` (signal) or the HAL failure.
     pub end: String,
+    /// The run ended as asked: its duration ran out or the operator stopped it (a signal). Any
+    /// other end (a trip, a HAL failure, a variant without the driven joints, a log that could not
+    /// be written, a panic) left the robot damped for a reason, and `g1fw run` exits non-zero.
+    pub normal_end: bool,
     /// Why the log could not be written (the run stopped and damped there), if it could not.
     pub log_error: Option<String>,
     /// The control loop panicked (a bug); the guard sent damping (see `end`).
@@ -451,6 +455,12 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         final_mode: format!("{:?}", runtime.mode()),
         trip: TripReport::of(&runtime, control_dt),
         end: end_text,
+        normal_end: runtime.trip().is_none()
+            && match end {
+                LoopEnd::Completed { .. } => true,
+                LoopEnd::Stopped { .. } => !log_failed && variant_refusal.is_none(),
+                LoopEnd::HalError { .. } | LoopEnd::Panicked { .. } => false,
+            },
         log_error,
         panicked: matches!(end, LoopEnd::Panicked { .. }),
         end_damping,

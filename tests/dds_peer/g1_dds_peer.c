@@ -8,6 +8,7 @@
  * and injects faults on the controller's side, at times counted in controller commands (2 ms each):
  *   stale@T+D    repeat the last state (same tick counter) instead of relaying new ones
  *   crc@T+D      relay states with a wrong CRC
+ *   variant@T+D  relay states whose mode_machine names the dual-arm G1 (9: no legs)
  *   size@T+D     also publish 16-byte samples under LowState_'s type name on rt/lowstate
  *   writer@T     start a second rt/lowcmd writer on the controller's domain
  *   die@T        print the report and exit at once, without cleaning up (a crashed robot)
@@ -264,6 +265,12 @@ int main(int argc, char **argv) {
       } else {
         have_frozen = 0;
       }
+      /* The robot names another variant: 9 is the dual-arm G1, which has no legs. */
+      for (int i = 0; i < nf; i++)
+        if (active(&faults[i], "variant", t)) {
+          out.mode_machine = 9;
+          faults[i].fired = 1;
+        }
       out.crc = CRC_OF(out);
       if (bad_crc) out.crc ^= 0x5a5a5a5au;
       if (dds_write(to_ctrl, &out) == DDS_RETCODE_OK) R.states_out++;

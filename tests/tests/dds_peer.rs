@@ -333,6 +333,23 @@ fn fault_latches_within(tag: &str, fault: &str, reason: &str, within: f64, durat
     );
 }
 
+/// The robot reports a variant without the legs the spec drives: the run stops before the policy
+/// moves anything, damps, and exits non-zero (it used to exit 0 with `trip: null`), its report
+/// saying why.
+#[test]
+fn a_variant_without_the_driven_legs_stops_damped_and_exits_non_zero() {
+    let Some(o) = scenario("variant", &["variant@2.5+10"], 4.0, true, "state") else {
+        return;
+    };
+    let fw = &o.fw;
+    eprintln!("g1fw: {fw}\npeer: {}", o.peer);
+    assert_eq!(o.fw_status.code(), Some(3), "{}", o.fw_stderr);
+    assert_eq!(fw["normal_end"], false, "{fw}");
+    let end = fw["end"].as_str().unwrap();
+    assert!(end.contains("mode_machine 9") && end.contains("damping"), "{end}");
+    assert!(fw["time_s"].as_f64().unwrap() < 3.0, "ran on past the variant: {fw}");
+}
+
 #[test]
 fn stale_states_latch_damping() {
     fault_latches("stale", "stale@2.5+1", "state_timeout");

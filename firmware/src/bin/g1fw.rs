@@ -1113,9 +1113,11 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         end = report.end,
         "run finished"
     );
-    Ok(if report.trip.is_some() || report.panicked {
-        ExitCode::from(3)
-    } else {
+    // 3: the robot was damped for a reason (a trip, a HAL failure, a variant it cannot drive, a
+    // panic); the report's `end` and `trip` say which.
+    Ok(if report.normal_end {
         ExitCode::SUCCESS
+    } else {
+        ExitCode::from(3)
     })
 }
