@@ -14,6 +14,17 @@
 //!   executor carries it between steps from zeros) or constants (the initial state).
 //!
 //! Anything else is refused by name, with the node's name and position.
+//!
+//! Nothing onnxruntime refuses is imported, and nothing is imported as other than what onnxruntime
+//! computes:
+//! - the default domain's opset must lie in [`OPSETS`], and every node be in that domain;
+//! - everything the chain computes is float32: the graph's inputs and outputs and every constant a
+//!   node computes with (a float64 weight in a float32 `Gemm` is a type error in onnxruntime);
+//!   int64 only for shapes and axes;
+//! - constants broadcast by ONNX's (numpy's) rules against the chain value, which at batch 1 is one
+//!   vector along its last axis: a constant of shape `[]`, `[1]`, `[n]`, `[1, n]` (or more leading
+//!   1s) keeps it one, anything else (`[n, 1]` makes an `[n, n]` matrix) is refused, as are shape
+//!   ops that would move the features off the last axis.
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -29,6 +40,11 @@ use proto::{tensor_proto::DataType, ModelProto, NodeProto, TensorProto};
 
 /// Largest ONNX file read (a policy MLP is a few MB; a larger file is not a policy).
 pub const MAX_ONNX_BYTES: u64 = 256 << 20;
+
+/// Opsets of the default ONNX domain imported. From 7: before it `Add`/`Sub`/`Mul`/`Div` and
+/// `Gemm`'s C broadcast by a `broadcast` attribute, not numpy's rules. To 28: the newest
+/// onnxruntime 1.32 loads (it refuses newer ones); none of the ops above changed after opset 25.
+pub const OPSETS: std::ops::RangeInclusive<i64> = 7..=28;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
@@ -268,13 +284,131 @@ enum Built {
     },
 }
 
-/// The element-wise constant op applied to a vector of length `n`: broadcast or refuse.
-fn broadcast(c: &Tensor, n: Option<usize>, what: &str) -> Result<Vec<f32>, String> {
-    match (c.data.len(), n) {
-        (1, Some(n)) => Ok(vec![c.data[0]; n]),
-        (k, Some(n)) if k == n => Ok(c.data.clone()),
-        (k, None) => Ok(c.data.iter().copied().cycle().take(k).collect()),
-        (k, Some(n)) => Err(format!("{what}: a constant of {k} values against a vector of {n}")),
+/// A shape as ONNX prints it; `?` for a size not known here.
+fn shape_str(dims: &[Option<usize>]) -> String {
+    let d: Vec<String> = dims
+        .iter()
+        .map(|d| d.map_or("?".to_string(), |d| d.to_string()))
+        .collect();
+    format!("[{}]", d.join(", "))
+}
+
+/// The chain value's shape: `rank` axes (2 when not known), all of size 1 but the last, `width`.
+fn value_shape(width: Option<usize>, rank: Option<usize>) -> Vec<Option<usize>> {
+    let r = rank.unwrap_or(2);
+    let mut d = vec![Some(1); r.saturating_sub(1)];
+    if r > 0 {
+        d.push(width);
+    }
+    d
+}
+
+/// `c` combined element-wise with the chain value (`width` wide, `rank` axes) by ONNX's (numpy's)
+/// broadcasting: its values along the value's axis, or why the result is not one vector. Only a
+/// constant whose axes but the last are all 1, and whose last is 1 or `width`, keeps it one; an
+/// `[n, 1]` bias would make an `[n, n]` matrix, which the executor's flat vector cannot be.
+fn broadcast(c: &Tensor, width: Option<usize>, rank: Option<usize>, what: &str) -> Result<Vec<f32>, String> {
+    let k = c.dims.last().copied().unwrap_or(1);
+    let lead_ones = c.dims.iter().rev().skip(1).all(|&d| d == 1);
+    if lead_ones {
+        match width {
+            Some(n) if k == n => return Ok(c.data.clone()),
+            Some(n) if k == 1 => return Ok(vec![c.data[0]; n]),
+            None if k == 1 => {
+                return Err(format!(
+                    "{what} is a single value but the width it applies to is not known here; declare the input's shape"
+                ))
+            }
+            None => return Ok(c.data.clone()),
+            Some(_) => {}
+        }
+    }
+    // What numpy makes of it, for the message.
+    let x = value_shape(width, rank);
+    let cd: Vec<Option<usize>> = c.dims.iter().map(|&d| Some(d)).collect();
+    let r = x.len().max(cd.len());
+    let pad = |v: &[Option<usize>]| {
+        let mut p = vec![Some(1); r - v.len()];
+        p.extend_from_slice(v);
+        p
+    };
+    let (xp, cp) = (pad(&x), pad(&cd));
+    let mut out = Vec::with_capacity(r);
+    for (a, b) in xp.iter().zip(&cp) {
+        out.push(match (a, b) {
+            (Some(1), b) => *b,
+            (a, Some(1)) => *a,
+            (Some(a), Some(b)) if a == b => Some(*a),
+            (None, b) => *b,
+            _ => {
+                return Err(format!(
+                    "{what} of shape {} does not broadcast against the value's shape {} (ONNX/numpy broadcasting; \
+                     onnxruntime refuses it); give it shape [{n}] or [1, {n}]",
+                    shape_str(&cd),
+                    shape_str(&x),
+                    n = width.map_or("n".into(), |n| n.to_string()),
+                ))
+            }
+        });
+    }
+    Err(format!(
+        "{what} of shape {} broadcasts the value of shape {} to {} (ONNX/numpy broadcasting, as onnxruntime \
+         computes it), not one vector of {} values: the executor cannot compute that; give it shape \
+         [{n}] or [1, {n}] if it is a per-output bias or scale",
+        shape_str(&cd),
+        shape_str(&x),
+        shape_str(&out),
+        width.map_or("the same".into(), |n| n.to_string()),
+        n = width.map_or("n".into(), |n| n.to_string()),
+    ))
+}
+
+/// An ONNX data type by name, for messages.
+fn dtype_name(dt: i32) -> String {
+    match DataType::try_from(dt) {
+        Ok(DataType::Float) => "float32".into(),
+        Ok(DataType::Double) => "float64".into(),
+        Ok(DataType::Float16) => "float16".into(),
+        Ok(DataType::Int64) => "int64".into(),
+        Ok(DataType::Int32) => "int32".into(),
+        Ok(d) => d.as_str_name().to_lowercase(),
+        Err(_) => format!("data type {dt}"),
+    }
+}
+
+/// The element type a graph input or output declares, if it declares one.
+fn elem_type(v: &proto::ValueInfoProto) -> Option<i32> {
+    match v.r#type.as_ref()?.value.as_ref()? {
+        proto::type_proto::Value::TensorType(t) => t.elem_type,
+        _ => None,
+    }
+}
+
+/// The default domain's opset, refused outside [`OPSETS`] (as onnxruntime refuses one newer than it
+/// knows, and older ones broadcast by other rules).
+fn default_opset(model: &ModelProto) -> Result<i64, ImportError> {
+    let versions: Vec<i64> = model
+        .opset_import
+        .iter()
+        .filter(|o| matches!(o.domain.as_deref(), None | Some("") | Some("ai.onnx")))
+        .map(|o| o.version.unwrap_or(0))
+        .collect();
+    let (lo, hi) = (OPSETS.start(), OPSETS.end());
+    match versions.as_slice() {
+        [v] if OPSETS.contains(v) => Ok(*v),
+        [v] => Err(ImportError::Graph(format!(
+            "opset {v} of the default ONNX domain (opset_import) is outside the {lo} to {hi} this importer \
+             implements (onnxruntime loads no opset newer than {hi}); re-export with an opset in that range, \
+             e.g. torch.onnx.export(..., opset_version=17)"
+        ))),
+        [] => Err(ImportError::Graph(format!(
+            "the model declares no opset for the default ONNX domain (opset_import), so its ops have no \
+             defined meaning; re-export with an opset from {lo} to {hi}"
+        ))),
+        many => Err(ImportError::Graph(format!(
+            "the model declares the default ONNX domain's opset {} times ({many:?}); re-export it",
+            many.len()
+        ))),
     }
 }
 
@@ -282,34 +416,45 @@ fn broadcast(c: &Tensor, n: Option<usize>, what: &str) -> Result<Vec<f32>, Strin
 struct Graph<'a> {
     g: &'a proto::GraphProto,
     consts: HashMap<String, Tensor>,
+    /// Each constant's ONNX data type (float32 where a node computes with it).
+    dtypes: HashMap<String, i32>,
     users: HashMap<&'a str, Vec<usize>>,
     input_name: String,
     output_name: String,
     /// Graph inputs after the observation: the recurrent state, carried by the executor.
     state_inputs: Vec<String>,
     declared_input: Option<usize>,
+    /// Axes of the observation input, when it declares its shape.
+    declared_rank: Option<usize>,
+    /// The default domain's opset (where `Squeeze`/`Unsqueeze` take their axes from).
+    opset: i64,
 }
 
 fn convert(model: &ModelProto) -> Result<ImportedNetwork, ImportError> {
-    let graph = read_graph(model)?;
+    let opset = default_opset(model)?;
+    let graph = read_graph(model, opset)?;
     let walk = walk_chain(&graph)?;
     assemble(model, graph, walk)
 }
 
 /// Constants, the observation input and its declared width, the output, and who uses each value.
-fn read_graph(model: &ModelProto) -> Result<Graph<'_>, ImportError> {
+fn read_graph(model: &ModelProto, opset: i64) -> Result<Graph<'_>, ImportError> {
     let g = model
         .graph
         .as_ref()
         .ok_or_else(|| ImportError::Graph("the model has no graph".into()))?;
     let mut consts: HashMap<String, Tensor> = HashMap::new();
+    let mut dtypes: HashMap<String, i32> = HashMap::new();
     for t in &g.initializer {
-        consts.insert(t.name.clone().unwrap_or_default(), tensor_of(t)?);
+        let name = t.name.clone().unwrap_or_default();
+        consts.insert(name.clone(), tensor_of(t)?);
+        dtypes.insert(name, t.data_type.unwrap_or(0));
     }
     for n in &g.node {
         if n.op_type.as_deref() == Some("Constant") {
             if let (Some(out), Some(t)) = (n.output.first(), n.attribute.iter().find_map(|a| a.t.as_ref())) {
                 consts.insert(out.clone(), tensor_of(t)?);
+                dtypes.insert(out.clone(), t.data_type.unwrap_or(0));
             }
         }
     }
@@ -322,19 +467,50 @@ fn read_graph(model: &ModelProto) -> Result<Graph<'_>, ImportError> {
         .first()
         .ok_or_else(|| ImportError::Graph("the graph has no input".into()))?;
     let input_name = obs.name.clone().unwrap_or_default();
-    // Last dimension of the observation input, when the export states it.
-    let declared_input = obs
+    // The executor computes in float32: a graph of another type would be imported as something else.
+    for (v, what) in inputs
+        .iter()
+        .map(|v| (*v, "input"))
+        .chain(g.output.iter().map(|v| (v, "output")))
+    {
+        if let Some(t) = elem_type(v).filter(|&t| t != DataType::Float as i32) {
+            return Err(ImportError::Graph(format!(
+                "the graph {what} '{}' is {}, but the executor computes in float32; re-export the policy in \
+                 float32 (e.g. `policy.float()` before `torch.onnx.export`)",
+                v.name.as_deref().unwrap_or(""),
+                dtype_name(t)
+            )));
+        }
+    }
+    // The observation input's shape, when the export states it: a named (batch) size is None.
+    let dims: Option<Vec<Option<usize>>> = obs
         .r#type
         .as_ref()
         .and_then(|t| match &t.value {
             Some(proto::type_proto::Value::TensorType(tt)) => tt.shape.as_ref(),
             _ => None,
         })
-        .and_then(|s| s.dim.last())
-        .and_then(|d| match d.value {
-            Some(proto::tensor_shape_proto::dimension::Value::DimValue(v)) => usize::try_from(v).ok(),
-            _ => None,
+        .map(|s| {
+            s.dim
+                .iter()
+                .map(|d| match d.value {
+                    Some(proto::tensor_shape_proto::dimension::Value::DimValue(v)) => usize::try_from(v).ok(),
+                    _ => None,
+                })
+                .collect()
         });
+    let declared_input = dims.as_ref().and_then(|d| d.last().copied().flatten());
+    let declared_rank = dims.as_ref().map(Vec::len);
+    // The executor steps one observation: a fixed batch of several would be another computation.
+    if let Some(d) = &dims {
+        if d.iter().rev().skip(1).any(|&d| d.is_some_and(|d| d != 1)) {
+            return Err(ImportError::Graph(format!(
+                "the input '{input_name}' has shape {}: the executor runs one observation at a time; export \
+                 it with batch size 1 or a named batch dimension",
+                shape_str(d)
+            )));
+        }
+    }
     // The importer allocates vectors of this width (a broadcast normaliser); a declared shape is
     // not yet checked against any weight.
     if let Some(n) = declared_input.filter(|&n| n > firmware::nn::MAX_ACTIVATION) {
@@ -362,11 +538,14 @@ fn read_graph(model: &ModelProto) -> Result<Graph<'_>, ImportError> {
     Ok(Graph {
         g,
         consts,
+        dtypes,
         users,
         input_name,
         output_name,
         state_inputs,
         declared_input,
+        declared_rank,
+        opset,
     })
 }
 
@@ -375,6 +554,7 @@ fn walk_chain(graph: &Graph) -> Result<Walk, ImportError> {
     let (g, users, input_name, output_name) = (graph.g, &graph.users, &graph.input_name, &graph.output_name);
     let mut walk = Walk {
         width: graph.declared_input,
+        rank: graph.declared_rank,
         ..Walk::default()
     };
     let mut cur = input_name.clone();
@@ -410,11 +590,20 @@ fn walk_chain(graph: &Graph) -> Result<Walk, ImportError> {
             name: node.name.clone().unwrap_or_default(),
             cur: &cur,
             consts: &graph.consts,
+            dtypes: &graph.dtypes,
+            opset: graph.opset,
         };
         let (op, name) = (at.op.as_str(), at.name.as_str());
+        // Another domain's op of the same name (com.microsoft's, a custom one) means something else.
+        if let Some(d) = node.domain.as_deref().filter(|d| !d.is_empty() && *d != "ai.onnx") {
+            return Err(at.bad(format!(
+                "the op is from domain '{d}', not the default ONNX domain this importer implements"
+            )));
+        }
         let mut next = node.output.first().cloned().unwrap_or_default();
         match op {
             "Identity" | "Squeeze" | "Unsqueeze" | "Reshape" | "Flatten" => {
+                walk.shape_only(&at)?;
                 walk.trace
                     .push(format!("#{idx} {op} '{name}': shape only, nothing to compute"));
             }
@@ -588,7 +777,11 @@ struct Walk {
     built: Vec<Built>,
     /// Observation normaliser before the first layer: x' = a ⊙ x + b.
     pre: Option<(Vec<f32>, Vec<f32>)>,
+    /// The chain value's last axis: the executor's vector. Every other axis has size 1 at batch 1
+    /// (kept so by refusing what would change it).
     width: Option<usize>,
+    /// How many axes the chain value has, when known (broadcasting and axis numbers depend on it).
+    rank: Option<usize>,
     recurrent: Option<RecurrentIo>,
     trace: Vec<String>,
 }
@@ -601,6 +794,8 @@ struct At<'a> {
     name: String,
     cur: &'a str,
     consts: &'a HashMap<String, Tensor>,
+    dtypes: &'a HashMap<String, i32>,
+    opset: i64,
 }
 
 impl At<'_> {
@@ -613,21 +808,81 @@ impl At<'_> {
         }
     }
 
-    /// Input `k`, which must be a constant (an initializer).
-    fn konst(&self, k: usize) -> Result<&Tensor, ImportError> {
+    /// Input `k`, which must be a constant (an initializer), of any type.
+    fn konst_any(&self, k: usize) -> Result<(&str, &Tensor), ImportError> {
         let n = self.node.input.get(k).filter(|s| !s.is_empty());
-        n.and_then(|n| self.consts.get(n))
+        n.and_then(|n| self.consts.get(n).map(|t| (n.as_str(), t)))
             .ok_or_else(|| self.bad(format!("input {k} must be a constant (an initializer)")))
+    }
+
+    /// Input `k`, a float32 constant: what the node computes with.
+    fn konst(&self, k: usize) -> Result<&Tensor, ImportError> {
+        let (n, t) = self.konst_any(k)?;
+        self.float32(n)?;
+        Ok(t)
+    }
+
+    /// Refuses constant `n` unless float32: every value on the chain is (onnxruntime refuses an op
+    /// whose inputs differ in type, and importing a float64 weight would round it silently).
+    fn float32(&self, n: &str) -> Result<(), ImportError> {
+        match self.dtypes.get(n).copied() {
+            Some(t) if t != DataType::Float as i32 => Err(self.bad(format!(
+                "initializer '{n}' is {}, but this node computes in float32 (the observation is float32): \
+                 onnxruntime refuses the type mismatch; re-export with float32 weights (e.g. `policy.float()` \
+                 before `torch.onnx.export`)",
+                dtype_name(t)
+            ))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Input `k`, an int64 constant (a shape or axes).
+    fn ints(&self, k: usize) -> Result<Vec<i64>, ImportError> {
+        let (n, t) = self.konst_any(k)?;
+        match self.dtypes.get(n).copied() {
+            Some(t) if t != DataType::Int64 as i32 => {
+                Err(self.bad(format!("input {k} '{n}' is {}, where ONNX takes int64", dtype_name(t))))
+            }
+            // Read as f32 (exact to 2^24, more than any width here).
+            _ => Ok(t.data.iter().map(|&v| v as i64).collect()),
+        }
+    }
+
+    /// The axes of `Squeeze`/`Unsqueeze`: an attribute before opset 13, input 1 from it.
+    fn axes(&self) -> Result<Option<Vec<i64>>, ImportError> {
+        let input = self.node.input.get(1).filter(|s| !s.is_empty());
+        let attr = self.node.attribute.iter().find(|a| a.name.as_deref() == Some("axes"));
+        match (self.opset >= 13, input, attr) {
+            (true, _, Some(_)) => Err(self.bad(format!(
+                "attribute 'axes' at opset {}: since opset 13 the axes are input 1",
+                self.opset
+            ))),
+            (false, Some(_), _) => Err(self.bad(format!(
+                "axes as input 1 at opset {}: before opset 13 they are the attribute 'axes'",
+                self.opset
+            ))),
+            (true, Some(_), None) => self.ints(1).map(Some),
+            (true, None, None) => Ok(None),
+            (false, None, a) => Ok(a.map(|a| a.ints.clone())),
+        }
+    }
+
+    /// Which input of a binary element-wise node is the constant.
+    fn other_index(&self) -> usize {
+        if self.node.input.first().map(String::as_str) == Some(self.cur) {
+            1
+        } else {
+            0
+        }
     }
 
     /// The constant operand of a binary element-wise node.
     fn other_const(&self) -> Result<&Tensor, ImportError> {
-        let k = if self.node.input.first().map(String::as_str) == Some(self.cur) {
-            1
-        } else {
-            0
-        };
-        self.konst(k)
+        self.konst(self.other_index())
+    }
+
+    fn other_name(&self) -> &str {
+        self.node.input.get(self.other_index()).map_or("", String::as_str)
     }
 }
 
@@ -641,10 +896,12 @@ impl Walk {
             built,
             pre,
             width,
+            rank,
             trace,
             ..
         } = self;
         let c = at.other_const()?;
+        let what = format!("the constant '{}'", at.other_name());
         if (op == "Sub" || op == "Div") && node.input.first().map(String::as_str) != Some(at.cur) {
             return Err(bad(
                 "the constant comes first (c − x, c / x): not an affine normaliser".into()
@@ -652,7 +909,7 @@ impl Walk {
         }
         match built.last_mut() {
             None => {
-                let v = broadcast(c, *width, op).map_err(bad)?;
+                let v = broadcast(c, *width, *rank, &what).map_err(bad)?;
                 *width = Some(v.len());
                 let (a, b) = pre.get_or_insert_with(|| (vec![1.0; v.len()], vec![0.0; v.len()]));
                 if a.len() != v.len() {
@@ -677,7 +934,7 @@ impl Walk {
                 ));
             }
             Some(Built::Linear(l)) => {
-                let v = broadcast(c, Some(l.out), op).map_err(bad)?;
+                let v = broadcast(c, Some(l.out), *rank, &what).map_err(bad)?;
                 for (o, &c) in v.iter().enumerate() {
                     match op {
                         "Add" => l.b[o] += c,
@@ -700,6 +957,8 @@ impl Walk {
                 ))
             }
         }
+        // numpy broadcasting: the result has as many axes as the larger operand.
+        *rank = rank.map(|r| r.max(c.dims.len()));
         Ok(())
     }
 
@@ -711,6 +970,7 @@ impl Walk {
             built,
             pre,
             width,
+            rank,
             trace,
             ..
         } = self;
@@ -749,7 +1009,16 @@ impl Walk {
         }
         if op == "Gemm" && node.input.len() > 2 && !node.input[2].is_empty() {
             let c = at.konst(2)?;
-            let v = broadcast(c, Some(out), "Gemm bias").map_err(bad)?;
+            // C broadcasts one way only, to Gemm's output [M, N] = [1, out].
+            let k = c.dims.last().copied().unwrap_or(1);
+            if c.dims.len() > 2 || c.dims.len() == 2 && c.dims[0] != 1 || k != 1 && k != out {
+                return Err(bad(format!(
+                    "the bias C '{}' of shape {:?} does not broadcast one way to Gemm's output [1, {out}] \
+                     (onnxruntime refuses it, or computes a batch of outputs); give it shape [{out}]",
+                    node.input[2], c.dims
+                )));
+            }
+            let v = broadcast(c, Some(out), Some(2), "C").map_err(bad)?;
             for (b, c) in l.b.iter_mut().zip(&v) {
                 *b = beta * c;
             }
@@ -761,9 +1030,162 @@ impl Walk {
         }
         fold_pre(pre, inp, &mut l.w, &mut l.b, out).map_err(bad)?;
         *width = Some(out);
+        // Gemm's output is [M, N]; MatMul by a 2-D weight keeps the axes of its input.
+        if op == "Gemm" {
+            *rank = Some(2);
+        }
         trace.push(format!("#{idx} {op} '{name}': linear {inp} → {out}"));
         built.push(Built::Linear(l));
         Ok(())
+    }
+
+    /// `Identity`, `Squeeze`, `Unsqueeze`, `Reshape`, `Flatten`: the values stay, the axes change.
+    /// Refused where the features would leave the last axis (the executor's vector is that axis), or
+    /// where onnxruntime fails on the shape.
+    fn shape_only(&mut self, at: &At) -> Result<(), ImportError> {
+        let op = at.op.as_str();
+        if op == "Identity" {
+            return Ok(());
+        }
+        let bad = |why: String| at.bad(why);
+        let width = self.width;
+        let shape = shape_str(&value_shape(width, self.rank));
+        // Moving the features off the last axis only matters when there are several.
+        let several = width != Some(1);
+        let Some(r) = self.rank else {
+            return match op {
+                "Squeeze" if at.axes()?.is_none() => {
+                    self.rank = width.map(|n| usize::from(n != 1));
+                    Ok(())
+                }
+                _ => Err(bad(
+                    "the observation input declares no shape, so where this puts the features cannot be \
+                     checked; export the input with its shape ([1, n])"
+                        .into(),
+                )),
+            };
+        };
+        // An axis number in [-len, len) as a position.
+        let axis = |a: i64, len: usize| -> Result<usize, ImportError> {
+            let l = len as i64;
+            if (-l..l).contains(&a) {
+                Ok(a.rem_euclid(l.max(1)) as usize)
+            } else {
+                Err(bad(format!("axis {a} is outside a value of {len} axes")))
+            }
+        };
+        let positions = |axes: &[i64], len: usize| -> Result<Vec<usize>, ImportError> {
+            let mut p = axes.iter().map(|&a| axis(a, len)).collect::<Result<Vec<_>, _>>()?;
+            p.sort_unstable();
+            if p.windows(2).any(|w| w[0] == w[1]) {
+                return Err(bad(format!("axes {axes:?} repeat an axis")));
+            }
+            Ok(p)
+        };
+        self.rank = Some(match op {
+            "Squeeze" => match at.axes()? {
+                None => usize::from(several),
+                Some(axes) => {
+                    let p = positions(&axes, r)?;
+                    if several && p.last() == Some(&(r - 1)) {
+                        return Err(bad(format!(
+                            "squeezes axis {} of the value {shape}, the features, which is not of size 1 \
+                             (onnxruntime fails on it)",
+                            r - 1
+                        )));
+                    }
+                    r - p.len()
+                }
+            },
+            "Unsqueeze" => {
+                let axes = at.axes()?.ok_or_else(|| bad("no axes".into()))?;
+                let len = r + axes.len();
+                let p = positions(&axes, len)?;
+                if several && p.last() == Some(&(len - 1)) {
+                    return Err(bad(format!(
+                        "adds an axis after the features of the value {shape}: they would no longer be the \
+                         last axis, which the executor's vector is"
+                    )));
+                }
+                len
+            }
+            "Flatten" => {
+                let a = attr_i(at.node, "axis", 1);
+                let l = r as i64;
+                if !(-l..=l).contains(&a) {
+                    return Err(bad(format!("axis {a} is outside a value of {r} axes")));
+                }
+                if several && a.rem_euclid(l + 1) == l {
+                    return Err(bad(format!(
+                        "axis {a} flattens the value {shape} to a column [n, 1]: the features would no \
+                         longer be the last axis, which the executor's vector is"
+                    )));
+                }
+                2
+            }
+            _ => self.reshape(at, r, &shape)?,
+        });
+        Ok(())
+    }
+
+    /// `Reshape` to a constant shape (0 copies the input's size there, -1 is inferred); the new rank.
+    fn reshape(&mut self, at: &At, r: usize, shape: &str) -> Result<usize, ImportError> {
+        let bad = |why: String| at.bad(why);
+        let target = at.ints(1)?;
+        if at.konst_any(1)?.1.dims.len() != 1 {
+            return Err(bad("the shape input is not 1-D".into()));
+        }
+        let allowzero = attr_i(at.node, "allowzero", 0) != 0;
+        let mut out: Vec<Option<usize>> = Vec::with_capacity(target.len());
+        let mut inferred = None;
+        for (i, &s) in target.iter().enumerate() {
+            out.push(match s {
+                -1 if inferred.is_none() => {
+                    inferred = Some(i);
+                    None
+                }
+                0 if !allowzero && i < r => {
+                    if i + 1 == r {
+                        self.width
+                    } else {
+                        Some(1)
+                    }
+                }
+                s if s > 0 => Some(usize::try_from(s).unwrap_or(usize::MAX)),
+                _ => {
+                    return Err(bad(format!(
+                        "shape {target:?}: not a reshape of {shape} the importer follows"
+                    )))
+                }
+            });
+        }
+        // Every other axis has size 1, so the value has `width` elements.
+        if let (Some(i), Some(n)) = (inferred, self.width) {
+            let rest = out
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .try_fold(1usize, |a, (_, d)| d.and_then(|d| a.checked_mul(d)));
+            out[i] = match rest {
+                Some(p) if p > 0 && n % p == 0 => Some(n / p),
+                _ => return Err(bad(format!("shape {target:?} does not fit the {n} values of {shape}"))),
+            };
+        }
+        let last = out.last().copied().unwrap_or(Some(1));
+        let leading_ones = out.iter().rev().skip(1).all(|&d| d == Some(1));
+        match (leading_ones, last, self.width) {
+            (true, Some(k), Some(n)) if k == n => {}
+            (true, Some(k), None) => self.width = Some(k),
+            (true, None, None) => {}
+            _ => {
+                return Err(bad(format!(
+                    "reshapes the value {shape} to {}: the features must stay one vector along the last axis, \
+                     which the executor's vector is",
+                    shape_str(&out)
+                )))
+            }
+        }
+        Ok(out.len())
     }
 
     /// `Elu`, `Relu` or `Tanh`.
@@ -802,6 +1224,7 @@ impl Walk {
             built,
             pre,
             width,
+            rank,
             recurrent,
             trace,
             ..
@@ -833,8 +1256,8 @@ impl Walk {
         let bias: Vec<f32> = match node.input.get(3).filter(|s| !s.is_empty()) {
             Some(_) => {
                 let b = at.konst(3)?;
-                if b.data.len() != 8 * hidden {
-                    return Err(bad(format!("B has {} values, expected {}", b.data.len(), 8 * hidden)));
+                if b.dims != [1, 8 * hidden] {
+                    return Err(bad(format!("B has shape {:?}, expected [1, {}]", b.dims, 8 * hidden)));
                 }
                 b.data.clone()
             }
@@ -874,8 +1297,8 @@ impl Walk {
                     Ok(None)
                 }
                 Some(s) => match consts.get(s) {
-                    Some(t) if t.data.len() == hidden => Ok(Some(t.data.clone())),
-                    Some(t) => Err(bad(format!("initial state '{s}' has {} values, not {hidden}", t.data.len()))),
+                    Some(t) if t.dims == [1, 1, hidden] => at.float32(s).map(|()| Some(t.data.clone())),
+                    Some(t) => Err(bad(format!("initial state '{s}' has shape {:?}, not [1, 1, {hidden}]", t.dims))),
                     None => Err(bad(format!(
                         "initial state '{s}' is computed in the graph (a multi-layer state sliced from one input?): not supported"
                     ))),
@@ -897,6 +1320,8 @@ impl Walk {
             _ => return Err(bad("neither Y nor Y_h is used".into())),
         };
         *width = Some(hidden);
+        // Y is [seq, directions, batch, hidden], Y_h [directions, batch, hidden].
+        *rank = Some(if node.output.first() == Some(&next) { 4 } else { 3 });
         trace.push(format!(
             "#{idx} LSTM '{name}': lstm {inp} → {hidden} (gates reordered i,o,f,c → i,f,g,o)"
         ));
