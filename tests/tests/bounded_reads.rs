@@ -11,6 +11,8 @@ const UNBOUNDED: &[&str] = &[
     "MmapedSafetensors",
     "VarMap::load",
     "vars.load(",
+    "vm.load(",
+    "varmap.load(",
 ];
 
 /// Files the project does not take from its user: the kernel's own.

@@ -61,6 +61,32 @@ pub fn f32_values(t: &TensorView<'_>) -> anyhow::Result<Vec<f32>> {
         .collect())
 }
 
+/// Every tensor of the safetensors file at `path`, read through the bounded reader (a FIFO or
+/// `/dev/zero` named as weights is refused, not read forever) and capped at the firmware's limit
+/// for weights.
+pub fn read_safetensors(path: &std::path::Path, dev: &candle_core::Device) -> anyhow::Result<HashMap<String, Tensor>> {
+    use anyhow::Context;
+    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+        .with_context(|| format!("reading {}", path.display()))?;
+    candle_core::safetensors::load_buffer(&bytes, dev)
+        .with_context(|| format!("{} is not a safetensors file", path.display()))
+}
+
+/// Sets every variable of `vars` from the safetensors file at `path` (read as
+/// [`read_safetensors`]); each must be there, in its shape.
+pub fn load_vars(vars: &candle_nn::VarMap, path: &std::path::Path) -> anyhow::Result<()> {
+    let tensors = read_safetensors(path, &candle_core::Device::Cpu)?;
+    let data = vars.data().lock().expect("var map lock");
+    for (name, var) in data.iter() {
+        let t = tensors
+            .get(name)
+            .ok_or_else(|| anyhow::anyhow!("{} has no tensor {name}", path.display()))?;
+        var.set(t)
+            .map_err(|e| anyhow::anyhow!("{name} of {}: {e}", path.display()))?;
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -100,15 +126,4 @@ mod tests {
         let n = NamedTensor::from_candle("x", &t).unwrap();
         assert_eq!(n, NamedTensor::f32("x", vec![2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]));
     }
-}
-
-/// Every tensor of the safetensors file at `path`, read through the bounded reader (a FIFO or
-/// `/dev/zero` named as weights is refused, not read forever) and capped at the firmware's limit
-/// for weights.
-pub fn read_safetensors(path: &std::path::Path, dev: &candle_core::Device) -> anyhow::Result<HashMap<String, Tensor>> {
-    use anyhow::Context;
-    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
-        .with_context(|| format!("reading {}", path.display()))?;
-    candle_core::safetensors::load_buffer(&bytes, dev)
-        .with_context(|| format!("{} is not a safetensors file", path.display()))
 }

@@ -591,6 +591,14 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Cmd::Eval(a) => eval(*a),
         Cmd::Run(a) => run_robot(*a),
         Cmd::Replay(a) => {
+            distinct_files(
+                &[("--report", a.report.as_deref())],
+                &[
+                    ("the log", Some(a.log.as_path())),
+                    ("--spec", a.spec.as_deref()),
+                    ("--weights", a.weights.as_deref()),
+                ],
+            )?;
             let report = replay(
                 &a.log,
                 &ReplayOptions {
@@ -645,12 +653,14 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         #[cfg(feature = "lab")]
         Cmd::Plot { log, out } => {
+            distinct_files(&[("--out", Some(&out))], &[("the log", Some(&log))])?;
             firmware::log_tools::plot_log(&log, &out)?;
             eprintln!("wrote {}", out.display());
             Ok(ExitCode::SUCCESS)
         }
         #[cfg(feature = "lab")]
         Cmd::Bev { log, at, out } => {
+            distinct_files(&[("--out", Some(&out))], &[("the log", Some(&log))])?;
             let info = firmware::bev_render::render_bev_png(&log, at, &out)?;
             println!("{}", serde_json::to_string_pretty(&info)?);
             eprintln!("wrote {}", out.display());
@@ -853,54 +863,27 @@ fn stop_on_signals() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
     Ok(stop)
 }
 
-/// Refuses a run whose outputs would overwrite one another or one of its inputs.
+/// Refuses a run whose outputs (files) would overwrite one another or one of its inputs
+/// (`output_file`'s rule, shared by every binary).
 fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
-    // Through symlinks: an existing file resolves whole; a new one through its directory.
-    let abs = |p: &Path| {
-        std::fs::canonicalize(p)
-            .or_else(|_| {
-                let dir = p
-                    .parent()
-                    .filter(|d| !d.as_os_str().is_empty())
-                    .unwrap_or(Path::new("."));
-                let name = p.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-                std::fs::canonicalize(dir).map(|d| d.join(name))
-            })
-            .or_else(|_| std::path::absolute(p))
-            .unwrap_or(p.into())
-    };
-    let given = |files: &[(&'static str, Option<&Path>)]| -> Vec<(&'static str, PathBuf)> {
-        files.iter().filter_map(|(f, p)| p.map(|p| (*f, abs(p)))).collect()
-    };
-    let (outs, ins) = (given(outputs), given(inputs));
-    for (i, (flag, path)) in outs.iter().enumerate() {
-        for (other, p) in outs[..i].iter().chain(&ins) {
-            if p == path {
-                bail!(
-                    "{flag} {} is also {other}: one would overwrite the other; give it another file",
-                    path.display()
-                );
-            }
-        }
-    }
+    let outs: Vec<(&str, &Path, output_file::Kind)> = outputs
+        .iter()
+        .filter_map(|(f, p)| p.map(|p| (*f, p, output_file::Kind::File)))
+        .collect();
+    let ins: Vec<(&str, &Path)> = inputs.iter().filter_map(|(f, p)| p.map(|p| (*f, p))).collect();
+    output_file::check(&outs, &ins)?;
     Ok(())
 }
 
 /// Writes a report through a temporary file and a rename (a full disk leaves no empty or
 /// half-written report); the report is on stdout already, which the error says.
 fn write_report(path: &Path, json: &str) -> Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(format!(".partial-{}", std::process::id()));
-    let tmp = PathBuf::from(tmp);
-    let written = std::fs::write(&tmp, format!("{json}\n")).and_then(|()| std::fs::rename(&tmp, path));
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(anyhow::Error::new(e).context(format!(
+    output_file::write_atomically(path, format!("{json}\n").as_bytes()).with_context(|| {
+        format!(
             "writing the report {} (nothing was left there; the report is printed on stdout above)",
             path.display()
-        )));
-    }
-    Ok(())
+        )
+    })
 }
 
 /// No output may be a file the spec makes the run read (weights, estimator model, terrain network).
@@ -955,6 +938,14 @@ fn eval(a: EvalArgs) -> Result<ExitCode> {
     } else {
         bail!("say which worlds: --worlds LIST (e.g. flat,stairs-up,specs/worlds/stairs_down_steep.toml) or a random sweep --heights 0.12,0.16 [--kinds up,down --episodes-per-height N]");
     };
+    // The report may not land on the spec, the files it names, or a world file.
+    let spec = DeploySpec::load(&a.spec)?;
+    let mut inputs: Vec<(&'static str, Option<&Path>)> =
+        vec![("--spec", Some(a.spec.as_path())), ("--weights", a.weights.as_deref())];
+    let read = spec.files_read();
+    inputs.extend(read.iter().map(|(f, p)| (*f, Some(p.as_path()))));
+    inputs.extend(episodes.iter().map(|e| ("a --worlds file", Some(Path::new(&e.world)))));
+    distinct_files(&[("--report", a.report.as_deref())], &inputs)?;
     let opts = EvalOptions {
         spec: a.spec,
         weights: a.weights,

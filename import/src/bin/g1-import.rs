@@ -73,6 +73,14 @@ impl OutDir {
     fn paths<const N: usize>(&self, names: [&str; N], inputs: &[&std::path::Path]) -> Result<[PathBuf; N]> {
         std::fs::create_dir_all(&self.out).with_context(|| format!("creating {}", self.out.display()))?;
         let paths = names.map(|n| self.out.join(n));
+        // `output_file`'s rule (links and hard links followed), --force or not.
+        let outs: Vec<(&str, &std::path::Path, output_file::Kind)> = paths
+            .iter()
+            .map(|p| ("the import's output", p.as_path(), output_file::Kind::File))
+            .collect();
+        let ins: Vec<(&str, &std::path::Path)> = inputs.iter().map(|p| ("an input", *p)).collect();
+        output_file::check(&outs, &ins)
+            .map_err(|e| anyhow::anyhow!("{e} (an import never overwrites what it reads; give another --out)"))?;
         for p in &paths {
             let Ok(out) = std::fs::canonicalize(p) else { continue };
             if let Some(input) = inputs.iter().find(|i| std::fs::canonicalize(i).is_ok_and(|i| i == out)) {
@@ -124,24 +132,31 @@ fn write(path: &std::path::Path, data: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// What an import writes into --out: a deploy spec and its weights, or a network alone.
+const SPEC_FILES: [&str; 2] = ["policy.toml", "policy.safetensors"];
+const NETWORK_FILES: [&str; 2] = ["network.toml", "policy.safetensors"];
+
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::RlLab { deploy, onnx, spec } => {
+            spec.dir.paths(SPEC_FILES, &[&deploy, &onnx])?;
             let imp = policy_import::import_rl_lab(&deploy, &onnx, &spec.options())?;
             let what = format!("{} + {}", deploy.display(), onnx.display());
             write_spec(&imp, &spec, &what, &[&deploy, &onnx])
         }
         Cmd::Mjlab { onnx, spec } => {
+            spec.dir.paths(SPEC_FILES, &[&onnx])?;
             let imp = policy_import::import_onnx_metadata(&onnx, &spec.options())?;
             write_spec(&imp, &spec, &onnx.display().to_string(), &[&onnx])
         }
         Cmd::Network { onnx, dir } => {
+            dir.paths(NETWORK_FILES, &[&onnx])?;
             let net = policy_import::import_file(&onnx)?;
             let weights = net.safetensors_bytes()?;
             // The firmware's own loader checks every shape before anything is written.
             let check = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
                 .context("the converted network does not load in the firmware's executor")?;
-            let [toml_path, st_path] = dir.paths(["network.toml", "policy.safetensors"], &[&onnx])?;
+            let [toml_path, st_path] = dir.paths(NETWORK_FILES, &[&onnx])?;
             let table = net.spec_table()?;
             let text = format!(
                 "# A deploy spec's network, imported from {} by g1-import; with [policy] weights = \"policy.safetensors\"\n{table}",
@@ -192,7 +207,7 @@ fn run(cli: Cli) -> Result<()> {
 /// Writes an import's spec and weights into `out`, loads them with the firmware's own validation,
 /// and prints the table.
 fn write_spec(imp: &policy_import::RlLabImport, out: &SpecOut, what: &str, inputs: &[&std::path::Path]) -> Result<()> {
-    let [spec_path, weights_path] = out.dir.paths(["policy.toml", "policy.safetensors"], inputs)?;
+    let [spec_path, weights_path] = out.dir.paths(SPEC_FILES, inputs)?;
     // The firmware's own loader and controller judge the result before anything is written (the
     // spec as if it were in --out already, so its relative paths resolve as they will).
     let spec = firmware::spec::DeploySpec::from_toml(&imp.spec_toml, &spec_path).context(

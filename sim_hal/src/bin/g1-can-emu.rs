@@ -121,6 +121,12 @@ fn power_off_ticks(args: &Args, layout: &BusLayout, control_dt: f64) -> Result<V
 }
 
 fn run(args: Args) -> Result<()> {
+    let outputs: Vec<(&str, &std::path::Path, output_file::Kind)> =
+        [("--report", &args.report), ("--ready-file", &args.ready_file)]
+            .into_iter()
+            .filter_map(|(f, p)| p.as_deref().map(|p| (f, p, output_file::Kind::File)))
+            .collect();
+    output_file::check(&outputs, &[("--can-config", &args.can_config)])?;
     let mut layout = BusLayout::load(&args.can_config)?;
     if !args.can.is_empty() {
         layout.rename_interfaces(&args.can)?;
@@ -173,7 +179,7 @@ fn run(args: Args) -> Result<()> {
         );
     }
     if let Some(p) = &args.ready_file {
-        std::fs::write(p, "ready\n").with_context(|| format!("writing {}", p.display()))?;
+        output_file::write_atomically(p, b"ready\n").with_context(|| format!("writing {}", p.display()))?;
     }
     if !args.quiet {
         eprintln!(
@@ -198,7 +204,9 @@ fn run(args: Args) -> Result<()> {
     bridge.close();
     let json = serde_json::to_string_pretty(&report)? + "\n";
     match &args.report {
-        Some(p) => std::fs::write(p, &json).with_context(|| format!("writing {}", p.display()))?,
+        Some(p) => {
+            output_file::write_atomically(p, json.as_bytes()).with_context(|| format!("writing {}", p.display()))?
+        }
         None => print!("{json}"),
     }
     if !args.quiet {

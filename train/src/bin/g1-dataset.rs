@@ -144,6 +144,14 @@ fn main() -> anyhow::Result<()> {
             bounded("--poses-per-world", poses_per_world, 1, 1000)?;
             bounded("--shard-size", shard_size, 1, 100_000)?;
             bounded("--jobs", common.jobs, 1, 256)?;
+            // A scenario file inside --out would be overwritten by the shards' directory.
+            let files: Vec<(&str, &std::path::Path)> = world
+                .iter()
+                .map(std::path::Path::new)
+                .filter(|p| p.is_file())
+                .map(|p| ("a --world file", p))
+                .collect();
+            output_file::check(&[("--out", &out, output_file::Kind::Dir)], &files)?;
             let set = if world.is_empty() {
                 WorldSet::Random {
                     first_seed: seed,
@@ -227,7 +235,7 @@ fn main() -> anyhow::Result<()> {
             print!("standing: {}", r.standing);
             print!("walking: {}", r.walking);
             if let Some(path) = report {
-                std::fs::write(&path, serde_json::to_string_pretty(&r)? + "\n")
+                output_file::write_atomically(&path, (serde_json::to_string_pretty(&r)? + "\n").as_bytes())
                     .with_context(|| format!("writing {}", path.display()))?;
                 println!("report: {}", path.display());
             }

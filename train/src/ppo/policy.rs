@@ -578,15 +578,6 @@ impl ActorCritic {
 
     /// Every variable from the safetensors file at `path` (each must be there, in its shape).
     pub fn load(&mut self, path: &Path) -> anyhow::Result<()> {
-        let tensors = crate::read_safetensors(path, &Device::Cpu)?;
-        let data = self.vars.data().lock().expect("var map lock");
-        for (name, var) in data.iter() {
-            let t = tensors
-                .get(name)
-                .ok_or_else(|| anyhow::anyhow!("{} has no tensor {name}", path.display()))?;
-            var.set(t)
-                .map_err(|e| anyhow::anyhow!("{name} of {}: {e}", path.display()))?;
-        }
-        Ok(())
+        crate::tensor_file::load_vars(&self.vars, path)
     }
 }

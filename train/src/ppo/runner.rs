@@ -861,9 +861,7 @@ fn save(
 /// Writes `bytes` to a temporary file beside `path`, then renames it over `path` (a run killed
 /// mid-write keeps the previous file): every file a run writes goes through here.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    output_file::write_atomically(path, bytes).with_context(|| format!("writing {}", path.display()))
 }
 
 /// A JSON record of the run in `out`: `None` when the file is absent; an error naming it when it

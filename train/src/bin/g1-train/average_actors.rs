@@ -36,6 +36,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("reading the actor {}", path.display()))?;
         files.push((path, bytes, w));
     }
+    let mut named: Vec<(&str, Option<&std::path::Path>)> =
+        files.iter().map(|(p, _, _)| ("an actor", Some(p.as_path()))).collect();
+    named.push(("--spec", Some(&args.spec)));
+    crate::outputs::refuse_clashes(
+        &[("--out", Some(&args.out), crate::outputs::Kind::File)],
+        &named,
+        Some(&spec),
+    )?;
     let inputs: Vec<(&[u8], f64)> = files.iter().map(|(_, b, w)| (b.as_slice(), *w)).collect();
     let averaged = train::ppo::average::average_actors(&inputs).with_context(|| {
         let names: Vec<_> = files.iter().map(|(p, _, _)| p.display().to_string()).collect();
@@ -47,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.spec.display()
         )
     })?;
-    std::fs::write(&args.out, &averaged).with_context(|| format!("writing {}", args.out.display()))?;
+    output_file::write_atomically(&args.out, &averaged).with_context(|| format!("writing {}", args.out.display()))?;
     let total: f64 = files.iter().map(|(_, _, w)| w).sum();
     println!("wrote {} from {} actors:", args.out.display(), files.len());
     for (p, _, w) in &files {

@@ -92,6 +92,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     };
     set.check().context("--worlds/--seed")?;
+    crate::outputs::refuse_clashes(
+        &[
+            ("--report", report.as_deref(), crate::outputs::Kind::File),
+            ("--plot", plot.as_deref(), crate::outputs::Kind::File),
+        ],
+        &[("--weights", weights.as_deref())],
+        None,
+    )?;
     anyhow::ensure!(
         poses_per_world > 0,
         "--poses-per-world 0 evaluates nothing: give at least 1"

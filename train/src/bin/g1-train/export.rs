@@ -21,14 +21,18 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Args { checkpoint, out, data } = args;
-    let mut vm = candle_nn::VarMap::new();
+    crate::outputs::refuse_clashes(
+        &[("--out", Some(&out), crate::outputs::Kind::Dir)],
+        &[("--checkpoint", Some(&checkpoint)), ("--data", data.as_deref())],
+        None,
+    )?;
+    let vm = candle_nn::VarMap::new();
     let model = train::cnn::model::TerrainCnn::new(candle_nn::VarBuilder::from_varmap(
         &vm,
         candle_core::DType::F32,
         &Device::Cpu,
     ))?;
-    vm.load(&checkpoint)
-        .with_context(|| format!("loading {}", checkpoint.display()))?;
+    train::tensor_file::load_vars(&vm, &checkpoint).with_context(|| format!("loading {}", checkpoint.display()))?;
     let mut meta = BTreeMap::new();
     meta.insert("format".into(), "g1-train terrain CNN v1 (BatchNorm folded)".into());
     let sha = fold(&vm)?.write(&out, &meta)?;

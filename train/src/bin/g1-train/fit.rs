@@ -182,24 +182,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// `fit` writes its export and checkpoint into `out`: refuse to replace an earlier run's files
 /// unless forced, and never let an output be one of the run's inputs.
 fn fit_output_is_free(out: &Path, data: &[PathBuf], init: Option<&Path>, force: bool) -> anyhow::Result<()> {
-    let abs = |p: &Path| {
-        std::fs::canonicalize(p)
-            .or_else(|_| std::path::absolute(p))
-            .unwrap_or(p.into())
-    };
+    let mut inputs: Vec<(&str, Option<&Path>)> =
+        data.iter().map(|d| ("a --data directory", Some(d.as_path()))).collect();
+    inputs.push(("--init", init));
+    crate::outputs::refuse_clashes(&[("--out", Some(out), crate::outputs::Kind::Dir)], &inputs, None)?;
+    // A --data directory that holds the run directory would take its checkpoints as data.
     for d in data {
-        anyhow::ensure!(
-            abs(d) != abs(out),
-            "--out {} is also a --data directory: write the training run elsewhere",
-            out.display()
-        );
-    }
-    if let Some(init) = init {
-        anyhow::ensure!(
-            abs(init) != abs(&out.join("checkpoint.safetensors")),
-            "--init {} would be overwritten by this run's checkpoint: copy it elsewhere or choose another --out",
-            init.display()
-        );
+        crate::outputs::refuse_clashes(
+            &[("a --data directory", Some(d.as_path()), crate::outputs::Kind::Dir)],
+            &[("--out", Some(out))],
+            None,
+        )
+        .map_err(|_| {
+            anyhow::anyhow!(
+                "--out {} is inside the --data directory {}: write the training run elsewhere",
+                out.display(),
+                d.display()
+            )
+        })?;
     }
     let occupied = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some());
     anyhow::ensure!(

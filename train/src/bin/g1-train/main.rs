@@ -6,6 +6,7 @@ mod average_actors;
 mod eval_terrain;
 mod export;
 mod fit;
+mod outputs;
 mod ppo;
 mod ppo_eval;
 mod ppo_export;

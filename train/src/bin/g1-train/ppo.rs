@@ -418,6 +418,18 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
     let judge_model = model.to_string();
     // The judge runs on every model the run trains.
     let judge_also: Vec<String> = mix_model.iter().map(|(m, _)| m.to_string()).collect();
+    // The run directory may hold nothing the run reads: `--out specs/stairs` would overwrite the
+    // committed actor and critic it started from.
+    let deploy = firmware::spec::DeploySpec::load(&spec)?;
+    crate::outputs::refuse_clashes(
+        &[("--out", Some(&out), crate::outputs::Kind::Dir)],
+        &[
+            ("--spec", Some(&spec)),
+            ("--init-actor", init_actor.as_deref()),
+            ("--init-critic", init_critic.as_deref()),
+        ],
+        Some(&deploy),
+    )?;
     // A new run states its recipe; a resumed one keeps the one it was started with.
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let recipe = out.join(crate::recipe::RECIPE);

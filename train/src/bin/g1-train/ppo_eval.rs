@@ -72,6 +72,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let deploy = firmware::spec::DeploySpec::load(&spec)
         .with_context(|| format!("loading the deploy spec {}", spec.display()))?;
+    crate::outputs::refuse_clashes(
+        &[("--json", json.as_deref(), crate::outputs::Kind::File)],
+        &[("--spec", Some(&spec)), ("--weights", weights.as_deref())],
+        Some(&deploy),
+    )?;
     let wpath = weights.unwrap_or_else(|| deploy.weights_path());
     let bytes = firmware::read_capped(&wpath, firmware::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading the actor {}", wpath.display()))?;

@@ -13,6 +13,17 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Args { checkpoint, spec } = args;
+    // The export is the spec's weights file: never the checkpoint it comes from.
+    let deploy = firmware::spec::DeploySpec::load(&spec)?;
+    crate::outputs::refuse_clashes(
+        &[(
+            "the spec's policy.weights",
+            Some(&deploy.weights_path()),
+            crate::outputs::Kind::File,
+        )],
+        &[("--checkpoint", Some(&checkpoint)), ("--spec", Some(&spec))],
+        None,
+    )?;
     let path = train::ppo::runner::export(&checkpoint, &spec)?;
     println!("wrote {}", path.display());
     Ok(())

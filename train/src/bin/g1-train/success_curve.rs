@@ -24,6 +24,22 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let reports: Vec<std::path::PathBuf> = args
+        .points
+        .iter()
+        .map(|a| success_curve::parse_point_arg(a).map(|(_, _, p)| p))
+        .collect::<anyhow::Result<_>>()?;
+    let mut inputs: Vec<(&str, Option<&std::path::Path>)> =
+        reports.iter().map(|p| ("a report", Some(p.as_path()))).collect();
+    inputs.push(("--table", args.table.as_deref()));
+    crate::outputs::refuse_clashes(
+        &[
+            ("--out", Some(&args.out), crate::outputs::Kind::File),
+            ("--markdown", args.markdown.as_deref(), crate::outputs::Kind::File),
+        ],
+        &inputs,
+        None,
+    )?;
     let mut points = Vec::with_capacity(args.points.len());
     for arg in &args.points {
         let (label, env_steps, path) = success_curve::parse_point_arg(arg)?;

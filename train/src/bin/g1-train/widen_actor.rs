@@ -27,6 +27,11 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let spec = firmware::spec::DeploySpec::load(&args.spec)
         .with_context(|| format!("loading the deploy spec {}", args.spec.display()))?;
+    crate::outputs::refuse_clashes(
+        &[("--out", Some(&args.out), crate::outputs::Kind::File)],
+        &[("--actor", Some(&args.actor)), ("--spec", Some(&args.spec))],
+        Some(&spec),
+    )?;
     let weights = input_file::read_capped(&args.actor, firmware::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading {}", args.actor.display()))?;
     let wide = train::ppo::widen::widen_actor(
@@ -37,7 +42,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.seed,
     )
     .with_context(|| format!("widening {}", args.actor.display()))?;
-    std::fs::write(&args.out, &wide).with_context(|| format!("writing {}", args.out.display()))?;
+    output_file::write_atomically(&args.out, &wide).with_context(|| format!("writing {}", args.out.display()))?;
     println!(
         "wrote {} (hidden {:?}; it acts as {} did)",
         args.out.display(),

@@ -1,0 +1,163 @@
+//! The one rule for every output of every binary: an output may not be an input, a file an input
+//! names (a spec's weights), inside an output directory that is an input's, or another output.
+//! Paths are compared resolved (symbolic links followed, `..` gone) and, for files that exist, by
+//! device and inode, so a hard link to the spec is the spec. Every output is then written
+//! atomically ([`write_atomically`]): a temporary file beside it, then a rename, so a full disk or a
+//! kill leaves the old file or the new one, never half of one.
+use std::ffi::OsString;
+use std::io::Write;
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
+
+/// Whether an output is one file or a directory the program fills.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    File,
+    Dir,
+}
+
+/// An output that would overwrite an input or another output.
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} {} is also {other}: one would overwrite the other; give it another {what}", path.display())]
+pub struct Clash {
+    pub flag: String,
+    pub path: PathBuf,
+    pub other: String,
+    what: &'static str,
+}
+
+/// A path as the file system resolves it, and the file's identity when it exists.
+struct Resolved {
+    path: PathBuf,
+    inode: Option<(u64, u64)>,
+}
+
+fn resolve(p: &Path) -> Resolved {
+    // An existing file resolves whole; a new one through its directory.
+    let path = std::fs::canonicalize(p)
+        .or_else(|_| {
+            let dir = p
+                .parent()
+                .filter(|d| !d.as_os_str().is_empty())
+                .unwrap_or(Path::new("."));
+            let name = p.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+            std::fs::canonicalize(dir).map(|d| d.join(name))
+        })
+        .or_else(|_| std::path::absolute(p))
+        .unwrap_or_else(|_| p.to_path_buf());
+    let inode = std::fs::metadata(&path).ok().map(|m| (m.dev(), m.ino()));
+    Resolved { path, inode }
+}
+
+impl Resolved {
+    fn same(&self, other: &Resolved) -> bool {
+        self.path == other.path || (self.inode.is_some() && self.inode == other.inode)
+    }
+}
+
+/// Refuses `outputs` that would overwrite one another or one of `inputs` (each a flag or a
+/// description, and its path). An input is also every file an input names: pass those too.
+pub fn check(outputs: &[(&str, &Path, Kind)], inputs: &[(&str, &Path)]) -> Result<(), Clash> {
+    let outs: Vec<(&str, Resolved, Kind)> = outputs.iter().map(|(f, p, k)| (*f, resolve(p), *k)).collect();
+    let ins: Vec<(&str, Resolved)> = inputs.iter().map(|(f, p)| (*f, resolve(p))).collect();
+    for (i, (flag, out, kind)) in outs.iter().enumerate() {
+        let earlier = outs[..i].iter().map(|(f, r, _)| (*f, r));
+        for (other, r) in earlier.chain(ins.iter().map(|(f, r)| (*f, r))) {
+            let inside = *kind == Kind::Dir && r.path.starts_with(&out.path);
+            if out.same(r) || inside {
+                return Err(Clash {
+                    flag: flag.to_string(),
+                    path: out.path.clone(),
+                    other: if inside && !out.same(r) {
+                        format!("the directory of {other} {}", r.path.display())
+                    } else {
+                        other.to_string()
+                    },
+                    what: if *kind == Kind::Dir { "directory" } else { "file" },
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The temporary file [`write_atomically`] writes first: `path` + `.partial-<pid>`.
+pub fn temporary(path: &Path) -> PathBuf {
+    let mut t: OsString = path.as_os_str().to_owned();
+    t.push(format!(".partial-{}", std::process::id()));
+    PathBuf::from(t)
+}
+
+/// Writes `bytes` to `path` through a temporary file beside it, synced, then renamed over it. On
+/// any error the temporary file is removed and `path` is as it was.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = temporary(path);
+    let written = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("output-file-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    #[test]
+    fn an_output_onto_an_input_a_link_a_hard_link_or_another_output_is_refused() {
+        let d = scratch("clash");
+        let spec = d.join("spec.toml");
+        std::fs::write(&spec, "x").unwrap();
+        let hard = d.join("hard.toml");
+        std::fs::hard_link(&spec, &hard).unwrap();
+        let soft = d.join("soft.toml");
+        std::os::unix::fs::symlink(&spec, &soft).unwrap();
+        let dotted = d.join("sub/../spec.toml");
+        std::fs::create_dir_all(d.join("sub")).unwrap();
+        for out in [&spec, &hard, &soft, &dotted] {
+            let e = check(&[("--report", out, Kind::File)], &[("--spec", &spec)]).unwrap_err();
+            assert!(e.to_string().contains("is also --spec"), "{e}");
+        }
+        let a = d.join("a.json");
+        let e = check(&[("--report", &a, Kind::File), ("--log", &a, Kind::File)], &[]).unwrap_err();
+        assert!(
+            e.to_string().contains("--log") && e.to_string().contains("is also --report"),
+            "{e}"
+        );
+        // A directory output that holds an input.
+        let e = check(&[("--out", &d, Kind::Dir)], &[("--spec", &spec)]).unwrap_err();
+        assert!(e.to_string().contains("the directory of --spec"), "{e}");
+        // Distinct files pass, a new one included.
+        check(&[("--report", &d.join("new.json"), Kind::File)], &[("--spec", &spec)]).unwrap();
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_old_file_and_no_temporary() {
+        let d = scratch("atomic");
+        let f = d.join("report.json");
+        write_atomically(&f, b"old").unwrap();
+        write_atomically(&f, b"new").unwrap();
+        assert_eq!(std::fs::read(&f).unwrap(), b"new");
+        // Onto a directory: the rename fails, the temporary goes.
+        let dir = d.join("a-dir");
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::write(dir.join("keep"), b"k").unwrap();
+        assert!(write_atomically(&dir, b"x").is_err());
+        assert!(!temporary(&dir).exists());
+        assert_eq!(std::fs::read(dir.join("keep")).unwrap(), b"k");
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+}

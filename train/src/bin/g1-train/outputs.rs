@@ -1,0 +1,19 @@
+//! Every output of `g1-train` through `output_file`'s one rule: never onto an input, a file the
+//! deploy spec names (its weights, the estimator's model, the terrain network), or another output.
+use std::path::Path;
+
+pub use output_file::Kind;
+
+/// Refuses `outputs` that would overwrite one another, one of `inputs`, or a file `spec` reads.
+pub fn refuse_clashes(
+    outputs: &[(&str, Option<&Path>, Kind)],
+    inputs: &[(&str, Option<&Path>)],
+    spec: Option<&firmware::spec::DeploySpec>,
+) -> anyhow::Result<()> {
+    let read = spec.map(|s| s.files_read()).unwrap_or_default();
+    let outs: Vec<(&str, &Path, Kind)> = outputs.iter().filter_map(|(f, p, k)| p.map(|p| (*f, p, *k))).collect();
+    let mut ins: Vec<(&str, &Path)> = inputs.iter().filter_map(|(f, p)| p.map(|p| (*f, p))).collect();
+    ins.extend(read.iter().map(|(f, p)| (*f, p.as_path())));
+    output_file::check(&outs, &ins)?;
+    Ok(())
+}
