@@ -397,12 +397,13 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut log_failed = false;
     let mut variant_refusal: Option<String> = None;
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
-        if let Some(l) = logger.as_mut() {
+        // A log that cannot be written (a full disk) stops the log, never the control: what
+        // reached the disk stays readable, and the report names the error.
+        if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
             l.push(v);
             if l.writer_failed() {
-                // A write error ends the run as any fault does: damped, reported.
                 log_failed = true;
-                return false;
+                tracing::error!(tick = v.summary.tick.index, "the log could not be written: logging stopped, control goes on");
             }
         }
         ticks = v.summary.tick.index;
@@ -427,7 +428,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
         None => (None, None),
     };
-    let end_text = describe_end(&end, log_failed, log_error.as_deref(), variant_refusal.as_deref());
+    let end_text = describe_end(&end, variant_refusal.as_deref());
 
     let lidar = hal.lidar.as_ref().map(|l| {
         let (c, s) = (l.counters(), l.assembler_stats());
@@ -458,7 +459,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         normal_end: runtime.trip().is_none()
             && match end {
                 LoopEnd::Completed { .. } => true,
-                LoopEnd::Stopped { .. } => !log_failed && variant_refusal.is_none(),
+                LoopEnd::Stopped { .. } => variant_refusal.is_none(),
                 LoopEnd::HalError { .. } | LoopEnd::Panicked { .. } => false,
             },
         log_error,
@@ -481,13 +482,9 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
 }
 
 /// How the run ended, in words for the report (the motors are damped after every end).
-fn describe_end(end: &LoopEnd, log_failed: bool, log_error: Option<&str>, variant_refusal: Option<&str>) -> String {
+fn describe_end(end: &LoopEnd, variant_refusal: Option<&str>) -> String {
     match end {
         LoopEnd::Completed { .. } => "completed".to_string(),
-        LoopEnd::Stopped { ticks } if log_failed => format!(
-            "stopped at tick {ticks}: the log could not be written ({}); motors commanded to damping",
-            log_error.unwrap_or("unknown error")
-        ),
         LoopEnd::Stopped { ticks } if variant_refusal.is_some() => format!(
             "stopped at tick {ticks}: {}; motors commanded to damping",
             variant_refusal.unwrap_or_default()

@@ -520,14 +520,16 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let mut ticks = 0u64;
 
     let end = run_loop(&mut hal, &mut runtime, &mut operator, total_ticks, |v| {
-        if let Some(l) = logger.as_mut() {
+        // A log that cannot be written (a full disk) stops the log, never the control: what
+        // reached the disk stays readable, and the report names the error.
+        if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
             l.push(v);
             if l.writer_failed() {
-                // Stop as for any fault: the report still says what happened and why.
                 log_failed = true;
-                return false;
+                tracing::error!(tick = v.summary.tick.index, "the log could not be written: logging stopped, control goes on");
             }
         }
+
         // Everything below is evaluation: it runs while the simulator steps.
         ev.add(v, control_dt, opts.duration_s);
         let k = v.summary.tick.index;
@@ -568,7 +570,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
         None => (None, None),
     };
-    let end_text = describe_end(&end, opts, log_failed, interrupted, landed, log_error.as_deref(), &gone)?;
+    let end_text = describe_end(&end, opts, interrupted, landed, &gone)?;
 
     let time_s = ticks as f64 * control_dt;
     let trip = TripReport::of(&runtime, control_dt);
@@ -722,17 +724,11 @@ fn start_simulator(
 fn describe_end(
     end: &LoopEnd,
     opts: &SimOptions,
-    log_failed: bool,
     interrupted: bool,
     landed: bool,
-    log_error: Option<&str>,
     gone: &str,
 ) -> Result<String> {
     Ok(match end {
-        LoopEnd::Stopped { ticks } if log_failed => format!(
-            "stopped at tick {ticks}: the log could not be written ({})",
-            log_error.unwrap_or("unknown error")
-        ),
         LoopEnd::Completed { .. } => "completed".to_string(),
         LoopEnd::Stopped { ticks } if interrupted => {
             format!("interrupted by a signal at tick {ticks}; the log is closed and the simulator stopped")
