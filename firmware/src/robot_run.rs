@@ -255,12 +255,14 @@ pub fn run_dds(
     }
     let transport = format!("dds {endpoint}");
     let startup = opts.startup_timeout;
+    let stop = opts.stop.clone();
     // A robot at rest in a noise-free simulator repeats its f32 state exactly, which the frozen-joint
     // check would take for a dead encoder: off for unitree_mujoco (the log says so; replay follows).
     let frozen_check = !unitree_mujoco;
     let (mut report, hal) = run_hal(spec, opts, meta, frozen_check, transport, |period_ns| {
         let mut cfg = DdsHalConfig::new(endpoint, period_ns);
         cfg.startup_timeout = startup;
+        cfg.stop = Some(stop.clone());
         if let Some(t) = tick_timeout {
             cfg.tick_timeout = t;
         }
@@ -403,7 +405,10 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             l.push(v);
             if l.writer_failed() {
                 log_failed = true;
-                tracing::error!(tick = v.summary.tick.index, "the log could not be written: logging stopped, control goes on");
+                tracing::error!(
+                    tick = v.summary.tick.index,
+                    "the log could not be written: logging stopped, control goes on"
+                );
             }
         }
         ticks = v.summary.tick.index;
@@ -421,6 +426,12 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         }
         !opts.stop.load(Ordering::Relaxed)
     });
+    // A signal that ended a wait inside the HAL (the first state that never came) is a stop.
+    let stopped_in_hal = matches!(end, LoopEnd::HalError { .. }) && opts.stop.load(Ordering::Relaxed);
+    let end = match end {
+        LoopEnd::HalError { tick, .. } if stopped_in_hal => LoopEnd::Stopped { ticks: tick },
+        end => end,
+    };
     // Every end leaves the robot damped, not holding the last targets with the policy's gains.
     let end_damping = damp_after_end(&mut hal, &runtime, mode_machine, period_ns, opts.end_damping);
     let (log, log_error) = match logger.map(|l| l.finish()) {
@@ -454,9 +465,10 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         time_s: ticks as f64 * control_dt,
         policy_steps: runtime.controller().policy_steps(),
         final_mode: format!("{:?}", runtime.mode()),
-        trip: TripReport::of(&runtime, control_dt),
+        // The HAL's error that a signal caused latched damping: a stop, not a trip.
+        trip: TripReport::of(&runtime, control_dt).filter(|_| !stopped_in_hal),
         end: end_text,
-        normal_end: runtime.trip().is_none()
+        normal_end: (runtime.trip().is_none() || stopped_in_hal)
             && match end {
                 LoopEnd::Completed { .. } => true,
                 LoopEnd::Stopped { .. } => variant_refusal.is_none(),

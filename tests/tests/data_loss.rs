@@ -321,3 +321,47 @@ fn a_full_disk_stops_the_log_not_the_run_and_keeps_the_report_and_the_log_so_far
     let messages = info["messages"].as_object().map_or(0, |m| m.len());
     assert!(messages > 0, "nothing readable in the log: {info}");
 }
+
+/// A stop always stops (issue 73): SIGTERM while `g1fw run` waits for a robot that never answers
+/// ends it at once (it used to wait out the whole start-up timeout), damped, its report written and
+/// its log closed, as a stop and not a fault.
+#[test]
+fn a_signal_while_waiting_for_the_robot_stops_the_run_at_once() {
+    let dir = scratch_dir("stop_at_startup");
+    let (log, report) = (dir.join("run.mcap"), dir.join("report.json"));
+    // A domain of its own on loopback: nothing answers there.
+    let domain = format!("lo,{}", 150 + std::process::id() % 80);
+    let child = spawn_g1fw(&[
+        "run",
+        "--spec",
+        "specs/stairs/g1_stairs_lstm.toml",
+        "--dds",
+        &domain,
+        "--startup-timeout",
+        "120",
+        "--log",
+        log.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+    ]);
+    std::thread::sleep(Duration::from_secs(3));
+    let sent = Instant::now();
+    assert!(Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let out = child.wait_with_output().expect("g1fw exits");
+    let took = sent.elapsed();
+    let err = String::from_utf8_lossy(&out.stderr);
+    // The end damping (1 s by default) is part of every end.
+    assert!(took < Duration::from_secs(5), "took {took:?} after SIGTERM: {err}");
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    let r = read_json(&report);
+    assert_eq!(r["end"], "stopped by signal", "{r}");
+    assert_eq!(r["normal_end"], true, "{r}");
+    assert!(r["trip"].is_null(), "{r}");
+    assert!(r["end_damping"]["sent"].as_u64().unwrap() > 0, "{r}");
+    let end = LogFile::open(&log).unwrap().verify().expect("an intact log");
+    assert!(end.truncated.is_none(), "{end:?}");
+}

@@ -117,6 +117,9 @@ pub struct DdsHalConfig {
     pub discovery: Duration,
     /// How long the first `rt/lowstate` may take.
     pub startup_timeout: Duration,
+    /// Set by a signal: the wait for the first state ends at once (a stop always stops, a robot
+    /// that never answers included).
+    pub stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
     /// A tick without a new sample runs after this long (`Pace::State`).
     pub tick_timeout: Duration,
     pub pace: Pace,
@@ -132,6 +135,7 @@ impl DdsHalConfig {
             period_ns,
             discovery: Duration::from_millis(1500),
             startup_timeout: Duration::from_secs(10),
+            stop: None,
             // Ten periods: late enough that a loaded host's scheduling hiccup is not a missing
             // frame, early enough that damping follows a dead link within the state timeout.
             tick_timeout: Duration::from_nanos(period_ns * 10),
@@ -293,9 +297,25 @@ impl TimeBase for DdsHal {
         let first = self.next_tick == 0;
         let index = self.next_tick;
         let newer = if first {
-            let got = self
-                .link
-                .wait_newer(self.last_seq, self.cfg.startup_timeout, &mut self.raw)?;
+            // In slices, so that a signal ends the wait within 50 ms.
+            let deadline = Instant::now() + self.cfg.startup_timeout;
+            let got = loop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                let got = self
+                    .link
+                    .wait_newer(self.last_seq, left.min(Duration::from_millis(50)), &mut self.raw)?;
+                if got.is_some() || left.is_zero() {
+                    break got;
+                }
+                if self
+                    .cfg
+                    .stop
+                    .as_ref()
+                    .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+                {
+                    return Err(DdsError::Stopped { topic: LOW_STATE_TOPIC });
+                }
+            };
             self.first_tick_at = Some(Instant::now());
             if got.is_none() {
                 return Err(DdsError::Timeout {

@@ -71,6 +71,8 @@ pub enum DdsError {
         endpoint: Endpoint,
         hint: &'static str,
     },
+    #[error("DDS: stopped by a signal while waiting for the first {topic} sample")]
+    Stopped { topic: &'static str },
     #[error(transparent)]
     Cdr(#[from] CdrError),
     #[error(transparent)]
@@ -80,7 +82,10 @@ pub enum DdsError {
 impl hal::Error for DdsError {
     fn kind(&self) -> hal::ErrorKind {
         match self {
-            DdsError::Interface { .. } | DdsError::Setup(_) | DdsError::OtherWriter { .. } => hal::ErrorKind::Other,
+            DdsError::Interface { .. }
+            | DdsError::Setup(_)
+            | DdsError::OtherWriter { .. }
+            | DdsError::Stopped { .. } => hal::ErrorKind::Other,
             DdsError::Thread(_) => hal::ErrorKind::Disconnected,
             DdsError::Timeout { .. } => hal::ErrorKind::Timeout,
             DdsError::Cdr(e) => e.kind(),
