@@ -32,6 +32,7 @@ pub mod operator;
 pub mod perception;
 pub mod perception_worker;
 pub mod policy_io;
+pub mod remote;
 pub mod robot;
 pub mod rt;
 pub mod runtime;

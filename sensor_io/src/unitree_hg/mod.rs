@@ -4,6 +4,7 @@
 //! float is finite, and report the first problem by field name.
 pub mod cdr;
 mod crc;
+pub mod remote;
 
 pub use crc::crc32_words;
 use hal::{ImuState, LowCommand, LowState, MotorCommand, MotorState, NUM_MOTORS};
