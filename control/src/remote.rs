@@ -67,8 +67,8 @@ impl StickCommand {
         }
         let dead = self.mapping.dead_zone;
         let sticks = [remote.ly, -remote.lx, -remote.rx];
-        for i in 0..3 {
-            let s = past_dead_zone(sticks[i], dead);
+        for (i, &stick) in sticks.iter().enumerate() {
+            let s = past_dead_zone(stick, dead);
             let want = if s >= 0.0 {
                 s * self.max[i].max(0.0)
             } else {
