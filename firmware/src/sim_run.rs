@@ -526,7 +526,10 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
             l.push(v);
             if l.writer_failed() {
                 log_failed = true;
-                tracing::error!(tick = v.summary.tick.index, "the log could not be written: logging stopped, control goes on");
+                tracing::error!(
+                    tick = v.summary.tick.index,
+                    "the log could not be written: logging stopped, control goes on"
+                );
             }
         }
 
@@ -721,13 +724,7 @@ fn start_simulator(
 }
 
 /// What ended the run, in words; an internal error or an unexpected HAL failure is an error.
-fn describe_end(
-    end: &LoopEnd,
-    opts: &SimOptions,
-    interrupted: bool,
-    landed: bool,
-    gone: &str,
-) -> Result<String> {
+fn describe_end(end: &LoopEnd, opts: &SimOptions, interrupted: bool, landed: bool, gone: &str) -> Result<String> {
     Ok(match end {
         LoopEnd::Completed { .. } => "completed".to_string(),
         LoopEnd::Stopped { ticks } if interrupted => {
