@@ -8,6 +8,7 @@ use crate::actor::Actor;
 use crate::envelope::{CommandEnvelope, CommandSource, EnvelopeVerdict, Violation};
 use crate::mirror::MirrorError;
 use crate::nn::{Network, NnError};
+use crate::operator::Request;
 use crate::policy_io::PolicyIo;
 use crate::spec::DeploySpec;
 
@@ -32,10 +33,16 @@ pub enum ControllerError {
 /// What the controller is doing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Mode {
+    /// An operated run's start and rest: damping (kp 0), no fault. The operator stands the robot up.
+    Passive,
     /// Ramping to / holding the default pose before the policy engages.
     Startup,
+    /// An operated run, standing: the default pose held after the ramp, until the operator says walk.
+    Stand,
     /// Policy in control.
     Policy,
+    /// An operated run, sitting down: ramping to the pose the robot stood up from, then passive.
+    SitDown,
     /// Latched safe state: kp = 0, damping only. Left only by an explicit [`Controller::restart`]
     /// (operator reset) or a restart of the firmware.
     Damping(DampingReason),
@@ -103,6 +110,14 @@ pub struct Controller {
     decimation: u64,
     policy_steps: u64,
     mode: Mode,
+    /// The operator steps the run through its states ([`Controller::operate`]); otherwise the
+    /// policy engages by itself after the start-up.
+    operated: bool,
+    /// Tick the policy engaged at (its steps follow every `decimation` ticks from there).
+    engaged_at: u64,
+    /// The sit-down ramp: its first tick and the targets it starts from.
+    sit_start: u64,
+    sit_from: [f32; NUM_MOTORS],
 }
 
 impl Controller {
@@ -172,6 +187,10 @@ impl Controller {
             engage_tick,
             policy_steps: 0,
             mode: Mode::Startup,
+            operated: false,
+            engaged_at: engage_tick,
+            sit_start: 0,
+            sit_from: default_q,
             net,
             spec,
         })
@@ -249,6 +268,7 @@ impl Controller {
     pub fn restart(&mut self, k: u64, state: &LowState) {
         self.mode = Mode::Startup;
         self.start_tick = k;
+        self.engaged_at = k + self.engage_tick;
         for s in 0..NUM_MOTORS {
             self.start_q[s] = state.motors[s].q;
         }
@@ -267,6 +287,18 @@ impl Controller {
                 self.start_q[s] = state.motors[s].q;
             }
         }
+        if self.mode == Mode::SitDown {
+            let r = k - self.sit_start;
+            if r >= self.ramp_ticks {
+                self.mode = Mode::Passive;
+            } else {
+                let a = r as f32 / self.ramp_ticks.max(1) as f32;
+                for s in 0..NUM_MOTORS {
+                    self.target_q[s] = self.sit_from[s] + a * (self.start_q[s] - self.sit_from[s]);
+                }
+            }
+            return;
+        }
         if self.mode != Mode::Startup {
             return;
         }
@@ -278,7 +310,9 @@ impl Controller {
             }
         } else {
             self.target_q = self.default_q;
-            if r >= self.engage_tick && self.net.is_some() {
+            if r >= self.engage_tick && self.operated {
+                self.mode = Mode::Stand;
+            } else if r >= self.engage_tick && self.net.is_some() {
                 // Policy gains from here; its first step comes one policy period later.
                 self.mode = Mode::Policy;
             }
@@ -288,8 +322,48 @@ impl Controller {
     /// Whether the policy group runs at tick `k`: in policy mode, every `decimation` ticks after
     /// engaging (so the policy's phase is fixed by the start-up, not by wall-clock time).
     pub fn policy_due(&self, k: u64) -> bool {
-        let engaged_at = self.start_tick + self.engage_tick;
+        let engaged_at = self.engaged_at;
         self.mode == Mode::Policy && k > engaged_at && (k - engaged_at).is_multiple_of(self.decimation)
+    }
+
+    /// Makes this an operated run: it starts passive (damping, no fault) and moves only when the
+    /// operator asks ([`Controller::request`]). Call before the first tick.
+    pub fn operate(&mut self) {
+        self.operated = true;
+        self.mode = Mode::Passive;
+    }
+
+    pub fn operated(&self) -> bool {
+        self.operated
+    }
+
+    /// The operator's request at tick `k`: the new mode when it applies in the present one, `None`
+    /// when it does not (a request that makes no sense in a state is ignored, as on Unitree's
+    /// remote). A latched trip is left only through [`Request::Passive`].
+    pub fn request(&mut self, k: u64, state: &LowState, request: Request) -> Option<Mode> {
+        if !self.operated {
+            return None;
+        }
+        match (request, self.mode) {
+            (Request::Passive, Mode::Passive) => return None,
+            (Request::Passive, _) => self.mode = Mode::Passive,
+            (Request::StandUp, Mode::Passive) | (Request::Stand, Mode::Policy) => self.restart(k, state),
+            (Request::Walk, Mode::Stand) if self.net.is_some() => {
+                self.io.reset();
+                if let Some(net) = self.net.as_mut() {
+                    net.reset();
+                }
+                self.engaged_at = k;
+                self.mode = Mode::Policy;
+            }
+            (Request::SitDown, Mode::Startup | Mode::Stand | Mode::Policy) => {
+                self.sit_start = k;
+                self.sit_from = self.target_q;
+                self.mode = Mode::SitDown;
+            }
+            _ => return None,
+        }
+        Some(self.mode)
     }
 
     /// One control tick in one call (start-up, policy when due, command): what the runtime does,
@@ -370,12 +444,12 @@ impl Controller {
     /// tick's command is the damping command.
     pub fn write_command(&mut self, state: &LowState, out: &mut LowCommand) {
         let verdict = match self.mode {
-            Mode::Damping(_) => self.damping_command(state, out),
+            Mode::Damping(_) | Mode::Passive => self.damping_command(state, out),
             mode => {
                 self.raw_write_command(state, out);
                 let policy_slot = self.policy_slot;
                 self.envelope.enforce(out, |s| match mode {
-                    Mode::Startup => CommandSource::Startup,
+                    Mode::Startup | Mode::Stand | Mode::SitDown => CommandSource::Startup,
                     _ if policy_slot[s] => CommandSource::Policy,
                     _ => CommandSource::Held,
                 })
@@ -397,7 +471,7 @@ impl Controller {
     fn raw_write_command(&self, state: &LowState, out: &mut LowCommand) {
         out.mode_pr = 0;
         out.mode_machine = state.mode_machine;
-        let (kp, kd) = if self.mode == Mode::Startup {
+        let (kp, kd) = if matches!(self.mode, Mode::Startup | Mode::Stand | Mode::SitDown) {
             (&self.startup_kp, &self.startup_kd)
         } else {
             (&self.kp, &self.kd)

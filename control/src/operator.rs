@@ -10,7 +10,8 @@
 //! 8.0     estop                 # latch damping
 //! 9.0     reset                 # leave damping: fresh start-up from the current pose
 //! ```
-//! Times must increase. A command holds until the next line; `estop`/`reset` act on one tick.
+//! Times must increase. A command holds until the next line; `estop`/`reset` act on one tick, as
+//! do the requests of an operated run (`stand_up`, `walk`, `stand`, `sit_down`, `passive`).
 use std::path::{Path, PathBuf};
 
 use hal::{LowState, TickTime};
@@ -74,6 +75,49 @@ pub struct OperatorInput {
     pub velocity: [f32; 3],
     pub estop: bool,
     pub reset: bool,
+    /// A change of state the operator asks for this tick (an operated run's state machine,
+    /// [`crate::controller::Mode`]).
+    pub request: Option<Request>,
+}
+
+/// The operator's transitions of an operated run (as every G1 deploy tool has them: unitree_rl_lab's
+/// Passive → FixStand → Velocity, rl_sar's GetUp / GetDown).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Request {
+    /// Passive → ramp to the default pose, then stand.
+    StandUp,
+    /// Standing → the policy walks.
+    Walk,
+    /// Walking → ramp back to the default pose and stand.
+    Stand,
+    /// Standing or walking → ramp to the pose the robot stood up from, then passive.
+    SitDown,
+    /// Any state → passive (damping, no fault); after a trip, the operator's acknowledgement.
+    Passive,
+}
+
+impl Request {
+    pub const ALL: [Request; 5] = [
+        Request::StandUp,
+        Request::Walk,
+        Request::Stand,
+        Request::SitDown,
+        Request::Passive,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Request::StandUp => "stand_up",
+            Request::Walk => "walk",
+            Request::Stand => "stand",
+            Request::SitDown => "sit_down",
+            Request::Passive => "passive",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Request> {
+        Request::ALL.into_iter().find(|r| r.name() == s)
+    }
 }
 
 /// A source of operator input, asked once per tick.
@@ -148,6 +192,7 @@ pub enum Step {
     Velocity([f32; 3]),
     EStop,
     Reset,
+    Request(Request),
 }
 
 /// Piecewise-constant operator commands over time.
@@ -219,6 +264,7 @@ impl CommandSchedule {
             let step = match &fields[1..] {
                 ["estop"] => Step::EStop,
                 ["reset"] => Step::Reset,
+                [word] if Request::from_name(word).is_some() => Step::Request(Request::from_name(word).expect("matched")),
                 [vx, vy, wz] => {
                     let mut v = [0f32; 3];
                     for (k, s) in [vx, vy, wz].iter().enumerate() {
@@ -232,7 +278,9 @@ impl CommandSchedule {
                 _ => {
                     return Err(err(
                         i + 1,
-                        format!("expected 'T VX VY WZ', 'T estop' or 'T reset', got '{line}'"),
+                        format!(
+                            "expected 'T VX VY WZ', 'T estop', 'T reset' or 'T REQUEST' (stand_up, walk, stand, sit_down, passive), got '{line}'"
+                        ),
                     ))
                 }
             };
@@ -296,6 +344,7 @@ impl OperatorSource for ScheduleSource<'_> {
     fn at(&mut self, tick: TickTime) -> OperatorInput {
         self.current.estop = false;
         self.current.reset = false;
+        self.current.request = None;
         let t_ns = tick.index * self.control_dt_ns;
         while let Some(&(ts, step)) = self.schedule.steps.get(self.next) {
             if ((ts * 1e9).round() as u64) > t_ns {
@@ -305,6 +354,7 @@ impl OperatorSource for ScheduleSource<'_> {
                 Step::Velocity(v) => self.current.velocity = v,
                 Step::EStop => self.current.estop = true,
                 Step::Reset => self.current.reset = true,
+                Step::Request(r) => self.current.request = Some(r),
             }
             self.next += 1;
         }

@@ -25,7 +25,7 @@ use std::time::Instant;
 use hal::{ErrorKind, LowCommand, LowLevel, LowState, TickTime, TimeBase};
 
 use crate::controller::{Controller, Mode};
-use crate::operator::{OperatorInput, OperatorSource};
+use crate::operator::{OperatorInput, OperatorSource, Request};
 use crate::perception::{Perception, PerceptionSummary, TerrainSource};
 use crate::perception_worker::{PerceptionExec, PerceptionWorker};
 use crate::supervisor::{DampingReason, FrameStatus, SafetyCounters, Supervisor};
@@ -547,9 +547,21 @@ impl Runtime {
         if operator.estop {
             self.latch(k, DampingReason::EStop, &mut s);
         } else if operator.reset && matches!(self.controller.mode(), Mode::Damping(_)) {
-            self.controller.restart(k, state);
+            if self.controller.operated() {
+                // An operated run comes back passive: the operator stands it up again.
+                self.controller.request(k, state, Request::Passive);
+            } else {
+                self.controller.restart(k, state);
+            }
             self.supervisor.reset(k);
             s.reset = true;
+        } else if let Some(request) = operator.request {
+            let tripped = matches!(self.controller.mode(), Mode::Damping(_));
+            if self.controller.request(k, state, request).is_some() && tripped {
+                // Acknowledging a trip clears the supervisor's streaks, as a reset does.
+                self.supervisor.reset(k);
+                s.reset = true;
+            }
         }
         self.controller.advance(k, state);
         let t1 = Instant::now();

@@ -70,6 +70,7 @@ const OP: OperatorInput = OperatorInput {
     velocity: [0.3, 0.0, 0.0],
     estop: false,
     reset: false,
+    request: None,
 };
 
 #[test]

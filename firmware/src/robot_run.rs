@@ -35,6 +35,8 @@ pub struct RunOptions {
     pub duration_s: Option<f64>,
     pub ramp_override: Option<(f64, f64)>,
     pub hold_only: bool,
+    /// The operator steps the run through its states (passive at start; the schedule's requests).
+    pub operated: bool,
     /// How long start-up waits for the first state (CAN: every motor's answer and the IMU's first
     /// sample; DDS: the first `rt/lowstate`).
     pub startup_timeout: Duration,
@@ -63,6 +65,7 @@ impl Default for RunOptions {
             duration_s: None,
             ramp_override: None,
             hold_only: false,
+            operated: false,
             startup_timeout: Duration::from_secs(10),
             log: None,
             log_options: LogOptions::default(),
@@ -354,6 +357,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let spec_name = spec.path.display().to_string();
     let control_dt = spec.control_dt();
     let mut meta = crate::run_report::spec_meta(&spec, opts.hold_only);
+    meta.set(key::OPERATED, opts.operated);
     meta.extend(hal_meta);
     meta.set(key::PERCEPTION_EXEC, opts.perception.label());
     // The policy's joints: a held joint the variant lacks is only a slot nobody reads (a portable
@@ -362,11 +366,14 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     for &slot in &spec.policy.joint_ids_map {
         driven[slot] = true;
     }
-    let controller = if opts.hold_only {
+    let mut controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
         Controller::new(spec)?
     };
+    if opts.operated {
+        controller.operate();
+    }
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
     let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());

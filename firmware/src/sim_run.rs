@@ -39,6 +39,8 @@ pub struct SimOptions {
     pub stop_on_fall: bool,
     /// Do not load the policy; ramp to the default pose and hold.
     pub hold_only: bool,
+    /// The operator steps the run through its states (passive at start; the schedule's requests).
+    pub operated: bool,
     pub progress: bool,
     /// Faults for the simulator to inject (`g1-sim --fault` grammar).
     pub faults: Vec<String>,
@@ -133,6 +135,7 @@ impl Default for SimOptions {
             connect: None,
             stop_on_fall: true,
             hold_only: false,
+            operated: false,
             progress: false,
             faults: Vec::new(),
             imu_noise: None,
@@ -468,11 +471,14 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let control_dt = spec.control_dt();
     let mut meta = run_meta(&spec, opts);
     meta.set(key::TERRAIN_SOURCE, terrain_source.as_str());
-    let controller = if opts.hold_only {
+    let mut controller = if opts.hold_only {
         Controller::hold_only(spec)
     } else {
         Controller::new(spec)?
     };
+    if opts.operated {
+        controller.operate();
+    }
     let (obs_dim, act_dim) = (controller.spec().observation_dim(), controller.spec().num_joints());
     let weights_sha256 = controller.weights_sha256();
     meta.set(key::WEIGHTS_SHA256, &weights_sha256);
@@ -770,6 +776,7 @@ fn log_note(log: &Option<PathBuf>) -> String {
 
 fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
     let mut m = spec_meta(spec, opts.hold_only);
+    m.set(key::OPERATED, opts.operated);
     if opts.perception != crate::perception_worker::PerceptionExec::Inline {
         m.set(key::PERCEPTION_EXEC, opts.perception.label());
     }

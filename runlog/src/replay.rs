@@ -28,7 +28,7 @@ use sensor_io::unitree_hg::{
 use crate::log::channels as ch;
 use crate::log::reader::{Damage, LogFile};
 use control::controller::Controller;
-use control::operator::{OperatorInput, OperatorSource};
+use control::operator::{OperatorInput, OperatorSource, Request};
 use control::perception::{LidarFrame, PerceptionSummary, TerrainSource};
 use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime, TickView};
 use control::spec::{DeploySpec, ObsKind};
@@ -41,6 +41,9 @@ pub mod key {
     pub const SPEC_TOML: &str = "spec_toml";
     pub const WEIGHTS_SHA256: &str = "weights_sha256";
     pub const HOLD_ONLY: &str = "hold_only";
+    /// "true" when the operator stepped the run through its states (`--operated`); absent in
+    /// older logs.
+    pub const OPERATED: &str = "operated";
     pub const RAMP_S: &str = "ramp_s";
     pub const HOLD_S: &str = "hold_s";
     /// "false" when the run judged no joint as frozen (quantized HALs: CAN).
@@ -316,13 +319,24 @@ fn load(log: &LogFile) -> Result<Recording> {
                     wz: f32,
                     estop: bool,
                     reset: bool,
+                    #[serde(default)]
+                    request: Option<String>,
                 }
                 match serde_json::from_slice::<Op>(data) {
                     Ok(o) => {
+                        let request = match o.request.as_deref().map(Request::from_name) {
+                            None => None,
+                            Some(Some(r)) => Some(r),
+                            Some(None) => {
+                                bad = Some(format!("an operator message asks for {:?}", o.request));
+                                None
+                            }
+                        };
                         operator = OperatorInput {
                             velocity: [o.vx, o.vy, o.wz],
                             estop: o.estop,
                             reset: o.reset,
+                            request,
                         };
                         ticks.last_mut().expect("checked").operator = operator;
                     }
@@ -659,11 +673,14 @@ fn controller_from_log(
         spec.perception.terrain_estimator = k;
     }
     let hold_only = meta.get(key::HOLD_ONLY).is_some_and(|v| v == "true");
-    let controller = if hold_only {
+    let mut controller = if hold_only {
         Controller::hold_only(spec)
     } else {
         Controller::new(spec)?
     };
+    if meta.get(key::OPERATED).is_some_and(|v| v == "true") {
+        controller.operate();
+    }
     let pinned_w = meta_get(meta, key::WEIGHTS_SHA256)?;
     if controller.weights_sha256() != pinned_w {
         let msg = format!(

@@ -182,6 +182,12 @@ struct SimArgs {
     /// Do not load or run the policy: ramp to the spec's default pose and hold it.
     #[arg(long)]
     hold: bool,
+    /// An operated run, as on the robot with its remote: passive (damping) at start, and every
+    /// change of state asked for by the operator (here the --cmd-schedule's `stand_up`, `walk`,
+    /// `stand`, `sit_down` and `passive` lines): stand-up ramp, standing, walking (the policy),
+    /// sit-down ramp, passive. Without it the policy engages by itself after the start-up.
+    #[arg(long, conflicts_with = "hold")]
+    operated: bool,
     /// Keep running after a fall instead of stopping at it.
     #[arg(long)]
     keep_going: bool,
@@ -382,6 +388,12 @@ struct RunArgs {
     /// Do not load or run the policy: ramp to the default pose and hold it.
     #[arg(long)]
     hold: bool,
+    /// An operated run, as on the robot with its remote: passive (damping) at start, and every
+    /// change of state asked for by the operator (here the --cmd-schedule's `stand_up`, `walk`,
+    /// `stand`, `sit_down` and `passive` lines): stand-up ramp, standing, walking (the policy),
+    /// sit-down ramp, passive. Without it the policy engages by itself after the start-up.
+    #[arg(long, conflicts_with = "hold")]
+    operated: bool,
     /// Seconds to wait at start-up for every motor to answer and the first IMU sample.
     #[arg(long, default_value_t = 10.0, value_parser = parse_wait_s)]
     startup_timeout: f64,
@@ -756,6 +768,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         connect: a.connect,
         stop_on_fall: !a.keep_going,
         hold_only: a.hold,
+        operated: a.operated,
         progress: !a.quiet && std::io::IsTerminal::is_terminal(&std::io::stderr()),
         faults: a.faults,
         imu_noise: a.imu_noise,
@@ -1040,6 +1053,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         duration_s: a.duration,
         ramp_override: a.ramp.map(|r| (r, spec.startup.hold_s)),
         hold_only: a.hold,
+        operated: a.operated,
         startup_timeout: std::time::Duration::from_secs_f64(a.startup_timeout),
         log: a.log.clone(),
         log_options: Default::default(),

@@ -113,7 +113,7 @@ pub const JSON_CHANNELS: &[(&str, &str, &str)] = &[
     (
         OPERATOR,
         "g1fw.OperatorCommand",
-        r#"{"type":"object","properties":{"tick":{"type":"integer"},"vx":{"type":"number"},"vy":{"type":"number"},"wz":{"type":"number"},"received":{"type":"array","items":{"type":"number"}},"estop":{"type":"boolean"},"reset":{"type":"boolean"}}}"#,
+        r#"{"type":"object","properties":{"tick":{"type":"integer"},"vx":{"type":"number"},"vy":{"type":"number"},"wz":{"type":"number"},"received":{"type":"array","items":{"type":"number"}},"estop":{"type":"boolean"},"reset":{"type":"boolean"},"request":{"type":"string"}}}"#,
     ),
     (
         OBSERVATION,

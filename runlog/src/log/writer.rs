@@ -579,6 +579,7 @@ impl McapSink {
                     received: rx,
                     estop: o.estop,
                     reset: o.reset,
+                    request: o.request.map(|r| r.name()),
                 },
             )?;
         }
@@ -905,8 +906,11 @@ impl McapSink {
 
 pub fn mode_name(m: Mode) -> &'static str {
     match m {
+        Mode::Passive => "passive",
         Mode::Startup => "startup",
+        Mode::Stand => "stand",
         Mode::Policy => "policy",
+        Mode::SitDown => "sit_down",
         Mode::Damping(_) => "damping",
     }
 }
@@ -1065,6 +1069,9 @@ struct OperatorMsg {
     received: [f32; 3],
     estop: bool,
     reset: bool,
+    /// An operated run's request this tick.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    request: Option<&'static str>,
 }
 
 #[derive(Serialize)]
