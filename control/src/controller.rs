@@ -347,7 +347,10 @@ impl Controller {
         match (request, self.mode) {
             (Request::Passive, Mode::Passive) => return None,
             (Request::Passive, _) => self.mode = Mode::Passive,
-            (Request::StandUp, Mode::Passive) | (Request::Stand, Mode::Policy) => self.restart(k, state),
+            // The remote's one "stand" combination stands a passive robot up and a walking one still.
+            (Request::StandUp, Mode::Passive) | (Request::Stand | Request::StandUp, Mode::Policy) => {
+                self.restart(k, state)
+            }
             (Request::Walk, Mode::Stand) if self.net.is_some() => {
                 self.io.reset();
                 if let Some(net) = self.net.as_mut() {

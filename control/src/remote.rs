@@ -4,7 +4,11 @@
 //! reading that cannot come from a working remote ([`RemoteFault`]) commands zero at once, never
 //! motion, and is counted. Everything here is a function of the logged state's bytes and the tick,
 //! so replay reproduces it.
+use hal::{LowState, TickTime};
 use sensor_io::unitree_hg::remote::{Remote, RemoteFault};
+
+use crate::operator::{OperatorInput, OperatorSource, Request};
+use crate::spec::DeploySpec;
 
 /// How the sticks become a command.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -78,6 +82,94 @@ impl StickCommand {
             self.last[i] += (want - self.last[i]).clamp(-step, step);
         }
         self.last
+    }
+}
+
+/// The operator's remote as the run's operator: the buttons' combinations (the spec's
+/// `[operator]`) become requests on the tick they are completed (a combination held is one request),
+/// the sticks the velocity command. A reading with a fault requests nothing and commands zero.
+pub struct RemoteOperator {
+    combos: [(Request, u16); 4],
+    sticks: StickCommand,
+    dt: f32,
+    held: u16,
+}
+
+impl RemoteOperator {
+    pub fn new(spec: &DeploySpec) -> Result<Self, String> {
+        let o = &spec.operator;
+        let limit = |v: Option<[f32; 3]>, d: f32| v.unwrap_or([d; 3]);
+        Ok(Self {
+            combos: o.combos()?,
+            sticks: StickCommand::new(
+                StickMapping {
+                    dead_zone: o.dead_zone,
+                    rate_per_s: o.rate_per_s,
+                },
+                limit(spec.commands.min, 0.0),
+                limit(spec.commands.max, 0.0),
+            ),
+            dt: spec.control_dt() as f32,
+            held: 0,
+        })
+    }
+
+    /// Readings refused so far, and the last reason.
+    pub fn faults(&self) -> (u64, Option<RemoteFault>) {
+        (self.sticks.faults, self.sticks.last_fault)
+    }
+
+    /// This tick's input from the remote's bytes.
+    pub fn input(&mut self, bytes: &[u8; sensor_io::unitree_hg::remote::REMOTE_LEN]) -> OperatorInput {
+        let remote = Remote::decode(bytes);
+        let velocity = self.sticks.update(&remote, self.dt);
+        let ok = remote.check().is_ok();
+        let pressed = if ok { remote.buttons } else { 0 };
+        // The first combination (in the spec's order, passive first) completed this tick.
+        let request = self
+            .combos
+            .iter()
+            .find(|(_, m)| pressed & m == *m && self.held & m != *m)
+            .map(|(r, _)| *r);
+        self.held = pressed;
+        OperatorInput {
+            velocity,
+            request,
+            ..Default::default()
+        }
+    }
+}
+
+impl OperatorSource for RemoteOperator {
+    fn at(&mut self, _tick: TickTime) -> OperatorInput {
+        // Without a state there is no reading: nothing pressed, sticks centred.
+        self.input(&[0; sensor_io::unitree_hg::remote::REMOTE_LEN])
+    }
+
+    fn at_state(&mut self, _tick: TickTime, state: &LowState) -> OperatorInput {
+        self.input(&state.wireless_remote)
+    }
+}
+
+/// A run's operator: the command schedule (scripted runs, tests) or the robot's remote.
+pub enum RunOperator<'a> {
+    Schedule(crate::operator::ScheduleSource<'a>),
+    Remote(RemoteOperator),
+}
+
+impl OperatorSource for RunOperator<'_> {
+    fn at(&mut self, tick: TickTime) -> OperatorInput {
+        match self {
+            RunOperator::Schedule(s) => s.at(tick),
+            RunOperator::Remote(r) => r.at(tick),
+        }
+    }
+
+    fn at_state(&mut self, tick: TickTime, state: &LowState) -> OperatorInput {
+        match self {
+            RunOperator::Schedule(s) => s.at_state(tick, state),
+            RunOperator::Remote(r) => r.at_state(tick, state),
+        }
     }
 }
 

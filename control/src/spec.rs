@@ -45,6 +45,9 @@ pub struct DeploySpec {
     pub estimator: EstimatorSpec,
     #[serde(default)]
     pub perception: PerceptionSpec,
+    /// How the operator's wireless remote drives an operated run.
+    #[serde(default)]
+    pub operator: OperatorSpec,
     pub observation: Observation,
     /// Directory of the spec file; relative paths resolve against it.
     #[serde(skip)]
@@ -203,6 +206,62 @@ impl EstimatorSpec {
         c.filter.sole_compliance_m_per_n = self.sole_compliance_m_per_n;
         c.filter.accel_noise = self.accel_noise;
         c
+    }
+}
+
+/// The wireless remote of an operated run: a button combination ("L2+up": every named button
+/// pressed, names as on Unitree's remote) per request, and the sticks' command. The defaults are
+/// unitree_rl_lab's G1 deploy (L2+up stand, R1+X walk, L2+B passive) plus L2+down to sit down.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OperatorSpec {
+    pub stand_up: String,
+    pub walk: String,
+    pub sit_down: String,
+    pub passive: String,
+    /// Stick deflection read as centred, [0, 0.5).
+    pub dead_zone: f32,
+    /// Largest change of vx, vy (m/s per s) and wz (rad/s per s) the sticks command.
+    pub rate_per_s: [f32; 3],
+}
+
+impl Default for OperatorSpec {
+    fn default() -> Self {
+        Self {
+            stand_up: "L2+up".into(),
+            walk: "R1+X".into(),
+            sit_down: "L2+down".into(),
+            passive: "L2+B".into(),
+            dead_zone: 0.1,
+            rate_per_s: [1.0, 1.0, 2.0],
+        }
+    }
+}
+
+impl OperatorSpec {
+    /// The buttons of a combination ("L2+up") as a bit mask of `sensor_io`'s remote buttons.
+    pub fn combo(text: &str) -> Result<u16, String> {
+        use sensor_io::unitree_hg::remote::Button;
+        let mut mask = 0u16;
+        for name in text.split('+').map(str::trim) {
+            let b = Button::from_name(name).ok_or_else(|| {
+                let names: Vec<&str> = Button::ALL.iter().map(|b| b.name()).collect();
+                format!("'{name}' is not a button of the remote ({})", names.join(", "))
+            })?;
+            mask |= b as u16;
+        }
+        Ok(mask)
+    }
+
+    /// `(request, mask)` of every combination, in a fixed order.
+    pub fn combos(&self) -> Result<[(crate::operator::Request, u16); 4], String> {
+        use crate::operator::Request;
+        Ok([
+            (Request::Passive, Self::combo(&self.passive)?),
+            (Request::StandUp, Self::combo(&self.stand_up)?),
+            (Request::Walk, Self::combo(&self.walk)?),
+            (Request::SitDown, Self::combo(&self.sit_down)?),
+        ])
     }
 }
 
@@ -778,6 +837,26 @@ impl DeploySpec {
         Ok(())
     }
 
+    fn validate_operator(&self) -> Result<(), SpecError> {
+        let o = &self.operator;
+        let combos = o.combos().map_err(|e| self.invalid("operator", e))?;
+        for (i, (r, m)) in combos.iter().enumerate() {
+            if let Some((other, _)) = combos[..i].iter().find(|(_, n)| n == m) {
+                return Err(self.invalid(
+                    "operator",
+                    format!("{} and {} are the same buttons", r.name(), other.name()),
+                ));
+            }
+        }
+        if !(0.0..0.5).contains(&o.dead_zone) {
+            return Err(self.invalid("operator.dead_zone", "must be in [0, 0.5)"));
+        }
+        if !o.rate_per_s.iter().all(|r| r.is_finite() && *r > 0.0 && *r <= 10.0) {
+            return Err(self.invalid("operator.rate_per_s", "each must be in (0, 10]"));
+        }
+        Ok(())
+    }
+
     /// Every `(field, value)` is a finite number > 0.
     fn require_positive(&self, fields: &[(&str, f64)]) -> Result<(), SpecError> {
         for &(field, v) in fields {
@@ -877,6 +956,7 @@ impl DeploySpec {
         self.validate_held(used)?;
         self.validate_commands_and_phase()?;
         self.validate_observation()?;
+        self.validate_operator()?;
         if let Err(e) = crate::mirror::PolicyMirror::averaged_with(self) {
             return Err(self.invalid("policy.mirror", format!("\"average\" needs a mirrored policy: {e}")));
         }

@@ -105,3 +105,98 @@ fn a_trip_latches_until_the_operator_acknowledges_it() {
     run(&mut rt, 6000, 6001, Some(Request::Passive), false);
     assert_eq!(rt.mode(), Mode::Passive);
 }
+
+/// The remote drives the same machine: combinations (the spec's defaults, unitree_rl_lab's) request
+/// once per press, the left stick walks it, and garbage bytes neither move nor command motion.
+#[test]
+fn the_remote_drives_the_state_machine_and_garbage_never_moves_it() {
+    use control::operator::OperatorSource;
+    use control::remote::RemoteOperator;
+    use sensor_io::unitree_hg::remote::{Button, Remote};
+    let mut rt = operated();
+    let mut remote = RemoteOperator::new(rt.controller().spec()).unwrap();
+    let press = |buttons: &[Button], ly: f32| {
+        Remote {
+            buttons: buttons.iter().fold(0, |m, b| m | *b as u16),
+            ly,
+            ..Default::default()
+        }
+        .encode()
+    };
+    let mut cmd = LowCommand::default();
+    let mut k = 0u64;
+    let mut drive =
+        |rt: &mut Runtime, remote: &mut RemoteOperator, bytes: [u8; 40], n: u64| -> control::runtime::TickSummary {
+            let mut last = None;
+            for _ in 0..n {
+                let mut st = healthy(k);
+                st.wireless_remote = bytes;
+                let op = remote.at_state(tick(k), &st);
+                let (s, _) = rt.tick(tick(k), FrameStatus::Fresh, &st, op, &mut cmd, |_| Ok::<(), ()>(()));
+                last = Some(s);
+                k += 1;
+            }
+            last.unwrap()
+        };
+    drive(&mut rt, &mut remote, press(&[], 0.0), 100);
+    assert_eq!(rt.mode(), Mode::Passive);
+    // L2+up held for a second: one stand-up, then standing.
+    drive(&mut rt, &mut remote, press(&[Button::L2, Button::Up], 0.0), 500);
+    drive(&mut rt, &mut remote, press(&[], 0.0), 100);
+    assert_eq!(rt.mode(), Mode::Stand);
+    // R1+X: walk; the left stick forward ramps the command to the spec's limit.
+    drive(&mut rt, &mut remote, press(&[Button::R1, Button::X], 0.0), 10);
+    assert_eq!(rt.mode(), Mode::Policy);
+    let s = drive(&mut rt, &mut remote, press(&[], 1.0), 1000);
+    let vmax = rt.controller().spec().commands.max.map_or(0.0, |m| m[0]);
+    assert!(
+        vmax > 0.0 && (s.operator.velocity[0] - vmax).abs() < 1e-6,
+        "{:?}",
+        s.operator.velocity
+    );
+    // Garbage while walking: zero at once, no transition.
+    let mut nan = press(&[], 1.0);
+    nan[20..24].copy_from_slice(&f32::NAN.to_le_bytes());
+    let s = drive(&mut rt, &mut remote, nan, 1);
+    assert_eq!((s.operator.velocity, s.operator.request), ([0.0; 3], None));
+    assert_eq!(rt.mode(), Mode::Policy);
+    assert_eq!(remote.faults().0, 1);
+    // L2+B: passive from walking.
+    drive(&mut rt, &mut remote, press(&[Button::L2, Button::B], 0.0), 10);
+    assert_eq!(rt.mode(), Mode::Passive);
+    // Random bytes from passive: never a command other than damping, never a stand-up by chance
+    // unless the bytes are a well-formed L2+up press.
+    let mut x = 0x2545_f491_4f6c_dd1du64;
+    for _ in 0..2000 {
+        let mut b = [0u8; 40];
+        for v in b.iter_mut() {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *v = x as u8;
+        }
+        let r = Remote::decode(&b);
+        let s = drive(&mut rt, &mut remote, b, 1);
+        if r.check().is_err() {
+            assert_eq!(s.operator.velocity, [0.0; 3]);
+            assert_eq!(s.operator.request, None);
+        }
+        if rt.mode() != Mode::Passive {
+            // Only a valid reading may have asked; bring it back and go on.
+            assert!(r.check().is_ok(), "garbage moved the robot: {r:?}");
+            drive(&mut rt, &mut remote, press(&[Button::L2, Button::B], 0.0), 2);
+            drive(&mut rt, &mut remote, press(&[], 0.0), 1);
+        }
+    }
+}
+
+#[test]
+fn a_remote_mapping_with_unknown_or_shared_buttons_is_refused() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../specs/test/rl_lab_style.toml");
+    let e = control::spec::DeploySpec::load_with_overrides(&path, &["operator.walk=\"R1+Q\"".into()]).unwrap_err();
+    assert!(e.to_string().contains("'Q' is not a button"), "{e}");
+    let e = control::spec::DeploySpec::load_with_overrides(&path, &["operator.walk=\"B+L2\"".into()]).unwrap_err();
+    assert!(e.to_string().contains("walk and passive are the same buttons"), "{e}");
+    let ok = control::spec::DeploySpec::load_with_overrides(&path, &["operator.walk=\"start\"".into()]).unwrap();
+    assert_eq!(ok.operator.walk, "start");
+}

@@ -399,7 +399,13 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         .set_perception_exec(opts.perception)
         .context("starting the perception thread")?;
     let mut hal = WithLidar::new(open(period_ns)?, lidar);
-    let mut operator = opts.schedule.source(period_ns);
+    // An operated run without a schedule takes its operator from the robot's remote.
+    let mut operator = if opts.operated && opts.schedule.source.is_none() {
+        let remote = control::remote::RemoteOperator::new(runtime.controller().spec()).map_err(anyhow::Error::msg)?;
+        control::remote::RunOperator::Remote(remote)
+    } else {
+        control::remote::RunOperator::Schedule(opts.schedule.source(period_ns))
+    };
     let wall = Instant::now();
     let mut ticks = 0u64;
     let mut mode_machine = 0u8;
@@ -433,6 +439,15 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         }
         !opts.stop.load(Ordering::Relaxed)
     });
+    let mut warnings = Vec::new();
+    if let control::remote::RunOperator::Remote(r) = &operator {
+        if let (n @ 1.., Some(last)) = r.faults() {
+            warnings.push(format!(
+                "the remote read garbage on {n} ticks (last: {}); each commanded zero velocity and no transition",
+                last.name()
+            ));
+        }
+    }
     // A signal that ended a wait inside the HAL (the first state that never came) is a stop.
     let stopped_in_hal = matches!(end, LoopEnd::HalError { .. }) && opts.stop.load(Ordering::Relaxed);
     let end = match end {
@@ -490,7 +505,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         unitree_mujoco: false,
         pace: None,
         period_jitter: None,
-        warnings: Vec::new(),
+        warnings,
         lidar,
         spec: spec_name,
         weights_sha256,
