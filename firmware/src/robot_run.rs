@@ -91,6 +91,8 @@ pub struct RunReport {
     pub policy_steps: u64,
     pub final_mode: String,
     pub trip: Option<TripReport>,
+    /// Every change of state: passive, startup, stand, policy, sit_down, damping; its source and time.
+    pub transitions: Vec<crate::run_report::ModeChange>,
     /// `completed`, `stopped` (signal) or the HAL failure.
     pub end: String,
     /// The run ended as asked: its duration ran out or the operator stopped it (a signal). Any
@@ -411,7 +413,13 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut mode_machine = 0u8;
     let mut log_failed = false;
     let mut variant_refusal: Option<String> = None;
+    let operator_name = match &operator {
+        control::remote::RunOperator::Remote(_) => "remote",
+        control::remote::RunOperator::Schedule(_) => "schedule",
+    };
+    let mut mode_changes = crate::run_report::ModeChanges::starting(runtime.controller().mode());
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
+        mode_changes.observe(&v.summary, control_dt, operator_name);
         // A log that cannot be written (a full disk) stops the log, never the control: what
         // reached the disk stays readable, and the report names the error.
         if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
@@ -489,6 +497,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         final_mode: format!("{:?}", runtime.mode()),
         // The HAL's error that a signal caused latched damping: a stop, not a trip.
         trip: TripReport::of(&runtime, control_dt).filter(|_| !stopped_in_hal),
+        transitions: mode_changes.changes,
         end: end_text,
         normal_end: (runtime.trip().is_none() || stopped_in_hal)
             && match end {

@@ -25,6 +25,64 @@ impl TripReport {
     }
 }
 
+/// One change of the run's state, what caused it and when.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ModeChange {
+    pub tick: u64,
+    pub time_s: f64,
+    pub from: &'static str,
+    pub to: &'static str,
+    /// `remote`, `schedule` (the operator's request), `safety` (a trip), `reset`, or `ramp` (a
+    /// ramp that ended by itself).
+    pub source: &'static str,
+}
+
+/// The run's changes of state, tick by tick (kept off the tick: the observer calls it after).
+#[derive(Clone, Debug, Default)]
+pub struct ModeChanges {
+    last: Option<crate::controller::Mode>,
+    pub changes: Vec<ModeChange>,
+}
+
+/// The most changes a report lists (the count goes on in `dropped`).
+const MAX_MODE_CHANGES: usize = 1000;
+
+impl ModeChanges {
+    /// Changes from `mode`, the run's state before its first tick.
+    pub fn starting(mode: crate::controller::Mode) -> Self {
+        Self {
+            last: Some(mode),
+            changes: Vec::new(),
+        }
+    }
+
+    /// Notes tick `s`'s mode; `operator` names where its requests come from.
+    pub fn observe(&mut self, s: &crate::runtime::TickSummary, control_dt: f64, operator: &'static str) {
+        let prev = self.last.replace(s.mode);
+        let Some(prev) = prev.filter(|p| *p != s.mode) else {
+            return;
+        };
+        let source = if s.tripped.is_some() {
+            "safety"
+        } else if s.reset {
+            "reset"
+        } else if s.operator.request.is_some() {
+            operator
+        } else {
+            "ramp"
+        };
+        if self.changes.len() < MAX_MODE_CHANGES {
+            self.changes.push(ModeChange {
+                tick: s.tick.index,
+                time_s: s.tick.index as f64 * control_dt,
+                from: crate::log::mode_name(prev),
+                to: crate::log::mode_name(s.mode),
+                source,
+            });
+        }
+    }
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct SafetyReport {
     pub crc_failures: u64,

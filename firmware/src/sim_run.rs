@@ -173,6 +173,9 @@ pub struct Report {
     pub tilt_max_deg: f64,
     pub ticks: u64,
     pub policy_steps: u64,
+    /// Every change of state (startup, policy, damping; an operated run's passive, stand and
+    /// sit_down), its source and time.
+    pub transitions: Vec<crate::run_report::ModeChange>,
     pub final_mode: String,
     pub repeated_commands: u64,
     /// sha256 over every LowState and LowCmd frame of the run, in order.
@@ -525,7 +528,9 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     let wall = Instant::now();
     let mut ticks = 0u64;
 
+    let mut mode_changes = crate::run_report::ModeChanges::starting(runtime.controller().mode());
     let end = run_loop(&mut hal, &mut runtime, &mut operator, total_ticks, |v| {
+        mode_changes.observe(&v.summary, control_dt, "schedule");
         // A log that cannot be written (a full disk) stops the log, never the control: what
         // reached the disk stays readable, and the report names the error.
         if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
@@ -608,6 +613,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         tilt_max_deg: agg.tilt_max,
         ticks,
         policy_steps: runtime.controller().policy_steps(),
+        transitions: mode_changes.changes,
         final_mode: format!("{:?}", runtime.mode()),
         repeated_commands: repeated,
         state_trace_sha256: format!("{:x}", hasher.finalize()),

@@ -34,6 +34,33 @@ fn the_operator_stands_walks_stands_and_sits_the_robot_and_replay_agrees() {
     assert_eq!(r["fell"], false, "{r}");
     assert!(r["distance_x_m"].as_f64().unwrap() > 2.5, "{r}");
     assert!(r["policy_steps"].as_u64().unwrap() > 250, "{r}");
+    // The report names each change, its source and time.
+    let changes: Vec<(String, String, f64)> = r["transitions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["to"].as_str().unwrap().to_string(),
+                c["source"].as_str().unwrap().to_string(),
+                c["time_s"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let want = [
+        ("startup", "schedule", 0.0),
+        ("stand", "ramp", 0.6),
+        ("policy", "schedule", 0.7),
+        ("startup", "schedule", 7.0),
+        ("stand", "ramp", 7.6),
+        ("sit_down", "schedule", 7.7),
+        ("passive", "ramp", 8.2),
+    ];
+    assert_eq!(changes.len(), want.len(), "{changes:?}");
+    for ((to, source, t), (wto, wsource, wt)) in changes.iter().zip(want) {
+        assert_eq!((to.as_str(), source.as_str()), (wto, wsource), "{changes:?}");
+        assert!((t - wt).abs() < 0.01, "{changes:?}");
+    }
     // The log's mode at each change, in order.
     let mut modes: Vec<String> = Vec::new();
     LogFile::open(&log).unwrap().scan(|channel, _, data| {
