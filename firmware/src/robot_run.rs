@@ -419,7 +419,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     };
     let mut mode_changes = crate::run_report::ModeChanges::starting(runtime.controller().mode());
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
-        mode_changes.observe(&v.summary, control_dt, operator_name);
+        mode_changes.observe(v.summary, control_dt, operator_name);
         // A log that cannot be written (a full disk) stops the log, never the control: what
         // reached the disk stays readable, and the report names the error.
         if let Some(l) = logger.as_mut().filter(|_| !log_failed) {

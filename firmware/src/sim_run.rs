@@ -530,7 +530,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
 
     let mut mode_changes = crate::run_report::ModeChanges::starting(runtime.controller().mode());
     let end = run_loop(&mut hal, &mut runtime, &mut operator, total_ticks, |v| {
-        mode_changes.observe(&v.summary, control_dt, "schedule");
+        mode_changes.observe(v.summary, control_dt, "schedule");
         // A log that cannot be written (a full disk) stops the log, never the control: what
         // reached the disk stays readable, and the report names the error.
         if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
