@@ -1,5 +1,5 @@
 //! `policy_import` against onnxruntime on random models: small MLPs built by
-//! `onnx_vs_onnxruntime.py` (onnx.helper, no project code) with random widths, depths, Gemm forms,
+//! `tests/python/onnx_vs_onnxruntime.py` (onnx.helper, no project code) with random widths, depths, Gemm forms,
 //! MatMul + Add, Elu/Relu/Tanh, normalisers, action scales, shape ops, bias shapes ONNX broadcasts,
 //! and opsets; about a third with one fault injected (an opset outside 7..28, a float64 or int64
 //! constant, a bias that broadcasts the value to a matrix, a Reshape that moves the features).
@@ -19,7 +19,7 @@ const TOLERANCE: f64 = 2e-5;
 /// The peer's JSON, or `None` (said loudly; a failure under CI) without the project's Python.
 fn peer(dir: &Path) -> Option<serde_json::Value> {
     let py = venv_python("the importer-vs-onnxruntime property test (onnx, onnxruntime)")?;
-    let script = repo_root().join("tests/tests/onnx_vs_onnxruntime.py");
+    let script = repo_root().join("tests/python/onnx_vs_onnxruntime.py");
     let out = std::process::Command::new(py)
         .arg(&script)
         .arg(dir)
