@@ -184,8 +184,9 @@ pub fn run_on<B: CanBuses>(
         .set("can_interfaces", layout.interfaces.join(","));
     let transport = format!("can {}", layout.interfaces.join(","));
     let startup = opts.startup_timeout;
+    let stop = opts.stop.clone();
     let (mut report, hal) = run_hal(spec, opts, meta, false, transport, |period_ns| {
-        Ok(CanHal::open(buses, layout, period_ns, startup)?)
+        Ok(CanHal::open(buses, layout, period_ns, startup)?.with_stop(stop))
     })?;
     report.can = Some(hal.counters());
     Ok(report)

@@ -594,3 +594,31 @@ fn the_mid360_over_udp_feeds_perception_on_can() {
     assert!(lidar.frames >= 12, "{lidar:?}");
     assert!(lidar.frames_used >= 10, "{lidar:?}");
 }
+
+/// A stop always stops (issue 73): SIGINT/SIGTERM's flag, set while `g1fw run --can-config` waits
+/// for motors and an IMU that never answer, ends the run at once (it waited out the start-up
+/// timeout), damped and reported as a stop.
+#[test]
+fn a_stop_while_waiting_for_the_motors_ends_the_run_at_once() {
+    let mut ends = mem_buses(layout().interfaces.len(), 2).into_iter();
+    let (ours, _silent) = (ends.next().unwrap(), ends.next().unwrap());
+    let stop = Arc::new(AtomicBool::new(false));
+    let opts = RunOptions {
+        schedule: CommandSchedule::constant([0.0; 3]),
+        startup_timeout: Duration::from_secs(60),
+        stop: stop.clone(),
+        end_damping: Duration::from_millis(100),
+        ..Default::default()
+    };
+    let setter = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(300));
+        stop.store(true, Ordering::Relaxed);
+    });
+    let start = std::time::Instant::now();
+    let spec = DeploySpec::load(&peer_spec_path()).expect("peer spec");
+    let report = run_on(spec, layout(), ours, &opts).expect("a stopped run still reports");
+    setter.join().unwrap();
+    assert!(start.elapsed() < Duration::from_secs(3), "took {:?}", start.elapsed());
+    assert_eq!(report.end, "stopped by signal", "{report:?}");
+    assert!(report.normal_end && report.trip.is_none(), "{report:?}");
+}

@@ -44,6 +44,8 @@ pub enum CanError {
     Malformed { bus: usize, cause: CanDecodeError },
     #[error("CAN: unexpected frame id {id:#05x} (DLC {len}) on bus {bus}: no configured node sends it")]
     Foreign { bus: usize, id: u16, len: u8 },
+    #[error("CAN: stopped by a signal while waiting for the motors and the IMU")]
+    Stopped,
 }
 
 impl hal::Error for CanError {
@@ -52,6 +54,7 @@ impl hal::Error for CanError {
             CanError::Bus(e) => e.kind(),
             CanError::Timeout { .. } => ErrorKind::Timeout,
             CanError::Malformed { .. } | CanError::Foreign { .. } => ErrorKind::Malformed,
+            CanError::Stopped => ErrorKind::Other,
         }
     }
 }
@@ -92,6 +95,7 @@ pub struct CanHal<B: CanBuses> {
     fresh: bool,
     encoded: [u8; LOW_STATE_LEN],
     counters: CanCounters,
+    stop: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
 }
 
 impl<B: CanBuses> CanHal<B> {
@@ -122,7 +126,14 @@ impl<B: CanBuses> CanHal<B> {
             fresh: false,
             encoded: [0; LOW_STATE_LEN],
             counters,
+            stop: None,
         })
+    }
+
+    /// Set by a signal: the start-up wait for the motors and the IMU ends at once.
+    pub fn with_stop(mut self, stop: std::sync::Arc<std::sync::atomic::AtomicBool>) -> Self {
+        self.stop = Some(stop);
+        self
     }
 
     pub fn layout(&self) -> &BusLayout {
@@ -255,8 +266,17 @@ impl<B: CanBuses> TimeBase for CanHal<B> {
                     },
                 });
             }
+            if first
+                && self
+                    .stop
+                    .as_ref()
+                    .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+            {
+                return Err(CanError::Stopped);
+            }
             let wait = if first {
                 left.min(retry_at.saturating_duration_since(now))
+                    .min(Duration::from_millis(50))
             } else {
                 left
             };
