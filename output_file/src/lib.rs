@@ -81,6 +81,13 @@ pub fn check(outputs: &[(&str, &Path, Kind)], inputs: &[(&str, &Path)]) -> Resul
     Ok(())
 }
 
+/// [`check`] over the paths given: a flag whose value is `None` was not passed and takes no part.
+pub fn check_given(outputs: &[(&str, Option<&Path>, Kind)], inputs: &[(&str, Option<&Path>)]) -> Result<(), Clash> {
+    let outs: Vec<(&str, &Path, Kind)> = outputs.iter().filter_map(|(f, p, k)| p.map(|p| (*f, p, *k))).collect();
+    let ins: Vec<(&str, &Path)> = inputs.iter().filter_map(|(f, p)| p.map(|p| (*f, p))).collect();
+    check(&outs, &ins)
+}
+
 /// The temporary file [`write_atomically`] writes first: `path` + `.partial-<pid>`.
 pub fn temporary(path: &Path) -> PathBuf {
     let mut t: OsString = path.as_os_str().to_owned();

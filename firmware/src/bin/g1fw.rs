@@ -879,12 +879,8 @@ fn stop_on_signals() -> Result<std::sync::Arc<std::sync::atomic::AtomicBool>> {
 /// Refuses a run whose outputs (files) would overwrite one another or one of its inputs
 /// (`output_file`'s rule, shared by every binary).
 fn distinct_files(outputs: &[(&'static str, Option<&Path>)], inputs: &[(&'static str, Option<&Path>)]) -> Result<()> {
-    let outs: Vec<(&str, &Path, output_file::Kind)> = outputs
-        .iter()
-        .filter_map(|(f, p)| p.map(|p| (*f, p, output_file::Kind::File)))
-        .collect();
-    let ins: Vec<(&str, &Path)> = inputs.iter().filter_map(|(f, p)| p.map(|p| (*f, p))).collect();
-    output_file::check(&outs, &ins)?;
+    let outs: Vec<_> = outputs.iter().map(|(f, p)| (*f, *p, output_file::Kind::File)).collect();
+    output_file::check_given(&outs, inputs)?;
     Ok(())
 }
 

@@ -121,12 +121,13 @@ fn power_off_ticks(args: &Args, layout: &BusLayout, control_dt: f64) -> Result<V
 }
 
 fn run(args: Args) -> Result<()> {
-    let outputs: Vec<(&str, &std::path::Path, output_file::Kind)> =
-        [("--report", &args.report), ("--ready-file", &args.ready_file)]
-            .into_iter()
-            .filter_map(|(f, p)| p.as_deref().map(|p| (f, p, output_file::Kind::File)))
-            .collect();
-    output_file::check(&outputs, &[("--can-config", &args.can_config)])?;
+    output_file::check_given(
+        &[
+            ("--report", args.report.as_deref(), output_file::Kind::File),
+            ("--ready-file", args.ready_file.as_deref(), output_file::Kind::File),
+        ],
+        &[("--can-config", Some(&args.can_config))],
+    )?;
     let mut layout = BusLayout::load(&args.can_config)?;
     if !args.can.is_empty() {
         layout.rename_interfaces(&args.can)?;

@@ -11,9 +11,8 @@ pub fn refuse_clashes(
     spec: Option<&firmware::spec::DeploySpec>,
 ) -> anyhow::Result<()> {
     let read = spec.map(|s| s.files_read()).unwrap_or_default();
-    let outs: Vec<(&str, &Path, Kind)> = outputs.iter().filter_map(|(f, p, k)| p.map(|p| (*f, p, *k))).collect();
-    let mut ins: Vec<(&str, &Path)> = inputs.iter().filter_map(|(f, p)| p.map(|p| (*f, p))).collect();
-    ins.extend(read.iter().map(|(f, p)| (*f, p.as_path())));
-    output_file::check(&outs, &ins)?;
+    let mut ins = inputs.to_vec();
+    ins.extend(read.iter().map(|(f, p)| (*f, Some(p.as_path()))));
+    output_file::check_given(outputs, &ins)?;
     Ok(())
 }
