@@ -333,6 +333,22 @@ fn in_environment_evaluation_holds_the_level_and_counts_each_episode_once() {
         r.successes >= 2,
         "the committed policy descends 7 cm steps in training: {r:?}"
     );
+    // The return split by term (`ppo-eval --terms`) adds up to the return, and names what paid.
+    let by_term: f64 = r.mean_return_by_term.iter().map(|(_, v)| v).sum();
+    assert!(
+        (by_term - r.mean_return).abs() < 1e-6 * r.mean_return.abs().max(1.0),
+        "{by_term} vs {r:?}"
+    );
+    let term = |name: &str| r.mean_return_by_term.iter().find(|(n, _)| n == name).unwrap().1;
+    assert!(term("track_lin_vel_xy") > 0.0 && term("action_rate") < 0.0, "{r:?}");
+    // Each success is paid its bonus once (a bonus asked for after the step's clock advanced
+    // was never paid).
+    let bonus = train::ppo::reward::WEIGHTS.success * r.successes as f64 / r.episodes as f64;
+    assert!(
+        (term("success") - bonus).abs() < 1e-9,
+        "{} vs {bonus}: {r:?}",
+        term("success")
+    );
     // Same seed, other thread count: the same episodes.
     let again =
         train::ppo::in_env::evaluate(&train::ppo::in_env::InEnvOptions { threads: 1, ..opts }, &weights).unwrap();

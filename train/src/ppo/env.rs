@@ -353,6 +353,9 @@ pub struct EpisodeEnd {
     pub success: bool,
     pub fell: bool,
     pub ret: f64,
+    /// The return split by reward term, in [`super::reward::Terms::named`]'s order (before the
+    /// per-step bound, which clips only extreme steps).
+    pub ret_by_term: [f64; super::reward::TERM_COUNT],
     pub steps: usize,
     /// Farthest the base got along the staircase axis, and where success starts, m.
     pub progress_m: f64,
@@ -433,6 +436,8 @@ pub struct StairEnv {
     fell: bool,
     cause: usize,
     ret: f64,
+    /// The current episode's return by reward term ([`EpisodeEnd::ret_by_term`]).
+    ret_by_term: [f64; super::reward::TERM_COUNT],
     /// Keep this curriculum level on every reset (in-environment evaluation).
     held_level: Option<usize>,
     /// Command this forward speed in every episode (in-environment evaluation).
@@ -536,6 +541,7 @@ impl StairEnv {
             fell: false,
             cause: 0,
             ret: 0.0,
+            ret_by_term: [0.0; super::reward::TERM_COUNT],
             held_level: None,
             held_vx: None,
             held_assist: 0.0,
@@ -612,6 +618,7 @@ impl StairEnv {
                 fell: self.fell,
                 cause: self.cause,
                 ret: self.ret,
+                ret_by_term: self.ret_by_term,
                 steps: self.step,
                 progress_m: self.progress,
                 goal_m: self.last_riser_s() + sim_hal::bridge::END_LANDING_MARGIN_M,
@@ -698,6 +705,7 @@ impl StairEnv {
         self.step = 0;
         self.fell = false;
         self.ret = 0.0;
+        self.ret_by_term = [0.0; super::reward::TERM_COUNT];
         self.progress = f64::NEG_INFINITY;
         self.stall = firmware::eval::StallWatch::default();
         self.landing = LandingHold::default();
@@ -971,6 +979,10 @@ impl StairEnv {
 
     /// Applies `action` (raw network output) and advances one policy step.
     pub fn step(&mut self, action: &[f32]) -> anyhow::Result<StepOut> {
+        // Before the step's time advances: `succeeded` compares the landing's hold with the
+        // current time, so asked after `self.step += 1` it already read true on the step that
+        // completes the hold, and the bonus below was never paid.
+        let was_success = self.succeeded();
         self.io.apply_action(action, &mut self.target_q);
         self.cmd_prev = self.cmd_now;
         self.cmd_now = self.command(&self.target_q.clone());
@@ -993,7 +1005,6 @@ impl StairEnv {
             self.sim.push_base(dx, dy)?;
             self.next_push += self.push_interval();
         }
-        let was_success = self.succeeded();
         let (mut terms, terminated) = self.rewards(action);
         // The bonus comes once the base has stood on the landing (no bonus, no promotion for a
         // fall that carries it there).
@@ -1018,6 +1029,7 @@ impl StairEnv {
         };
         let reward = super::reward::bounded(terms.total(&weights, self.timing.policy_dt));
         self.ret += reward;
+        terms.accumulate(&weights, self.timing.policy_dt, &mut self.ret_by_term);
         let n = self.prev_action.len();
         self.prev_action.copy_from_slice(&action[..n]);
         self.refresh_token(false);

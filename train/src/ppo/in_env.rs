@@ -47,6 +47,9 @@ pub struct InEnvReport {
     pub timeouts: usize,
     pub mean_steps: f64,
     pub mean_return: f64,
+    /// The mean return per episode split by reward term (weight · value · dt summed over the
+    /// episode), in [`super::reward::Terms::named`]'s order.
+    pub mean_return_by_term: Vec<(String, f64)>,
 }
 
 /// Runs `opts.episodes` episodes of `weights` (the actor, safetensors in the spec's layout).
@@ -93,8 +96,8 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
                                 if let Some(e) = env.last_end.take() {
                                     if std::env::var_os("G1_IN_ENV_VERBOSE").is_some() {
                                         eprintln!(
-                                            "lane {lane} success {} fell {} cause {} steps {} progress {:.2} goal {:.2} start {:.2}",
-                                            e.success, e.fell, e.cause, e.steps, e.progress_m, e.goal_m, e.start_m
+                                            "lane {lane} success {} fell {} cause {} steps {} progress {:.2} goal {:.2} start {:.2} return {:.3} (by term {:.3})",
+                                            e.success, e.fell, e.cause, e.steps, e.progress_m, e.goal_m, e.start_m, e.ret, e.ret_by_term.iter().sum::<f64>()
                                         );
                                     }
                                     out.push(e);
@@ -130,5 +133,11 @@ pub fn evaluate(opts: &InEnvOptions, weights: &[u8]) -> anyhow::Result<InEnvRepo
         timeouts: ends.iter().filter(|e| !e.fell && !e.success).count(),
         mean_steps: ends.iter().map(|e| e.steps as f64).sum::<f64>() / n,
         mean_return: ends.iter().map(|e| e.ret).sum::<f64>() / n,
+        mean_return_by_term: super::reward::Terms::default()
+            .named()
+            .iter()
+            .enumerate()
+            .map(|(k, (name, _))| (name.to_string(), ends.iter().map(|e| e.ret_by_term[k]).sum::<f64>() / n))
+            .collect(),
     })
 }

@@ -1,4 +1,6 @@
 //! One iteration's figures, as the runner logs them and the curves plot them.
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use super::algo::UpdateStats;
@@ -45,4 +47,8 @@ pub struct IterLog {
     #[serde(default)]
     pub update_s: f64,
     pub update: UpdateStats,
+    /// The mean return of this iteration's finished episodes split by reward term (the terms
+    /// that are not zero; histories before it was added lack it): what the policy is paid for.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub return_by_term: BTreeMap<String, f64>,
 }

@@ -394,7 +394,53 @@ pub struct Terms {
     pub success: f64,
 }
 
+/// How many terms [`Terms`] has.
+pub const TERM_COUNT: usize = 29;
+
 impl Terms {
+    /// Every term by name, in the module table's order.
+    pub fn named(&self) -> [(&'static str, f64); TERM_COUNT] {
+        [
+            ("track_lin_vel_xy", self.track_lin_vel_xy),
+            ("track_ang_vel_z", self.track_ang_vel_z),
+            ("feet_air_time", self.feet_air_time),
+            ("feet_slide", self.feet_slide),
+            ("flat_orientation", self.flat_orientation),
+            ("ang_vel_xy", self.ang_vel_xy),
+            ("action_rate", self.action_rate),
+            ("torques", self.torques),
+            ("joint_acc", self.joint_acc),
+            ("joint_deviation", self.joint_deviation),
+            ("joint_speed", self.joint_speed),
+            ("ankle_limits", self.ankle_limits),
+            ("foot_clearance", self.foot_clearance),
+            ("riser_clearance", self.riser_clearance),
+            ("token_clearance", self.token_clearance),
+            ("swing_apex", self.swing_apex),
+            ("swing_advance", self.swing_advance),
+            ("swing_overshoot", self.swing_overshoot),
+            ("base_height", self.base_height),
+            ("up_lean", self.up_lean),
+            ("stance_lead", self.stance_lead),
+            ("foothold_edge", self.foothold_edge),
+            ("stumble", self.stumble),
+            ("body_contact", self.body_contact),
+            ("termination", self.termination),
+            ("progress", self.progress),
+            ("drift", self.drift),
+            ("yaw_rate_error", self.yaw_rate_error),
+            ("success", self.success),
+        ]
+    }
+
+    /// Adds this step's weighted terms (`weight · value · dt`, what [`Terms::total`] sums) to
+    /// `by_term`: an episode's return split by term.
+    pub fn accumulate(&self, w: &Weights, dt: f64, by_term: &mut [f64; TERM_COUNT]) {
+        for ((acc, (_, v)), (_, wv)) in by_term.iter_mut().zip(self.named()).zip(w.named()) {
+            *acc += wv * v * dt;
+        }
+    }
+
     pub fn total(&self, w: &Weights, dt: f64) -> f64 {
         dt * (w.track_lin_vel_xy * self.track_lin_vel_xy
             + w.track_ang_vel_z * self.track_ang_vel_z
@@ -681,6 +727,44 @@ mod tests {
         };
         assert!((t.total(&WEIGHTS, 0.02) - 0.02 * (1.0 - 200.0)).abs() < 1e-12);
         assert_eq!(Terms::default().total(&WEIGHTS, 0.02), 0.0);
+    }
+
+    #[test]
+    fn the_return_by_term_sums_to_the_total_and_names_every_field() {
+        // Every field set to a distinct value: a term missing from `named` would not add up.
+        let mut t = Terms::default();
+        let names: Vec<&str> = t.named().iter().map(|(n, _)| *n).collect();
+        let mut unique = names.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), TERM_COUNT, "a term is named twice");
+        let w = Terms {
+            drift: 0.7,
+            swing_apex: 1.3,
+            ..WEIGHTS
+        };
+        t = Terms {
+            track_lin_vel_xy: 0.3,
+            progress: 0.4,
+            drift: 0.2,
+            swing_apex: 0.1,
+            termination: 1.0,
+            foot_clearance: 0.05,
+            success: 50.0,
+            ..Terms::default()
+        };
+        let mut by_term = [0.0; TERM_COUNT];
+        t.accumulate(&w, 0.02, &mut by_term);
+        t.accumulate(&w, 0.02, &mut by_term);
+        let sum: f64 = by_term.iter().sum();
+        assert!(
+            (sum - 2.0 * t.total(&w, 0.02)).abs() < 1e-9,
+            "{sum} vs {}",
+            2.0 * t.total(&w, 0.02)
+        );
+        let at = |name: &str| by_term[names.iter().position(|n| *n == name).unwrap()];
+        assert!((at("drift") - 2.0 * 0.7 * 0.2 * 0.02).abs() < 1e-12);
+        assert!((at("termination") + 2.0 * 200.0 * 0.02).abs() < 1e-9);
     }
 
     #[test]

@@ -774,7 +774,26 @@ fn iteration_log(slots: &mut [Slot], state: &RunState, step: Step, assist_streng
         rollout_s: step.t_rollout,
         update_s: step.t_learn,
         update: step.stats,
+        return_by_term: return_by_term(&ends),
     }
+}
+
+/// The mean return per episode by reward term over `ends`, the terms that are not zero, to 1e-4
+/// (the history keeps thousands of these).
+fn return_by_term(ends: &[super::env::EpisodeEnd]) -> std::collections::BTreeMap<String, f64> {
+    if ends.is_empty() {
+        return Default::default();
+    }
+    super::reward::Terms::default()
+        .named()
+        .iter()
+        .enumerate()
+        .map(|(k, (name, _))| {
+            let mean = ends.iter().map(|e| e.ret_by_term[k]).sum::<f64>() / ends.len() as f64;
+            (name.to_string(), (mean * 1e4).round() / 1e4)
+        })
+        .filter(|(_, v)| *v != 0.0)
+        .collect()
 }
 
 impl IterLog {

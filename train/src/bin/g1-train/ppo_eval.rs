@@ -38,6 +38,10 @@ pub struct Args {
     seed: u64,
     #[arg(long, default_value_t = default_jobs())]
     threads: usize,
+    /// Also print each cell's mean return per episode split by reward term (the terms that are
+    /// not zero), to see what the policy is paid for and what it pays.
+    #[arg(long)]
+    terms: bool,
     /// Also write the results as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -57,6 +61,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         assist,
         seed,
         threads,
+        terms,
         json,
     } = args;
     anyhow::ensure!((0.0..=1.0).contains(&assist), "--assist must be a strength from 0 to 1");
@@ -121,6 +126,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 r.timeouts,
                 r.mean_steps / deploy.rates.policy_hz as f64
             );
+            if terms {
+                print_terms(r.mean_return, &r.mean_return_by_term);
+            }
             reports.push(r);
         }
     }
@@ -129,4 +137,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("writing {}", path.display()))?;
     }
     Ok(())
+}
+
+/// One cell's mean return by term, largest magnitude first, zeros left out.
+fn print_terms(total: f64, by_term: &[(String, f64)]) {
+    let mut rows: Vec<&(String, f64)> = by_term.iter().filter(|(_, v)| *v != 0.0).collect();
+    rows.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    println!("        return per episode {total:+.3}, by term:");
+    for (name, v) in rows {
+        println!("          {name:<18} {v:+9.3}");
+    }
 }
