@@ -25,6 +25,7 @@ say() { printf '[install] %s\n' "$*" >&2; }
 # --- apt -----------------------------------------------------------------------------------------
 # user-mode-linux, kmod, iproute2, can-utils: the CAN HIL VM (`cargo xtask hil`; the host kernel has no CAN)
 # gcc-aarch64-linux-gnu, libc6-dev-arm64-cross, qemu-user: the robot's CPU (`cargo xtask cross-replay`, `image`)
+# tmux: the keyboard operator's test drives `g1fw run --keyboard` in a pane (tests/tests/keyboard_tmux.rs)
 # libddsc0debian, cyclonedds-dev, cyclonedds-tools: CycloneDDS 0.10.2, the robot's DDS, as the
 #   independent peer of `g1fw run --dds` (tests/tests/dds_peer.rs builds its C peer with idlc + gcc)
 # The first line is what `cargo build` and the MuJoCo download need; the rest only the tests need.
@@ -32,7 +33,8 @@ apt_pkgs=(build-essential pkg-config python3 python3-venv python3-pip unzip ca-c
 ((for_build)) || apt_pkgs+=(fonts-dejavu-core
   user-mode-linux kmod iproute2 can-utils
   gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user
-  libddsc0debian cyclonedds-dev cyclonedds-tools)
+  libddsc0debian cyclonedds-dev cyclonedds-tools
+  tmux)
 missing=()
 for p in "${apt_pkgs[@]}"; do dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p"); done
 if ((${#missing[@]})); then

@@ -206,6 +206,11 @@ impl Netns {
         Some(Netns(name))
     }
 
+    /// The namespace's name (`ip netns exec NAME …`).
+    pub fn name(&self) -> &str {
+        &self.0
+    }
+
     /// `program` run inside the namespace.
     pub fn command(&self, program: &Path) -> Command {
         let mut c = Command::new("ip");

@@ -24,6 +24,7 @@ pub mod actor;
 pub mod alloc_probe;
 pub mod controller;
 pub mod envelope;
+pub mod keyboard;
 pub mod lidar_source;
 pub mod mirror;
 pub mod nn;

@@ -151,10 +151,23 @@ impl OperatorSource for RemoteOperator {
     }
 }
 
-/// A run's operator: the command schedule (scripted runs, tests) or the robot's remote.
+/// A run's operator: the command schedule (scripted runs, tests), the robot's remote, or a
+/// terminal's keyboard.
 pub enum RunOperator<'a> {
     Schedule(crate::operator::ScheduleSource<'a>),
     Remote(RemoteOperator),
+    Keyboard(crate::keyboard::KeyboardOperator),
+}
+
+impl RunOperator<'_> {
+    /// Where this operator's requests come from, as the report names it.
+    pub fn name(&self) -> &'static str {
+        match self {
+            RunOperator::Schedule(_) => "schedule",
+            RunOperator::Remote(_) => "remote",
+            RunOperator::Keyboard(_) => "keyboard",
+        }
+    }
 }
 
 impl OperatorSource for RunOperator<'_> {
@@ -162,6 +175,7 @@ impl OperatorSource for RunOperator<'_> {
         match self {
             RunOperator::Schedule(s) => s.at(tick),
             RunOperator::Remote(r) => r.at(tick),
+            RunOperator::Keyboard(k) => k.at(tick),
         }
     }
 
@@ -169,6 +183,7 @@ impl OperatorSource for RunOperator<'_> {
         match self {
             RunOperator::Schedule(s) => s.at_state(tick, state),
             RunOperator::Remote(r) => r.at_state(tick, state),
+            RunOperator::Keyboard(k) => k.at_state(tick, state),
         }
     }
 }

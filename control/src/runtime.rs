@@ -538,6 +538,8 @@ impl Runtime {
         self.record_pose(tick.time_ns);
 
         // 3. safety and operator
+        self.supervisor
+            .set_motion_checks(self.controller.mode() != Mode::Passive);
         if let Some(reason) = self.supervisor.check_frame(k, frame, state) {
             self.latch(k, reason, &mut s);
         }

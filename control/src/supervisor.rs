@@ -242,6 +242,9 @@ pub struct Supervisor {
     last_accepted_tick: Option<u64>,
     last_frame_counter: Option<u32>,
     counters: SafetyCounters,
+    /// Judge the robot's motion (tilt, base angular speed, joint speed, frozen joints); off while
+    /// the operator keeps the robot passive ([`Supervisor::set_motion_checks`]).
+    motion_checks: bool,
 }
 
 impl Supervisor {
@@ -270,7 +273,19 @@ impl Supervisor {
             last_accepted_tick: None,
             last_frame_counter: None,
             counters: SafetyCounters::default(),
+            motion_checks: true,
         }
+    }
+
+    /// Whether this tick judges the robot's motion. Off in an operated run's `passive` state: the
+    /// motors are damped by the operator's choice, so a robot that is lowered, lies on the floor,
+    /// rests still or is moved by hand there has no fault to latch. Sensor, link and motor faults
+    /// (timeouts, CRC, NaN, silent or hot motors) are judged in every state.
+    pub fn set_motion_checks(&mut self, on: bool) {
+        if !on {
+            self.frozen_count = [0; NUM_MOTORS];
+        }
+        self.motion_checks = on;
     }
 
     pub fn counters(&self) -> SafetyCounters {
@@ -345,10 +360,10 @@ impl Supervisor {
             return Some(DampingReason::InvalidImu);
         }
         let up = -estimator::projected_gravity(imu.quaternion)[2];
-        if self.limits.tilted(up) {
+        if self.motion_checks && self.limits.tilted(up) {
             return Some(DampingReason::Tilt);
         }
-        if self.limits.base_spinning(imu.gyroscope) {
+        if self.motion_checks && self.limits.base_spinning(imu.gyroscope) {
             return Some(DampingReason::BaseAngularSpeed);
         }
         let mut trip = None;
@@ -364,13 +379,13 @@ impl Supervisor {
             if !(m.q.is_finite() && m.dq.is_finite()) {
                 return Some(DampingReason::NonFiniteInput);
             }
-            if trip.is_none() && self.limits.joint_too_fast(s, m.dq) {
+            if trip.is_none() && self.motion_checks && self.limits.joint_too_fast(s, m.dq) {
                 trip = Some(DampingReason::JointSpeed { slot });
             }
             if trip.is_none() && (m.temperature[0] > self.casing_limit || m.temperature[1] > self.winding_limit) {
                 trip = Some(DampingReason::MotorTemperature { slot });
             }
-            if self.frozen_watch[s] {
+            if self.frozen_watch[s] && self.motion_checks {
                 let now = [m.q.to_bits(), m.dq.to_bits(), m.tau_est.to_bits()];
                 if now == self.frozen_last[s] {
                     self.frozen_count[s] += 1;

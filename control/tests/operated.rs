@@ -200,3 +200,69 @@ fn a_remote_mapping_with_unknown_or_shared_buttons_is_refused() {
     let ok = control::spec::DeploySpec::load_with_overrides(&path, &["operator.walk=\"start\"".into()]).unwrap();
     assert_eq!(ok.operator.walk, "start");
 }
+
+/// Passive is damping by the operator's choice: a robot that falls over, lies still on the floor or
+/// is swung by hand there latches nothing, while a sensor fault still does; once it stands up, the
+/// motion checks are back.
+#[test]
+fn a_passive_robot_on_the_floor_trips_nothing_but_a_bad_sensor_still_latches() {
+    let mut rt = operated();
+    let mut cmd = LowCommand::default();
+    // Lying on its side (90° roll), spinning, joints fast, then perfectly still (frozen-looking).
+    let lying = |k: u64, still: bool| {
+        let mut s = healthy(k);
+        let h = std::f32::consts::FRAC_1_SQRT_2;
+        s.imu.quaternion = [h, h, 0.0, 0.0];
+        s.imu.gyroscope = if still { [0.0; 3] } else { [9.0, 0.0, 0.0] };
+        for m in s.motors.iter_mut() {
+            if still {
+                (m.q, m.dq, m.tau_est) = (0.1, 0.0, 0.0);
+            } else {
+                m.dq = 40.0;
+            }
+        }
+        s
+    };
+    for k in 0..3000 {
+        let _ = rt.tick(
+            tick(k),
+            FrameStatus::Fresh,
+            &lying(k, k >= 500),
+            OperatorInput::default(),
+            &mut cmd,
+            |_| Ok::<(), ()>(()),
+        );
+        assert_eq!(rt.mode(), Mode::Passive, "tick {k}");
+    }
+    assert!(damped(&cmd));
+    // A NaN from the IMU is a fault in any state.
+    let mut bad = lying(3000, true);
+    bad.imu.gyroscope[0] = f32::NAN;
+    let _ = rt.tick(
+        tick(3000),
+        FrameStatus::Fresh,
+        &bad,
+        OperatorInput::default(),
+        &mut cmd,
+        |_| Ok::<(), ()>(()),
+    );
+    assert!(matches!(rt.mode(), Mode::Damping(_)), "{:?}", rt.mode());
+    // Acknowledged, stood up while still lying on its side: the tilt check is back at once.
+    let mut rt = operated();
+    let stand_up = OperatorInput {
+        request: Some(Request::StandUp),
+        ..Default::default()
+    };
+    let _ = rt.tick(tick(0), FrameStatus::Fresh, &lying(0, true), stand_up, &mut cmd, |_| {
+        Ok::<(), ()>(())
+    });
+    let _ = rt.tick(
+        tick(1),
+        FrameStatus::Fresh,
+        &lying(1, true),
+        OperatorInput::default(),
+        &mut cmd,
+        |_| Ok::<(), ()>(()),
+    );
+    assert_eq!(rt.mode(), Mode::Damping(DampingReason::Tilt));
+}

@@ -25,6 +25,7 @@ pub mod robot_run;
 pub mod run_report;
 #[cfg(feature = "lab")]
 pub mod sim_run;
+pub mod terminal_keys;
 /// Input text on its way to a terminal (escaped control characters, long lines cut).
 pub use input_file::text;
 

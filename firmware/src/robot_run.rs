@@ -37,6 +37,9 @@ pub struct RunOptions {
     pub hold_only: bool,
     /// The operator steps the run through its states (passive at start; the schedule's requests).
     pub operated: bool,
+    /// An operated run's operator is the terminal's keyboard ([`control::keyboard::KEYS`]) instead
+    /// of the robot's remote.
+    pub keyboard: bool,
     /// How long start-up waits for the first state (CAN: every motor's answer and the IMU's first
     /// sample; DDS: the first `rt/lowstate`).
     pub startup_timeout: Duration,
@@ -66,6 +69,7 @@ impl Default for RunOptions {
             ramp_override: None,
             hold_only: false,
             operated: false,
+            keyboard: false,
             startup_timeout: Duration::from_secs(10),
             log: None,
             log_options: LogOptions::default(),
@@ -402,8 +406,18 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         .set_perception_exec(opts.perception)
         .context("starting the perception thread")?;
     let mut hal = WithLidar::new(open(period_ns)?, lidar);
-    // An operated run without a schedule takes its operator from the robot's remote.
-    let mut operator = if opts.operated && opts.schedule.source.is_none() {
+    // An operated run without a schedule takes its operator from the robot's remote, or from the
+    // terminal's keyboard when asked (the guard puts the terminal back however the run ends).
+    let mut keys_guard = None;
+    let mut operator = if opts.operated && opts.keyboard {
+        let (keys, guard) = crate::terminal_keys::start().context("reading keys from the terminal (--keyboard)")?;
+        keys_guard = Some(guard);
+        eprintln!("{}", control::keyboard::card());
+        control::remote::RunOperator::Keyboard(control::keyboard::KeyboardOperator::new(
+            runtime.controller().spec(),
+            keys,
+        ))
+    } else if opts.operated && opts.schedule.source.is_none() {
         let remote = control::remote::RemoteOperator::new(runtime.controller().spec()).map_err(anyhow::Error::msg)?;
         control::remote::RunOperator::Remote(remote)
     } else {
@@ -414,13 +428,13 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let mut mode_machine = 0u8;
     let mut log_failed = false;
     let mut variant_refusal: Option<String> = None;
-    let operator_name = match &operator {
-        control::remote::RunOperator::Remote(_) => "remote",
-        control::remote::RunOperator::Schedule(_) => "schedule",
-    };
+    let operator_name = operator.name();
     let mut mode_changes = crate::run_report::ModeChanges::starting(runtime.controller().mode());
     let end = run_loop(&mut hal, &mut runtime, &mut operator, last_tick, |v| {
-        mode_changes.observe(v.summary, control_dt, operator_name);
+        if let Some(c) = mode_changes.observe(v.summary, control_dt, operator_name) {
+            // A few lines a run, for whoever holds the remote or the keyboard.
+            tracing::info!("{:.2} s: {} → {} ({})", c.time_s, c.from, c.to, c.source);
+        }
         // A log that cannot be written (a full disk) stops the log, never the control: what
         // reached the disk stays readable, and the report names the error.
         if let Some(l) = logger.as_mut().filter(|_| !log_failed) {
@@ -457,6 +471,18 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
             ));
         }
     }
+    if let control::remote::RunOperator::Keyboard(k) = &operator {
+        if k.keys_ignored > 0 {
+            warnings.push(format!(
+                "{} of {} keys pressed do nothing (the keys: g1fw run --help, --keyboard)",
+                k.keys_ignored, k.keys_read
+            ));
+        }
+        if k.input_closed {
+            warnings.push("the keyboard's input ended during the run: the command went to zero".into());
+        }
+    }
+    drop(keys_guard);
     // A signal that ended a wait inside the HAL (the first state that never came) is a stop.
     let stopped_in_hal = matches!(end, LoopEnd::HalError { .. }) && opts.stop.load(Ordering::Relaxed);
     let end = match end {

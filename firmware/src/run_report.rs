@@ -32,7 +32,7 @@ pub struct ModeChange {
     pub time_s: f64,
     pub from: &'static str,
     pub to: &'static str,
-    /// `remote`, `schedule` (the operator's request), `safety` (a trip), `reset`, or `ramp` (a
+    /// `remote`, `keyboard`, `schedule` (the operator's request), `safety` (a trip), `reset`, or `ramp` (a
     /// ramp that ended by itself).
     pub source: &'static str,
 }
@@ -56,12 +56,16 @@ impl ModeChanges {
         }
     }
 
-    /// Notes tick `s`'s mode; `operator` names where its requests come from.
-    pub fn observe(&mut self, s: &crate::runtime::TickSummary, control_dt: f64, operator: &'static str) {
+    /// Notes tick `s`'s mode; `operator` names where its requests come from. Returns the change,
+    /// if the mode changed on this tick (the operator's terminal shows it).
+    pub fn observe(
+        &mut self,
+        s: &crate::runtime::TickSummary,
+        control_dt: f64,
+        operator: &'static str,
+    ) -> Option<ModeChange> {
         let prev = self.last.replace(s.mode);
-        let Some(prev) = prev.filter(|p| *p != s.mode) else {
-            return;
-        };
+        let prev = prev.filter(|p| *p != s.mode)?;
         let source = if s.tripped.is_some() {
             "safety"
         } else if s.reset {
@@ -71,15 +75,17 @@ impl ModeChanges {
         } else {
             "ramp"
         };
+        let change = ModeChange {
+            tick: s.tick.index,
+            time_s: s.tick.index as f64 * control_dt,
+            from: crate::log::mode_name(prev),
+            to: crate::log::mode_name(s.mode),
+            source,
+        };
         if self.changes.len() < MAX_MODE_CHANGES {
-            self.changes.push(ModeChange {
-                tick: s.tick.index,
-                time_s: s.tick.index as f64 * control_dt,
-                from: crate::log::mode_name(prev),
-                to: crate::log::mode_name(s.mode),
-                source,
-            });
+            self.changes.push(change.clone());
         }
+        Some(change)
     }
 }
 

@@ -20,6 +20,10 @@ so a tick is one command is one physics step whatever the CPU's speed: Python's 
 falls to 0.42-0.56 x real time on a slow CPU, and the peer walker then sees a slowed world and
 trips (docs/robot.md). Times in the output are then simulated seconds.
 
+With `--pad SCRIPT.json` a scripted gamepad stands in for the one pygame would find: the bridge's
+own `SetupJoystick` and `PublishLowState` read it and write `wireless_remote` as they do for a real
+pad, so g1fw's remote decoding meets Unitree's encoding (the `ScriptedPad` class says the format).
+
 Prints one JSON line at the end: the pelvis trajectory (t, x, y, z at 10 Hz, t from the release),
 when the first command came, how many physics steps ran and the real-time factor.
 """
@@ -46,6 +50,8 @@ ap.add_argument("--release-after", type=float, default=0.8,
                 help="seconds after the first command before the band lets go")
 ap.add_argument("--idle-exit", type=float, default=1.5,
                 help="exit this long after commands stop (once some came)")
+ap.add_argument("--pad", metavar="SCRIPT.json",
+                help="a gamepad that plays this script, read by the bridge's own joystick code (see below)")
 ap.add_argument("--lockstep", action="store_true",
                 help="one physics step per command, then the state (for g1fw --tick-on state)")
 args = ap.parse_args()
@@ -106,6 +112,59 @@ class CommandCountingBridge(UnitreeSdk2Bridge):
 
 ChannelFactoryInitialize(config.DOMAIN_ID, config.INTERFACE)
 bridge = CommandCountingBridge(mj_model, mj_data)
+
+
+class ScriptedPad:
+    """What `pygame.joystick.Joystick` gives the bridge, playing `--pad`'s script over simulated
+    time (mj_data.time; with --lockstep, one 2 ms step per g1fw tick). The script is a list of
+    `[t_s, {"hold": [names], "LX": v, "LY": v, "RX": v, "RY": v}]`, each entry holding until the
+    next: names are the Xbox pad's (A B X Y LB RB SELECT START, the triggers LT RT, the D-pad up
+    down left right), axes in pygame's convention (LY = -1 is the left stick pushed forward). The
+    bridge turns them into `wireless_remote` with its own code (LT is the remote's L2, RB its R1)."""
+
+    def __init__(self, script, axis_id, button_id):
+        self.script = sorted(script, key=lambda e: e[0])
+        self.axis_id, self.button_id = axis_id, button_id
+
+    def init(self):
+        pass
+
+    def _now(self):
+        entry = {}
+        for t, e in self.script:
+            if mj_data.time + 1e-9 >= t:
+                entry = e
+        return entry
+
+    def get_axis(self, i):
+        e = self._now()
+        name = next(n for n, k in self.axis_id.items() if k == i)
+        if name in ("LT", "RT"):
+            return 1.0 if name in e.get("hold", []) else -1.0
+        return float(e.get(name, 0.0))
+
+    def get_button(self, i):
+        name = next(n for n, k in self.button_id.items() if k == i)
+        return int(name in self._now().get("hold", []))
+
+    def get_hat(self, i):
+        held = self._now().get("hold", [])
+        return (int("right" in held) - int("left" in held), int("up" in held) - int("down" in held))
+
+
+if args.pad:
+    # Unitree's SetupJoystick, unmodified, finds this pad where pygame would find a real one.
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    import pygame  # noqa: E402
+
+    with open(args.pad) as f:
+        pad_script = json.load(f)
+    pygame.joystick.get_count = lambda: 1
+    pygame.joystick.Joystick = lambda device_id: pad
+    pad = ScriptedPad(pad_script, {}, {})
+    bridge.SetupJoystick(device_id=0, js_type="xbox")
+    pad.axis_id, pad.button_id = bridge.axis_id, bridge.button_id
 
 t_start = time.perf_counter()
 first_cmd = None

@@ -51,6 +51,11 @@ enum SimPace {
 
 /// Unitree's simulator and `g1fw run --dds lo,1 EXTRA… --duration S` in one namespace.
 fn run(tag: &str, extra: &[&str], duration: f64, pace: SimPace) -> Option<Outcome> {
+    run_with(tag, extra, &[], duration, pace)
+}
+
+/// [`run`] with `sim_extra` for the harness too.
+fn run_with(tag: &str, extra: &[&str], sim_extra: &[&str], duration: f64, pace: SimPace) -> Option<Outcome> {
     let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     let shared = shared_dir().or_else(|| {
         skip_loudly_or_fail("SKIP: the unitree_mujoco test needs ../shared (peers/unitree_mujoco)");
@@ -69,6 +74,7 @@ fn run(tag: &str, extra: &[&str], duration: f64, pace: SimPace) -> Option<Outcom
     if pace == SimPace::LockStep {
         harness.arg("--lockstep");
     }
+    harness.args(sim_extra);
     let sim = Reaped(Some(
         harness
             .env("G1_SHARED", &shared)
@@ -81,7 +87,12 @@ fn run(tag: &str, extra: &[&str], duration: f64, pace: SimPace) -> Option<Outcom
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
     let duration = duration.to_string();
-    let mut args = vec!["--cmd", "0.8,0,0", "--duration", &duration];
+    // An operated run takes its command from the remote; the others walk at a constant command.
+    let mut args = if extra.contains(&"--operated") {
+        vec!["--duration", &duration]
+    } else {
+        vec!["--cmd", "0.8,0,0", "--duration", &duration]
+    };
     if pace == SimPace::LockStep {
         // A tick waits up to 100 ms for its state before it runs without one: a slow or loaded CPU
         // delays the state (Python steps and publishes it), it does not lose it.
@@ -183,4 +194,104 @@ fn unitree_mujoco_states_without_the_flag_are_refused_with_a_message_naming_it()
     assert!(r["dds"]["crc_zero"].as_u64().unwrap() > 0, "{r}");
     assert_eq!(o.status.code(), Some(3), "a latched trip exits 3: {}", o.stderr);
     assert!(r["end_damping"]["sent"].as_u64().unwrap() > 0, "{r}");
+}
+
+/// The operator's remote as Unitree's bridge writes it: a scripted gamepad read by the bridge's own
+/// joystick code (`--pad`), whose `wireless_remote` bytes g1fw decodes. With the spec's default
+/// combinations (unitree_rl_lab's): L2+up stands the robot up from damping, R1+X walks, the left
+/// stick walks it 3 m, L2+up stands it still, L2+B damps it. The report names every change and its
+/// source, and the log replays bit-exact.
+#[test]
+fn the_remote_as_unitrees_bridge_writes_it_stands_walks_stands_and_damps_the_robot() {
+    let script_dir = scratch_dir("unitree-mujoco-pad");
+    let script = script_dir.join("pad.json");
+    // Simulated seconds (lock-stepped: one 2 ms step per tick). The band holds the robot until
+    // 1.2 s, past the stand-up ramp; the stick is pushed to 0.8 of full (≈ 0.62 m/s).
+    std::fs::write(
+        &script,
+        r#"[
+            [0.0, {}],
+            [0.3, {"hold": ["LT", "up"]}],
+            [0.4, {}],
+            [1.25, {"hold": ["RB", "X"]}],
+            [1.35, {}],
+            [1.4, {"LY": -0.8}],
+            [8.4, {}],
+            [9.4, {"hold": ["LT", "up"]}],
+            [9.5, {}],
+            [10.2, {"hold": ["LT", "B"]}],
+            [10.3, {}]
+        ]"#,
+    )
+    .unwrap();
+    let script_arg = script.to_str().unwrap();
+    let Some(o) = run_with(
+        "remote",
+        &["--unitree-mujoco", "--operated"],
+        &["--pad", script_arg, "--release-after", "1.2"],
+        11.5,
+        SimPace::LockStep,
+    ) else {
+        return;
+    };
+    let r = &o.report;
+    let ctx = format!("report {r}\nsimulator {}\nstderr {}", o.sim, o.stderr);
+    assert!(r["trip"].is_null(), "no trip expected: {ctx}");
+    assert_eq!(r["final_mode"], "Passive", "{ctx}");
+    let changes: Vec<(String, String, f64)> = r["transitions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["to"].as_str().unwrap().to_string(),
+                c["source"].as_str().unwrap().to_string(),
+                c["time_s"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let want = [
+        ("startup", "remote", 0.3),
+        ("stand", "ramp", 0.9),
+        ("policy", "remote", 1.25),
+        ("startup", "remote", 9.4),
+        ("stand", "ramp", 10.0),
+        ("passive", "remote", 10.2),
+    ];
+    let got: Vec<(&str, &str)> = changes.iter().map(|(a, b, _)| (a.as_str(), b.as_str())).collect();
+    let wanted: Vec<(&str, &str)> = want.iter().map(|(a, b, _)| (*a, *b)).collect();
+    assert_eq!(got, wanted, "{ctx}");
+    // On the script's times, counted from the first press: g1fw's clock runs ahead of the
+    // simulator's by the ticks it ran on states sent again while discovery swallowed its commands.
+    for ((_, _, t), (_, _, wt)) in changes.iter().zip(want) {
+        assert!(
+            ((t - changes[0].2) - (wt - want[0].2)).abs() < 0.1,
+            "{changes:?}: {ctx}"
+        );
+    }
+    // 3 m with the left stick, upright (the pelvis above 0.6 m) from where the band let go to the end
+    // of the run: standing still again, the robot did not fall.
+    let traj = o.sim["trajectory"].as_array().expect("trajectory");
+    let upright: Vec<(f64, f64)> = traj
+        .iter()
+        .map(|p| (p[1].as_f64().unwrap(), p[3].as_f64().unwrap()))
+        .take_while(|&(_, z)| z > 0.6)
+        .collect();
+    let walked = upright.last().map_or(0.0, |&(x, _)| x) - upright.first().map_or(0.0, |&(x, _)| x);
+    assert!(
+        walked >= 3.0,
+        "walked {walked:.2} m forward upright (≥ 3 m expected): {ctx}"
+    );
+    let stood_until = upright.len() as f64 * 0.1 + 1.2;
+    assert!(
+        stood_until >= 10.0,
+        "upright until {stood_until:.1} s (simulated): {ctx}"
+    );
+    let replay = std::process::Command::new(built_bin("g1fw"))
+        .arg("replay")
+        .arg(&o.log)
+        .output()
+        .expect("g1fw replay");
+    let text = String::from_utf8_lossy(&replay.stdout).to_string() + &String::from_utf8_lossy(&replay.stderr);
+    assert!(replay.status.success() && text.contains("replay identical"), "{text}");
 }

@@ -394,6 +394,13 @@ struct RunArgs {
     /// sit-down ramp, passive. Without it the policy engages by itself after the start-up.
     #[arg(long, conflicts_with = "hold")]
     operated: bool,
+    /// The operated run's operator is this terminal's keyboard instead of the robot's remote (for
+    /// `g1-sim --dds` or unitree_mujoco without a gamepad; rl_sar's keys): 0 stand up, 1 walk,
+    /// 2 stand, 9 sit down, p passive (damping from any state), w/s vx ±0.1 m/s, a/d vy ±0.1 m/s,
+    /// q/e wz ±0.2 rad/s, space zero velocity, Ctrl-C stop. The keys reach the controller only as
+    /// the logged operator input, so replay needs no keyboard.
+    #[arg(long, requires = "operated", conflicts_with = "cmd_schedule")]
+    keyboard: bool,
     /// Seconds to wait at start-up for every motor to answer and the first IMU sample.
     #[arg(long, default_value_t = 10.0, value_parser = parse_wait_s)]
     startup_timeout: f64,
@@ -1050,6 +1057,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         ramp_override: a.ramp.map(|r| (r, spec.startup.hold_s)),
         hold_only: a.hold,
         operated: a.operated,
+        keyboard: a.keyboard,
         startup_timeout: std::time::Duration::from_secs_f64(a.startup_timeout),
         log: a.log.clone(),
         log_options: Default::default(),

@@ -1,0 +1,184 @@
+//! The keyboard operator as a user drives it: `g1fw run --dds --operated --keyboard` in a tmux
+//! pane against `g1-sim --dds --dds-free-run` (both in wall-clock time, as with unitree_mujoco),
+//! keys sent with `tmux send-keys`: stand up, walk with `w` pressed five times, stop with space,
+//! stand, sit down, Ctrl-C.
+//! The report names each change and its source, the robot walked, and the log replays bit for bit.
+#![allow(clippy::disallowed_methods)]
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use integration_tests::{
+    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns,
+    Reaped,
+};
+
+fn tmux(args: &[&str]) -> std::process::Output {
+    Command::new("tmux").args(args).output().expect("tmux runs")
+}
+
+/// Kills the tmux session on drop (a failing test leaves no pane behind).
+struct Session(String);
+
+impl Drop for Session {
+    fn drop(&mut self) {
+        let _ = tmux(&["kill-session", "-t", &self.0]);
+    }
+}
+
+impl Session {
+    fn pane(&self) -> String {
+        String::from_utf8_lossy(&tmux(&["capture-pane", "-p", "-t", &self.0]).stdout).to_string()
+    }
+
+    fn keys(&self, keys: &str) {
+        for k in keys.chars() {
+            let key = if k == ' ' { "Space".to_string() } else { k.to_string() };
+            assert!(tmux(&["send-keys", "-t", &self.0, &key]).status.success());
+        }
+    }
+}
+
+#[test]
+fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
+    if shared_dir().is_none() {
+        skip_or_fail("the keyboard test (the peer policy and the 12-dof model)");
+        return;
+    }
+    if Command::new("tmux").arg("-V").output().is_err() {
+        skip_loudly_or_fail("SKIP: the keyboard test needs tmux (scripts/install.sh installs it)");
+        return;
+    }
+    let Some(ns) = Netns::new("g1kbd") else {
+        skip_loudly_or_fail("SKIP: the keyboard test needs a network namespace (`ip netns add`, as root)");
+        return;
+    };
+    let dir = scratch_dir("keyboard-tmux");
+    let sim = Reaped(Some(
+        ns.command(&built_bin("g1-sim"))
+            .args([
+                "--dds",
+                "lo,1",
+                "--model",
+                "g1-12dof",
+                "--quiet",
+                "--dds-idle-exit",
+                "1",
+                "--dds-free-run",
+            ])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("g1-sim"),
+    ));
+    let (report, log) = (dir.join("report.json"), dir.join("run.mcap"));
+    // As a user types it in a terminal (the pane), inside the test's network namespace. The state
+    // timeout is widened as in the other wall-clock tests (a shared 2-core VM wakes up late).
+    let run = format!(
+        "cd {root} && ip netns exec {ns} {g1fw} run --dds lo,1 --spec {spec} --operated --keyboard \
+         --set safety.state_timeout_s=0.1 --duration 60 --report {report} --log {log} \
+         2> {stderr}; echo exited $?; sleep 60",
+        root = repo_root().display(),
+        ns = ns.name(),
+        g1fw = built_bin("g1fw").display(),
+        spec = peer_spec_path().display(),
+        report = report.display(),
+        log = log.display(),
+        stderr = dir.join("stderr.txt").display(),
+    );
+    let session = Session(format!("g1kbd-{}", std::process::id()));
+    let started = tmux(&["new-session", "-d", "-s", &session.0, "-x", "160", "-y", "48", &run]);
+    assert!(started.status.success(), "{}", String::from_utf8_lossy(&started.stderr));
+    // The card of keys goes to stderr (a file here) once the first state has come.
+    let stderr_path = dir.join("stderr.txt");
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&stderr_path).is_ok_and(|s| s.contains("keyboard operator:")) {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30) && !session.pane().contains("exited"),
+            "g1fw never printed its keys: {:?}\npane:\n{}",
+            std::fs::read_to_string(&stderr_path),
+            session.pane()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Each key once the robot is where the operator would press it: g1fw prints every change of
+    // state as it happens (on a loaded machine the wall clock alone would not tell).
+    let seen = |text: &str, times: usize| {
+        let t0 = Instant::now();
+        loop {
+            let err = std::fs::read_to_string(&stderr_path).unwrap_or_default();
+            if err.matches(text).count() >= times {
+                return;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(20) && !session.pane().contains("exited"),
+                "waited for `{text}` ({times}×):\n{err}\npane:\n{}",
+                session.pane()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    session.keys("0"); // stand up: the ramp to the default pose, then standing
+    seen("→ stand (ramp)", 1);
+    session.keys("1wwwww"); // walk, at 0.5 m/s
+    seen("→ policy (keyboard)", 1);
+    std::thread::sleep(Duration::from_secs(5));
+    session.keys(" "); // stop walking, as an operator does before standing the robot still
+    std::thread::sleep(Duration::from_secs(1));
+    session.keys("2"); // stand
+    seen("→ stand (ramp)", 2);
+    session.keys("9"); // sit down, then passive by itself
+    seen("→ passive (ramp)", 1);
+    assert!(
+        tmux(&["send-keys", "-t", &session.0, "C-c"]).status.success(),
+        "Ctrl-C ends the run"
+    );
+    let t0 = Instant::now();
+    while !session.pane().contains("exited") {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "g1fw did not end:\n{}",
+            session.pane()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let pane = session.pane();
+    let stderr = std::fs::read_to_string(&stderr_path).unwrap_or_default();
+    let r = read_json(&report);
+    let sim = sim.wait_json("g1-sim --dds --dds-free-run");
+    let ctx = format!("report {r}\nsim {sim}\npane {pane}\nstderr {stderr}");
+    assert!(pane.contains("exited 0"), "{ctx}");
+    assert_eq!(r["final_mode"], "Passive", "{ctx}");
+    assert!(r["trip"].is_null(), "{ctx}");
+    let changes: Vec<(String, String)> = r["transitions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (
+                c["to"].as_str().unwrap().to_string(),
+                c["source"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    let want = [
+        ("startup", "keyboard"),
+        ("stand", "ramp"),
+        ("policy", "keyboard"),
+        ("startup", "keyboard"),
+        ("stand", "ramp"),
+        ("sit_down", "keyboard"),
+        ("passive", "ramp"),
+    ];
+    let got: Vec<(&str, &str)> = changes.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
+    assert_eq!(got, want, "{ctx}");
+    assert_eq!(r["end"].as_str().map(|e| e.starts_with("stopped")), Some(true), "{ctx}");
+    // Walked about 5 s at up to 0.5 m/s.
+    let x = sim["base_travel_m"][0].as_f64().unwrap();
+    assert!(x > 1.5, "walked {x} m: {ctx}");
+    let replay = integration_tests::g1fw(&["replay", log.to_str().unwrap()]);
+    assert!(
+        replay.status.success(),
+        "replay: {}\n{ctx}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+}
