@@ -365,6 +365,14 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let control_dt = spec.control_dt();
     let mut meta = crate::run_report::spec_meta(&spec, opts.hold_only);
     meta.set(key::OPERATED, opts.operated);
+    if opts.operated {
+        let source = match (opts.keyboard, opts.schedule.source.is_none()) {
+            (true, _) => "keyboard",
+            (false, true) => "remote",
+            (false, false) => "schedule",
+        };
+        meta.set(key::OPERATOR, source);
+    }
     meta.extend(hal_meta);
     meta.set(key::PERCEPTION_EXEC, opts.perception.label());
     // The policy's joints: a held joint the variant lacks is only a slot nobody reads (a portable

@@ -783,6 +783,9 @@ fn log_note(log: &Option<PathBuf>) -> String {
 fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
     let mut m = spec_meta(spec, opts.hold_only);
     m.set(key::OPERATED, opts.operated);
+    if opts.operated {
+        m.set(key::OPERATOR, "schedule");
+    }
     if opts.perception != crate::perception_worker::PerceptionExec::Inline {
         m.set(key::PERCEPTION_EXEC, opts.perception.label());
     }

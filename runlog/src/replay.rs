@@ -44,6 +44,9 @@ pub mod key {
     /// "true" when the operator stepped the run through its states (`--operated`); absent in
     /// older logs.
     pub const OPERATED: &str = "operated";
+    /// Where an operated run's requests came from: `remote`, `keyboard` or `schedule` (the source
+    /// each change of state in `/safety/state` names in the report); absent in older logs.
+    pub const OPERATOR: &str = "operator";
     pub const RAMP_S: &str = "ramp_s";
     pub const HOLD_S: &str = "hold_s";
     /// "false" when the run judged no joint as frozen (quantized HALs: CAN).

@@ -716,12 +716,14 @@ class Run:
         if self.emu.poll() is not None:
             raise Failed(f"g1-can-emu exited with {self.emu.returncode} before it was ready\n{self.tail('emu')}")
 
-    def start_fw(self, duration: float, report: Path, cmd: str = "0,0,0"):
+    def start_fw(self, duration: float, report: Path, cmd: str = "0,0,0", schedule: Path | None = None):
         exe = self.bin / "g1fw"
         self.fw_duration = duration
+        # An operated run: passive at start, stepped by the schedule's requests.
+        how = ["--operated", "--cmd-schedule", str(schedule)] if schedule else ["--cmd", cmd]
         self.fw = self.spawn("fw", [str(exe), "run", "--can", ",".join(self.lay.interfaces), "--can-config",
                                     str(self.args.can_config), "--spec", str(self.args.spec), "--duration", str(duration),
-                                    "--cmd", cmd, "--report", str(report), "--startup-timeout", "120"])
+                                    *how, "--report", str(report), "--startup-timeout", "120"])
 
     def wait_fw(self) -> int:
         timeout = 120 + self.fw_duration * 500 / ticks_per_s_floor()
@@ -817,6 +819,54 @@ def run_walk(args, lay, gains, ranges, out) -> list[Check]:
         f"final_mode {mode!r}, trip {trip}, g1fw exit {rc}; {n} IMU samples, {n / wall:.0f} ticks/s wall",
         wall_s=wall, reason=(trip or {}).get("reason", "") if isinstance(trip, dict) else ""))
     return checks
+
+
+OPERATED_SCHEDULE = "0.5 stand_up\n1.2 walk\n1.22 0.4 0 0\n4.0 0 0 0\n4.8 stand\n5.45 sit_down\n"
+# (to, source, tick) of each change of state the schedule makes (ramp 0.5 s + hold 0.1 s, sit 0.5 s).
+OPERATED_CHANGES = [("startup", "schedule", 250), ("stand", "ramp", 550), ("policy", "schedule", 600),
+                    ("startup", "schedule", 2400), ("stand", "ramp", 2700), ("sit_down", "schedule", 2725),
+                    ("passive", "ramp", 2975)]
+
+
+def run_operated(args, lay, out) -> list[Check]:
+    """The operated state machine over vcan, as on the robot (`g1fw run --operated`): damping on
+    the wire until the operator's stand-up, then driven, walking, standing, sitting down and
+    damping again from the end of the sit-down ramp; the report names every change."""
+    t0 = time.monotonic()
+    with Run("operated", out, lay, args) as r:
+        schedule = r.dir / "ops.txt"
+        schedule.write_text(OPERATED_SCHEDULE)
+        r.start_sniffer()
+        r.start_emu(r.dir / "emu.json")
+        r.start_fw(6.0, r.dir / "fw.json", schedule=schedule)
+        rc = r.wait_fw()
+        rec = r.finish()
+        wall = time.monotonic() - t0
+        fw = load_json(r.dir / "fw.json", "g1fw")
+        emu = load_json(r.dir / "emu.json", "g1-can-emu")
+    problems = []
+    changes = [(c.get("to"), c.get("source"), c.get("tick")) for c in fw.get("transitions", [])]
+    if changes != [tuple(c) for c in OPERATED_CHANGES]:
+        problems.append(f"report transitions {changes}, expected {OPERATED_CHANGES}")
+    if fw.get("trip") is not None or rc != 0 or str(fw.get("final_mode")) != "Passive":
+        problems.append(f"trip {fw.get('trip')}, final_mode {fw.get('final_mode')}, g1fw exit {rc}")
+    # On the wire (decoded here): every command damping while passive, none while driven.
+    stand_up, passive = OPERATED_CHANGES[0][2], OPERATED_CHANGES[-1][2]
+    wrong = []
+    for t in rec.ticks:
+        want_damped = t.k < stand_up or t.k >= passive
+        for fr, m in motor_commands(t):
+            if damped(fr) != want_damped:
+                wrong.append((t.k, G1_SLOTS[m.slot], command_fields(fr.data)[2:4]))
+    if wrong:
+        problems.append(f"{len(wrong)} commands on the wire not as the state asks, first {wrong[:3]}")
+    fell_at = emu.get("fell_at_s")
+    if fell_at is not None and fell_at < passive * 0.002:
+        problems.append(f"the robot fell at {fell_at} s, before the run was passive")
+    detail = "; ".join(problems) if problems else (
+        f"{len(changes)} changes as scheduled; damping on the wire before tick {stand_up} and from tick {passive}, "
+        f"driven between; distance_x {emu.get('distance_x_m')}; g1fw exit {rc}")
+    return [Check("operated: passive, stand-up, walk, stand, sit-down over CAN", not problems, detail, wall_s=wall)]
 
 
 @dataclass
@@ -1028,7 +1078,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--self-test", action="store_true", help="only the codec self-test (no CAN needed)")
     ap.add_argument("--only", default=os.environ.get("HIL_PEER_ONLY", ""),
-                    help="comma-separated runs: walk,dlc3,bad_byte0,foreign_id,flood,silent,second_master,imu_off "
+                    help="comma-separated runs: walk,operated,dlc3,bad_byte0,foreign_id,flood,silent,second_master,imu_off "
                          "(default: all)")
     ap.add_argument("--can-config", type=Path, default=REPO / "specs/can/g1_12dof.toml")
     ap.add_argument("--spec", type=Path, default=REPO / "specs/peer/unitree_g1_lstm.toml")
@@ -1059,7 +1109,7 @@ def main() -> int:
     gains = Gains.load(args.spec, lay)
     ranges = joint_ranges(args.spec)
     faults = fault_list(lay)
-    names = ["walk"] + [f.name for f in faults] + ["imu_off"]
+    names = ["walk", "operated"] + [f.name for f in faults] + ["imu_off"]
     only = [s for s in args.only.split(",") if s]
     unknown = [s for s in only if s not in names]
     if unknown:
@@ -1076,6 +1126,8 @@ def main() -> int:
         try:
             if name == "walk":
                 res = run_walk(args, lay, gains, ranges, args.out)
+            elif name == "operated":
+                res = run_operated(args, lay, args.out)
             elif name == "imu_off":
                 res = run_imu_off(args, lay, args.out)
             else:

@@ -135,6 +135,8 @@ struct Scenario {
     lidar_port: Option<u16>,
     /// The firmware's control loop panics on this tick (`RunOptions::inject_panic_at_tick`).
     panic_at: Option<u64>,
+    /// An operated run (`--operated`) stepped by this schedule instead of walking at `cmd`.
+    operated: Option<&'static str>,
 }
 
 impl Scenario {
@@ -151,6 +153,7 @@ impl Scenario {
             log: None,
             lidar_port: None,
             panic_at: None,
+            operated: None,
         }
     }
 }
@@ -186,7 +189,11 @@ fn run_scenario(name: &str, sc: Scenario) -> Run {
         Some(_) => DeploySpec::load(&repo_root().join("specs/stairs/g1_stairs_lstm.toml")).expect("stair spec"),
     };
     let opts = RunOptions {
-        schedule: CommandSchedule::constant(sc.cmd),
+        schedule: match sc.operated {
+            Some(text) => CommandSchedule::parse(text, std::path::Path::new("inline")).expect("schedule"),
+            None => CommandSchedule::constant(sc.cmd),
+        },
+        operated: sc.operated.is_some(),
         duration_s: Some(sc.duration_s),
         startup_timeout: Duration::from_secs(60),
         log: sc.log,
@@ -316,6 +323,49 @@ fn walks_ten_seconds_over_can() {
     assert_eq!(
         ids,
         (0..2).flat_map(|b| (1..=6).map(move |i| (b, i))).collect::<Vec<_>>()
+    );
+}
+
+/// The operated state machine runs unchanged over CAN: passive (damping on the bus) until the
+/// operator's stand-up, the ramp, standing, walking, standing again, sitting down to passive.
+#[test]
+fn the_operator_steps_the_robot_through_its_states_over_can() {
+    if shared_dir().is_none() {
+        return skip_or_fail("an operated run over CAN");
+    }
+    let r = run_scenario(
+        "operated",
+        Scenario {
+            duration_s: 6.0,
+            operated: Some("0.5 stand_up\n1.2 walk\n1.22 0.4 0 0\n4.0 0 0 0\n4.8 stand\n5.45 sit_down\n"),
+            ..Scenario::walk()
+        },
+    );
+    assert!(r.fw.trip.is_none(), "{:?}", r.fw.trip);
+    assert!(!r.emu.fell, "{:?}", r.emu);
+    assert_eq!(r.fw.final_mode, "Passive");
+    let changes: Vec<(&str, &str, f64)> = r.fw.transitions.iter().map(|c| (c.to, c.source, c.time_s)).collect();
+    let want = [
+        ("startup", "schedule", 0.5),
+        ("stand", "ramp", 1.1),
+        ("policy", "schedule", 1.2),
+        ("startup", "schedule", 4.8),
+        ("stand", "ramp", 5.4),
+        ("sit_down", "schedule", 5.45),
+        ("passive", "ramp", 5.95),
+    ];
+    assert_eq!(changes.len(), want.len(), "{changes:?}");
+    for ((to, source, t), (wto, wsource, wt)) in changes.iter().zip(want) {
+        assert_eq!((*to, *source), (wto, wsource), "{changes:?}");
+        assert!((t - wt).abs() < 0.01, "{changes:?}");
+    }
+    assert!(r.emu.distance_x_m > 0.6, "walked {:.2} m", r.emu.distance_x_m);
+    // Passive before the stand-up: only damping went out on the bus (kp 0).
+    let cmds = commands(&r);
+    let first_drive = cmds.iter().find(|c| c.2 > 0.0).expect("the motors were driven").0;
+    assert!(
+        (240..=260).contains(&first_drive),
+        "the first command with kp > 0 after {first_drive} IMU samples (stand-up at 0.5 s = 250)"
     );
 }
 

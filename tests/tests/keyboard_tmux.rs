@@ -175,6 +175,9 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
     // Walked about 5 s at up to 0.5 m/s.
     let x = sim["base_travel_m"][0].as_f64().unwrap();
     assert!(x > 1.5, "walked {x} m: {ctx}");
+    // The log names where the requests came from.
+    let meta = firmware::log::LogFile::open(&log).unwrap().run_metadata().unwrap();
+    assert_eq!(meta.get("operator").map(String::as_str), Some("keyboard"), "{meta:?}");
     let replay = integration_tests::g1fw(&["replay", log.to_str().unwrap()]);
     assert!(
         replay.status.success(),
