@@ -13,7 +13,7 @@ cargo build --release --workspace --bins
 mkdir -p out
 spec=specs/stairs/g1_stairs_lstm.toml
 status=0
-# The low staircases, then the 15 cm presets (docs/stair_results.md): every run reports what
+# The low staircases, then the 15 cm presets (docs/results.md): every run reports what
 # happened.
 for world in specs/worlds/stairs_up_low.toml specs/worlds/stairs_down_low.toml stairs-up stairs-down; do
   name=$(basename "$world" .toml)

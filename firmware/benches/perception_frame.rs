@@ -1,4 +1,4 @@
-//! Terrain-CNN perception frame: our `firmware::nn` executor (with `conv2d`) versus ONNX Runtime
+//! Terrain-CNN perception frame: our `control::nn` executor (with `conv2d`) versus ONNX Runtime
 //! on the same network, and the whole frame (Livox packets -> frame -> BEV -> CNN -> token).
 //!
 //! Plain bench binary (`harness = false`): `cargo bench -p firmware --bench perception_frame`.
@@ -25,8 +25,8 @@
 mod common;
 
 use common::{loud, percentile};
+use control::nn::{LayerDesc, Network, NetworkDesc};
 use estimator::terrain_cnn::decode;
-use firmware::nn::{LayerDesc, Network, NetworkDesc};
 use hal::LIDAR_FRAME_CAP;
 use hal::{LidarPoint, TerrainToken, XorShift64 as Rng};
 use safetensors::tensor::{Dtype, TensorView};
@@ -523,7 +523,7 @@ fn main() {
     };
     let get = |which: &str, k: &str| ort[which][k].as_f64().unwrap_or(f64::NAN);
     println!(
-        "\nORT {} (session.run from Python, {} runs; max abs diff vs ours {:.2e}):",
+        "\nORT {} (InferenceSession.run from Python, {} runs; max abs diff vs ours {:.2e}):",
         ort["ort_version"].as_str().unwrap_or("?"),
         ort["iters"],
         ort["ref_max_abs_err"].as_f64().unwrap_or(f64::NAN)

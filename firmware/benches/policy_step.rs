@@ -1,4 +1,4 @@
-//! Peer-policy step latency: our `firmware::nn` executor versus ONNX Runtime on the same network.
+//! Peer-policy step latency: our `control::nn` executor versus ONNX Runtime on the same network.
 //!
 //! Plain bench binary (`harness = false`): `cargo bench -p firmware --bench policy_step`.
 //! Times every step individually after warm-up and prints median/p99; then runs
@@ -10,7 +10,7 @@
 mod common;
 
 use common::{loud, percentile, workspace_root};
-use firmware::nn::{Network, NetworkDesc};
+use control::nn::{Network, NetworkDesc};
 use std::ffi::OsStr;
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -101,7 +101,7 @@ fn main() {
         .unwrap_or_else(|| workspace_root().join("../shared"));
     let policy_dir = shared.join("peer_policy/unitree_g1_lstm");
     let spec = workspace_root().join("specs/peer/unitree_g1_lstm.toml");
-    let desc: NetworkDesc = firmware::spec::DeploySpec::load(&spec)
+    let desc: NetworkDesc = control::spec::DeploySpec::load(&spec)
         .expect("peer spec loads")
         .policy
         .network;
@@ -133,7 +133,7 @@ fn main() {
     let get = |k: &str| ort[k].as_f64().unwrap_or(f64::NAN);
     let (ort_med, ort_p99) = (get("median_us"), get("p99_us"));
     println!(
-        "ORT {} (1 thread, session.run from Python): median {:.3} us  p99 {:.3} us  min {:.3} us  [{} steps; golden max err {:.2e}]",
+        "ORT {} (1 thread, InferenceSession.run from Python): median {:.3} us  p99 {:.3} us  min {:.3} us  [{} steps; golden max err {:.2e}]",
         ort["ort_version"].as_str().unwrap_or("?"),
         ort_med,
         ort_p99,

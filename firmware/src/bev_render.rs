@@ -9,8 +9,8 @@ use base64::Engine as _;
 use plotters::prelude::*;
 use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CHANNELS, BEV_HALF_EXTENT_M, CHANNEL_NAMES, CH_DENSITY};
 
-use crate::log::channels as ch;
-use crate::log::LogFile;
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 
 /// What was drawn.
 #[derive(Debug, Clone, serde::Serialize)]

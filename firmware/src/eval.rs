@@ -26,10 +26,10 @@ use std::sync::{Arc, Mutex};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
-use crate::operator::CommandSchedule;
-use crate::perception::TerrainSource;
 use crate::sim_run::{run_sim, Heading, SimOptions};
-use crate::spec::DeploySpec;
+use control::operator::CommandSchedule;
+use control::perception::TerrainSource;
+use control::spec::DeploySpec;
 
 /// How long the base must stand on the end landing, s, before a stair episode counts as climbed
 /// (`--stop-after-landing`'s default, and the trainer's success: a policy that dives across the
@@ -263,7 +263,7 @@ pub fn run_eval(opts: &EvalOptions) -> Result<EvalReport> {
     if let Some(w) = &opts.weights {
         spec = spec.with_weights(w)?;
     }
-    crate::controller::Controller::new(spec.clone())
+    control::controller::Controller::new(spec.clone())
         .with_context(|| format!("loading the policy of {}", opts.spec.display()))?;
     let wall = std::time::Instant::now();
     let n = opts.episodes.len();

@@ -8,10 +8,10 @@ use anyhow::Result;
 use anyhow::{bail, Context};
 use serde::Serialize;
 
-use crate::log::channels as ch;
-use crate::log::LogFile;
 #[cfg(feature = "lab")]
 use crate::plot::{velocity_tracking_png, VelocitySeries};
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 
 #[derive(Debug, Serialize)]
 pub struct LogInfo {
@@ -26,13 +26,13 @@ pub struct LogInfo {
     /// Set when the log ends without its summary (the writer was killed).
     pub truncated: Option<String>,
     /// Set when the log fails a check; what is listed is what precedes the damage.
-    pub damaged: Option<crate::log::reader::Damage>,
+    pub damaged: Option<runlog::log::reader::Damage>,
 }
 
 pub fn log_info(path: &Path) -> Result<LogInfo> {
     let log = LogFile::open(path)?;
     let mut metadata = log.run_metadata()?;
-    if let Some(t) = metadata.get_mut(crate::replay::key::SPEC_TOML) {
+    if let Some(t) = metadata.get_mut(runlog::replay::key::SPEC_TOML) {
         *t = format!("<{} bytes of TOML>", t.len());
     }
     let mut messages = BTreeMap::new();

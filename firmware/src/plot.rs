@@ -185,7 +185,7 @@ pub fn ensure_font() -> Result<(), PlotError> {
     let mut rejected = Vec::new();
     for path in &candidates {
         // A font is a few MB; $G1_PLOT_FONT naming a FIFO or a device must not hang a plot.
-        let Ok(bytes) = crate::read_capped(path, 64 << 20) else {
+        let Ok(bytes) = input_file::read_capped(path, 64 << 20) else {
             continue;
         };
         // plotters keeps `&'static` font data; leaking is bounded by the READY guard.

@@ -16,17 +16,17 @@ use serde::Serialize;
 use hal::LIDAR_FRAME_CAP;
 use robot_io::UdpLidar;
 
-use crate::controller::Controller;
-use crate::lidar_source::WithLidar;
-use crate::log::RunMeta;
-use crate::log::{LogOptions, LogStats, Logger};
-use crate::operator::CommandSchedule;
-use crate::perception_worker::{PerceptionExec, DEFAULT_CONSUME_AFTER};
-use crate::replay::key;
 use crate::run_report::{SafetyReport, TripReport};
-use crate::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
-use crate::spec::DeploySpec;
+use control::controller::Controller;
+use control::lidar_source::WithLidar;
+use control::operator::CommandSchedule;
+use control::perception_worker::{PerceptionExec, DEFAULT_CONSUME_AFTER};
+use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
+use control::spec::DeploySpec;
 use hal::{LowLevel, TimeBase};
+use runlog::log::RunMeta;
+use runlog::log::{LogOptions, LogStats, Logger};
+use runlog::replay::key;
 
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -45,7 +45,7 @@ pub struct RunOptions {
     pub startup_timeout: Duration,
     pub log: Option<PathBuf>,
     pub log_options: LogOptions,
-    pub rt: crate::rt::RtOptions,
+    pub rt: control::rt::RtOptions,
     /// Stop when this becomes true (signal handlers set it); the motors are then damped.
     pub stop: Arc<AtomicBool>,
     /// The MID-360 over UDP (`None`: no lidar; perception, if the spec has it, sees no frames).
@@ -73,7 +73,7 @@ impl Default for RunOptions {
             startup_timeout: Duration::from_secs(10),
             log: None,
             log_options: LogOptions::default(),
-            rt: crate::rt::RtOptions::default(),
+            rt: control::rt::RtOptions::default(),
             stop: Arc::new(AtomicBool::new(false)),
             lidar: None,
             perception: PerceptionExec::Threaded {
@@ -404,7 +404,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
         Some(cfg) => Some(UdpLidar::<LIDAR_FRAME_CAP>::open(cfg.clone())?),
         None => None,
     };
-    crate::rt::apply(&opts.rt)?;
+    control::rt::apply(&opts.rt)?;
     let last_tick = opts.duration_s.map_or(u64::MAX, |d| (d / control_dt).round() as u64);
     let mut runtime = Runtime::new(controller);
     if !frozen_check {
@@ -501,7 +501,7 @@ fn run_hal<H: TimeBase + LowLevel + FrameSource>(
     let end_damping = damp_after_end(&mut hal, &runtime, mode_machine, period_ns, opts.end_damping);
     let (log, log_error) = match logger.map(|l| l.finish()) {
         Some(Ok(s)) => (Some(s), None),
-        Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
+        Some(Err(e)) => (None, Some(control::nn::with_causes(&e))),
         None => (None, None),
     };
     let end_text = describe_end(&end, variant_refusal.as_deref());

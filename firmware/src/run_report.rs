@@ -2,10 +2,10 @@
 //! safety counters, and the metadata that pins a log to its spec (replay checks it).
 use serde::Serialize;
 
-use crate::log::RunMeta;
-use crate::replay::key;
-use crate::runtime::{Overruns, Runtime};
-use crate::spec::DeploySpec;
+use control::runtime::{Overruns, Runtime};
+use control::spec::DeploySpec;
+use runlog::log::RunMeta;
+use runlog::replay::key;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct TripReport {
@@ -40,7 +40,7 @@ pub struct ModeChange {
 /// The run's changes of state, tick by tick (kept off the tick: the observer calls it after).
 #[derive(Clone, Debug, Default)]
 pub struct ModeChanges {
-    last: Option<crate::controller::Mode>,
+    last: Option<control::controller::Mode>,
     pub changes: Vec<ModeChange>,
 }
 
@@ -49,7 +49,7 @@ const MAX_MODE_CHANGES: usize = 1000;
 
 impl ModeChanges {
     /// Changes from `mode`, the run's state before its first tick.
-    pub fn starting(mode: crate::controller::Mode) -> Self {
+    pub fn starting(mode: control::controller::Mode) -> Self {
         Self {
             last: Some(mode),
             changes: Vec::new(),
@@ -60,7 +60,7 @@ impl ModeChanges {
     /// if the mode changed on this tick (the operator's terminal shows it).
     pub fn observe(
         &mut self,
-        s: &crate::runtime::TickSummary,
+        s: &control::runtime::TickSummary,
         control_dt: f64,
         operator: &'static str,
     ) -> Option<ModeChange> {
@@ -78,8 +78,8 @@ impl ModeChanges {
         let change = ModeChange {
             tick: s.tick.index,
             time_s: s.tick.index as f64 * control_dt,
-            from: crate::log::mode_name(prev),
-            to: crate::log::mode_name(s.mode),
+            from: runlog::log::mode_name(prev),
+            to: runlog::log::mode_name(s.mode),
             source,
         };
         if self.changes.len() < MAX_MODE_CHANGES {
@@ -128,7 +128,7 @@ pub fn spec_meta(spec: &DeploySpec, hold_only: bool) -> RunMeta {
     let mut m = RunMeta::default();
     m.set("firmware_version", env!("CARGO_PKG_VERSION"))
         .set(key::SPEC_PATH, spec.path.display())
-        .set(key::SPEC_SHA256, crate::nn::sha256_hex(spec.source_text.as_bytes()))
+        .set(key::SPEC_SHA256, control::nn::sha256_hex(spec.source_text.as_bytes()))
         .set(key::SPEC_TOML, &spec.source_text)
         .set(key::HOLD_ONLY, hold_only)
         .set(key::RAMP_S, spec.startup.ramp_s)

@@ -10,14 +10,14 @@ use serde::Serialize;
 use sha2::{Digest, Sha256};
 use sim_hal::bridge::{BridgeHal, SimLaunch, SimProcess, StairProgress, Truth, Wants};
 
-use crate::controller::{Controller, Mode};
-use crate::log::{LogOptions, LogStats, Logger, RunMeta};
-use crate::operator::{CommandSchedule, HeadingSource, OperatorInput, OperatorSource, ScheduleSource};
-use crate::perception::TerrainSource;
-use crate::replay::key;
 pub use crate::run_report::{spec_meta, SafetyReport, TripReport};
-use crate::runtime::{run_loop, LatencySummary, LoopEnd, Runtime, TickView};
-use crate::spec::DeploySpec;
+use control::controller::{Controller, Mode};
+use control::operator::{CommandSchedule, HeadingSource, OperatorInput, OperatorSource, ScheduleSource};
+use control::perception::TerrainSource;
+use control::runtime::{run_loop, LatencySummary, LoopEnd, Runtime, TickView};
+use control::spec::DeploySpec;
+use runlog::log::{LogOptions, LogStats, Logger, RunMeta};
+use runlog::replay::key;
 
 /// Everything `g1fw sim` needs besides the spec.
 #[derive(Clone, Debug)]
@@ -59,17 +59,17 @@ pub struct SimOptions {
     pub log: Option<PathBuf>,
     pub log_options: LogOptions,
     /// Real-time set-up of the control thread.
-    pub rt: crate::rt::RtOptions,
+    pub rt: control::rt::RtOptions,
     /// Where the policy's terrain token comes from (`None`: the spec's estimator).
     pub terrain_source: Option<TerrainSource>,
     /// Perception inline (default) or on a worker thread (waited for when late: simulation time
     /// does not run on while it computes, so the run stays deterministic).
-    pub perception: crate::perception_worker::PerceptionExec,
-    /// Heading correction: the schedule's vx with [`crate::operator::heading_command`] towards
+    pub perception: control::perception_worker::PerceptionExec,
+    /// Heading correction: the schedule's vx with [`control::operator::heading_command`] towards
     /// this target every tick (`None`: the schedule's commands as they are).
     pub heading: Option<Heading>,
     /// With a heading: also steer back to the line through the start along it, from the
-    /// estimator's position ([`crate::operator::line_heading`]).
+    /// estimator's position ([`control::operator::line_heading`]).
     pub hold_line: bool,
     /// Stop once the base has stood on the staircase's end landing this long (s), with no fall
     /// and no safety trip: the run has succeeded (saves time in evaluations).
@@ -144,9 +144,9 @@ impl Default for SimOptions {
             physics: None,
             log: None,
             log_options: LogOptions::default(),
-            rt: crate::rt::RtOptions::default(),
+            rt: control::rt::RtOptions::default(),
             terrain_source: None,
-            perception: crate::perception_worker::PerceptionExec::Inline,
+            perception: control::perception_worker::PerceptionExec::Inline,
             heading: None,
             hold_line: false,
             stop: Arc::new(AtomicBool::new(false)),
@@ -499,7 +499,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
         Some(path) => Some(Logger::create(path, &meta, obs_dim, act_dim, opts.log_options.clone())?),
         None => None,
     };
-    crate::rt::apply(&opts.rt)?;
+    control::rt::apply(&opts.rt)?;
 
     let total_ticks = (opts.duration_s / control_dt).round() as u64;
     let progress = opts.progress.then(|| progress_bar(opts.duration_s));
@@ -581,7 +581,7 @@ pub fn run_sim(mut spec: DeploySpec, opts: &SimOptions, mut observe: impl FnMut(
     // The log is closed on every path, so a failed run keeps everything it recorded.
     let (log_stats, log_error) = match logger.map(|l| l.finish()) {
         Some(Ok(s)) => (Some(s), None),
-        Some(Err(e)) => (None, Some(crate::nn::with_causes(&e))),
+        Some(Err(e)) => (None, Some(control::nn::with_causes(&e))),
         None => (None, None),
     };
     let end_text = describe_end(&end, opts, interrupted, landed, &gone)?;
@@ -786,7 +786,7 @@ fn run_meta(spec: &DeploySpec, opts: &SimOptions) -> RunMeta {
     if opts.operated {
         m.set(key::OPERATOR, "schedule");
     }
-    if opts.perception != crate::perception_worker::PerceptionExec::Inline {
+    if opts.perception != control::perception_worker::PerceptionExec::Inline {
         m.set(key::PERCEPTION_EXEC, opts.perception.label());
     }
     m.set("model", &opts.model)
@@ -999,7 +999,7 @@ impl EstimatorEval {
         let b = self
             .baseline
             .get_or_insert_with(|| DeadReckoning::new(Vector3::from(e.position.map(|x| x as f64))));
-        if v.summary.frame == crate::supervisor::FrameStatus::Fresh {
+        if v.summary.frame == control::supervisor::FrameStatus::Fresh {
             let steps = self.last_tick.map_or(1, |l| k.saturating_sub(l).max(1));
             if self.last_tick != Some(k) {
                 b.step(steps as f64 * self.dt, &rot, &acc);

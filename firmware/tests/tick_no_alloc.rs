@@ -4,16 +4,16 @@
 //! hold, policy, an operator e-stop (damping) and a reset back through start-up.
 // Test inputs come from std's math on the host; this never runs on the robot.
 #![allow(clippy::disallowed_methods)]
-use firmware::alloc_probe::{counts, CountingAlloc};
+use control::alloc_probe::{counts, CountingAlloc};
 use std::path::Path;
 
-use firmware::controller::{Controller, Mode};
-use firmware::log::{LogOptions, Logger, RunMeta};
-use firmware::operator::{CommandSchedule, OperatorSource};
-use firmware::perception_worker::PerceptionExec;
-use firmware::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
-use firmware::spec::DeploySpec;
+use control::controller::{Controller, Mode};
+use control::operator::{CommandSchedule, OperatorSource};
+use control::perception_worker::PerceptionExec;
+use control::runtime::{run_loop, FrameSource, LoopEnd, Runtime};
+use control::spec::DeploySpec;
 use hal::{LowCommand, LowLevel, LowState, TickTime, TimeBase};
+use runlog::log::{LogOptions, Logger, RunMeta};
 use sensor_io::unitree_hg::{decode_low_state, encode_low_state, DecodeError, LOW_STATE_LEN};
 
 #[global_allocator]
@@ -323,7 +323,7 @@ fn threaded_perception_tick_path_does_not_allocate() {
 }
 
 fn udp_lidar_ticks(exec: PerceptionExec) -> PerceptionSeen {
-    use firmware::lidar_source::WithLidar;
+    use control::lidar_source::WithLidar;
     use robot_io::{UdpLidar, UdpLidarConfig};
     use std::sync::atomic::{AtomicBool, Ordering};
     let lidar = UdpLidar::<{ hal::LIDAR_FRAME_CAP }>::open(UdpLidarConfig {

@@ -1,8 +1,8 @@
-//! The command envelope, the last check before the motors, on any LowCmd (`firmware::envelope::fuzz_command_envelope` holds the invariants).
+//! The command envelope, the last check before the motors, on any LowCmd (`control::envelope::fuzz_command_envelope` holds the invariants).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    firmware::envelope::fuzz_command_envelope(data);
+    control::envelope::fuzz_command_envelope(data);
 });

@@ -1,9 +1,9 @@
-//! MCAP run logs read the way `g1fw replay` reads them (`firmware::log::reader::fuzz_log` holds the
+//! MCAP run logs read the way `g1fw replay` reads them (`runlog::log::reader::fuzz_log` holds the
 //! invariants).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    firmware::log::reader::fuzz_log(data);
+    runlog::log::reader::fuzz_log(data);
 });

@@ -1,5 +1,5 @@
 //! Bring your own policy: ONNX networks as rsl_rl, IsaacLab, unitree_rl_lab and mjlab export them,
-//! converted into what `g1fw` runs ([`firmware::nn::NetworkDesc`] + safetensors). See [`onnx`].
+//! converted into what `g1fw` runs ([`control::nn::NetworkDesc`] + safetensors). See [`onnx`].
 pub mod onnx;
 pub mod rl_lab;
 

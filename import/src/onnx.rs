@@ -28,7 +28,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use firmware::nn::{LayerDesc, NetworkDesc};
+use control::nn::{LayerDesc, NetworkDesc};
 use prost::Message;
 
 #[allow(clippy::all, clippy::pedantic, missing_docs)]
@@ -114,7 +114,7 @@ pub struct ImportedNetwork {
 pub fn import_file(path: &Path) -> Result<ImportedNetwork, ImportError> {
     // The firmware's capped read: refused from its size, and a growing file or a device is still
     // read only up to the limit.
-    let data = firmware::read_capped(path, MAX_ONNX_BYTES).map_err(|source| ImportError::Io {
+    let data = input_file::read_capped(path, MAX_ONNX_BYTES).map_err(|source| ImportError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -167,7 +167,7 @@ pub fn fuzz_onnx(data: &[u8]) {
     let Ok(weights) = net.safetensors_bytes() else {
         return;
     };
-    let mut loaded = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
+    let mut loaded = control::nn::Network::from_safetensors_bytes(&net.desc, &weights)
         .unwrap_or_else(|e| panic!("an imported network does not load: {e}"));
     assert_eq!(loaded.output_dim(), net.output_dim);
     let input = vec![0.5f32; loaded.input_dim()];
@@ -513,10 +513,10 @@ fn read_graph(model: &ModelProto, opset: i64) -> Result<Graph<'_>, ImportError> 
     }
     // The importer allocates vectors of this width (a broadcast normaliser); a declared shape is
     // not yet checked against any weight.
-    if let Some(n) = declared_input.filter(|&n| n > firmware::nn::MAX_ACTIVATION) {
+    if let Some(n) = declared_input.filter(|&n| n > control::nn::MAX_ACTIVATION) {
         return Err(ImportError::Graph(format!(
             "the input '{input_name}' declares {n} values, more than the {} the executor takes",
-            firmware::nn::MAX_ACTIVATION
+            control::nn::MAX_ACTIVATION
         )));
     }
     let output_name = g
@@ -1350,10 +1350,10 @@ fn lstm_hidden_size(at: &At) -> Result<usize, ImportError> {
     }
     // 8 · hidden values (both biases) must fit an activation; checked before any
     // arithmetic on it.
-    if hidden > firmware::nn::MAX_ACTIVATION / 8 {
+    if hidden > control::nn::MAX_ACTIVATION / 8 {
         return Err(bad(format!(
             "hidden_size {hidden} is more than the {} an LSTM here may have",
-            firmware::nn::MAX_ACTIVATION / 8
+            control::nn::MAX_ACTIVATION / 8
         )));
     }
     if let Some(d) = attr_s(node, "direction").filter(|d| d != "forward") {

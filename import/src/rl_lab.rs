@@ -341,7 +341,7 @@ pub struct Draft {
 
 /// deploy.yaml, size-capped and depth-checked, as a YAML mapping.
 fn read_deploy_yaml(deploy: &Path) -> Result<Value, DeployError> {
-    let text = firmware::read_text_capped(deploy, MAX_DEPLOY_YAML_BYTES).map_err(|e| DeployError::Io {
+    let text = input_file::read_text_capped(deploy, MAX_DEPLOY_YAML_BYTES).map_err(|e| DeployError::Io {
         path: deploy.display().to_string(),
         source: e,
     })?;

@@ -3,7 +3,7 @@
 
 Builds an ONNX graph of LSTM(47->64) -> Linear(64->32) -> ELU -> Linear(32->12) from
 policy.safetensors with onnx.helper, checks it reproduces golden_random actions (state carried
-from zero) to 1e-4, then times one stateful `session.run` per step on a single thread and prints
+from zero) to 1e-4, then times one stateful `InferenceSession.run` per step on a single thread and prints
 one JSON line: {"ort_version", "iters", "median_us", "p99_us", "mean_us", "golden_max_abs_err"}.
 
 h/c are graph inputs and outputs so the caller carries state between calls, as the policy does.

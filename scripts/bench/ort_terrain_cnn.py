@@ -4,7 +4,7 @@
 Builds an ONNX graph (Conv / Relu / Tanh / Elu / Flatten / Gemm) from a firmware::nn network
 description (JSON, as serde writes a NetworkDesc) and the same safetensors weights, checks that
 it reproduces a reference input/output pair computed by our executor (max abs diff <= --tol),
-then times `session.run` on one BEV with intra_op_num_threads=1 and with ORT's default threading,
+then times `InferenceSession.run` on one BEV with intra_op_num_threads=1 and with ORT's default threading,
 and prints one JSON line:
 
   {"ort_version", "iters", "ref_max_abs_err",
@@ -96,7 +96,7 @@ def build_model(desc: dict, w: dict) -> onnx.ModelProto:
     return model
 
 
-def session(model: onnx.ModelProto, single: bool) -> ort.InferenceSession:
+def inference(model: onnx.ModelProto, single: bool) -> ort.InferenceSession:
     so = ort.SessionOptions()
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     if single:
@@ -142,8 +142,8 @@ def main() -> int:
     x = ref["input"].astype(np.float32)
     want = ref["output"]
 
-    single = session(model, True)
-    default = session(model, False)
+    single = inference(model, True)
+    default = inference(model, False)
     errs = []
     for sess in (single, default):
         (got,) = sess.run(None, {"input": x})

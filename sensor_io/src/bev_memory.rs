@@ -100,8 +100,8 @@ pub fn parse_keyframes(s: &str) -> Result<usize, String> {
 /// Keyframes of the grids the firmware's built-in terrain network was trained on: the default of
 /// `[perception] bev_memory_keyframes`, of `g1-dataset export` and of `g1-train eval-terrain`, so
 /// all three agree with the committed weights. 0: the committed weights are single-frame (trained on
-/// 172 000 single-frame samples); a network trained on memory grids (4) is not yet better — see the
-/// README.
+/// 172 000 single-frame samples); a network trained on memory grids (4) is not yet better — see
+/// docs/results.md.
 pub const BUILTIN_NETWORK_KEYFRAMES: usize = 0;
 
 impl Default for MemoryConfig {

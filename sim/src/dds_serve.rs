@@ -25,7 +25,7 @@ use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, LOW_CMD_LEN, LOW_S
 
 use crate::Simulator;
 
-/// Base height under which the session counts the robot as fallen.
+/// Base height under which a DDS run counts the robot as fallen.
 pub const FELL_BELOW_M: f64 = 0.45;
 
 #[derive(Clone, Debug)]
@@ -45,7 +45,7 @@ pub struct DdsServeOptions {
     pub quiet: bool,
 }
 
-/// What a DDS session did (`g1-sim --dds` prints it as one JSON line).
+/// What a DDS run did (`g1-sim --dds` prints it as one JSON line).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct DdsSummary {
     pub ticks: u64,

@@ -79,7 +79,7 @@ pub struct FaultError {
 pub struct FaultSpec {
     pub kind: FaultKind,
     pub start_s: f64,
-    /// `None`: until the end of the session.
+    /// `None`: until the end of the run.
     pub duration_s: Option<f64>,
     /// The spec as given, for messages.
     pub text: String,
@@ -117,7 +117,7 @@ impl FaultSpec {
         };
         let start_s = seconds("start", start)?;
         if start_s < 0.0 {
-            return Err(err(format!("start {start_s} s is before the session starts (>= 0)")));
+            return Err(err(format!("start {start_s} s is before the run starts (>= 0)")));
         }
         let duration_s = duration.map(|d| seconds("duration", d)).transpose()?;
         if let Some(d) = duration_s {
@@ -178,7 +178,7 @@ impl FaultSpec {
     }
 }
 
-/// All `--fault` specs of a session. Empty (the default) means no fault injection at all.
+/// All `--fault` specs of a run. Empty (the default) means no fault injection at all.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FaultPlan {
     pub faults: Vec<FaultSpec>,
@@ -288,7 +288,7 @@ struct Active {
     frozen: Option<MotorState>,
 }
 
-/// Applies a plan tick by tick. Built once per session; nothing allocates per tick.
+/// Applies a plan tick by tick. Built once per run; nothing allocates per tick.
 pub struct FaultInjector {
     faults: Vec<Active>,
     /// Slots some motor fault touches; their driver state is recomputed every tick.
@@ -440,7 +440,7 @@ mod tests {
         for (spec, why) in [
             ("drop", "expected KIND@START_S"),
             ("drop@x", "start \"x\" is not a number"),
-            ("drop@-1", "before the session starts"),
+            ("drop@-1", "before the run starts"),
             ("drop@1+0", "must be > 0"),
             ("drop@1+nan", "duration \"nan\" is not a number"),
             ("drop@1:3", "'drop' takes no argument"),

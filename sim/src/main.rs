@@ -141,7 +141,7 @@ struct Cli {
     bench_bare: Option<f64>,
 }
 
-/// Exit status after a `disconnect` fault ended the session as planned.
+/// Exit status after a `disconnect` fault ended the connection as planned.
 const FAULT_DISCONNECT_EXIT: u8 = 4;
 
 fn bench_bare(sim: &mut Simulator, seconds: f64) -> Result<()> {
@@ -244,11 +244,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
         })?;
         if !quiet {
             eprintln!(
-                "g1-sim: DDS session ended after {} ticks ({:.3} s simulated; {} commands rejected, {} states resent)",
+                "g1-sim: DDS run ended after {} ticks ({:.3} s simulated; {} commands rejected, {} states resent)",
                 s.ticks, s.sim_time_s, s.rejected_commands, s.resent_states
             );
         }
-        // One JSON line on stdout: what a harness scores the session by.
+        // One JSON line on stdout: what a harness scores the run by.
         println!("{}", serde_json::to_string(&s)?);
         return Ok(ExitCode::SUCCESS);
     }
@@ -279,7 +279,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             Ok(match s.end {
                 // Distinct from a normal end so a harness can tell the planned cut from a crash
-                // or a clean session.
+                // or a clean end.
                 SessionEnd::FaultDisconnect => ExitCode::from(FAULT_DISCONNECT_EXIT),
                 SessionEnd::Bye | SessionEnd::Disconnected => ExitCode::SUCCESS,
             })

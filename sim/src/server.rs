@@ -1,12 +1,12 @@
 //! Server side of the bridge protocol (`sim_hal::bridge::protocol`): one client, lock-stepped.
 //!
 //! `Hello` → `Welcome`, initial `LowState` (+ `Truth` if asked); then per `LowCmd` one control
-//! tick → `LowState` (+ `Truth`); `Bye` or a clean disconnect ends the session. Any protocol
-//! violation is answered with an `Error` message naming it (best effort) before the session ends;
+//! tick → `LowState` (+ `Truth`); `Bye` or a clean disconnect ends the connection. Any protocol
+//! violation is answered with an `Error` message naming it (best effort) before the connection ends;
 //! [`ServeError::exit_code`] maps it to the process exit status (3 for a malformed `LowCmd`).
 //!
 //! [`ServeOptions::faults`] injects the faults of a [`FaultPlan`] on their ticks (see
-//! [`crate::faults`]); a `disconnect` fault ends the session with [`SessionEnd::FaultDisconnect`].
+//! [`crate::faults`]); a `disconnect` fault ends the connection with [`SessionEnd::FaultDisconnect`].
 use std::io::{self, BufReader, Read, Write};
 use std::net::{TcpListener, ToSocketAddrs};
 use std::os::unix::net::{UnixListener, UnixStream};
@@ -24,7 +24,7 @@ use sim_hal::bridge::{
 use crate::faults::{FaultInjector, FaultPlan, Wire};
 use crate::Simulator;
 
-/// Session settings.
+/// Settings of the served connection.
 #[derive(Clone, Debug)]
 pub struct ServeOptions {
     /// How long a read spins on a non-blocking socket before blocking. Saves the wake-up latency
@@ -46,7 +46,7 @@ impl Default for ServeOptions {
     }
 }
 
-/// How a session ended normally.
+/// How a connection ended normally.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SessionEnd {
     /// The client said `Bye`.
@@ -57,7 +57,7 @@ pub enum SessionEnd {
     FaultDisconnect,
 }
 
-/// Summary of a finished session.
+/// Summary of a finished connection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SessionSummary {
     pub end: SessionEnd,
@@ -65,7 +65,7 @@ pub struct SessionSummary {
     pub sim_time_s: f64,
 }
 
-/// Why a session failed.
+/// Why a connection failed.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     #[error("malformed LowCmd: {0}")]
@@ -134,7 +134,7 @@ impl<T: Read + Write> Write for Buffered<T> {
     }
 }
 
-/// Buffers reused for every message of a session.
+/// Buffers reused for every message of a connection.
 struct Bufs {
     payload: Vec<u8>,
     scratch: Vec<u8>,
@@ -197,7 +197,7 @@ pub fn serve_stream<S: Read + Write + Blocking>(
         state_bytes: [0; LOW_STATE_LEN],
         cmd: LowCommand::default(),
     };
-    let r = session(&mut s, sim, &mut b, &opts.faults);
+    let r = lockstep(&mut s, sim, &mut b, &opts.faults);
     if let Err(e) = &r {
         // The peer may be gone already (that is often why we failed); ignore send errors.
         if !matches!(
@@ -210,7 +210,7 @@ pub fn serve_stream<S: Read + Write + Blocking>(
     r
 }
 
-fn session<S: Read + Write>(
+fn lockstep<S: Read + Write>(
     s: &mut S,
     sim: &mut Simulator,
     b: &mut Bufs,

@@ -95,7 +95,7 @@ fn run_with(
     if failure.is_none() {
         hal.close();
     }
-    let summary = server.join().expect("server thread").expect("session ends cleanly");
+    let summary = server.join().expect("server thread").expect("connection ends cleanly");
     (obs, failure, summary)
 }
 

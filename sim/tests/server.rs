@@ -64,7 +64,7 @@ impl Client {
 }
 
 #[test]
-fn unix_socket_session_hello_lowcmd_lowstate_bye() {
+fn unix_socket_connection_hello_lowcmd_lowstate_bye() {
     let mut sim = load29();
     let hold = sim.hold_initial_pose_command();
     let path = sock_path("e2e");
@@ -125,7 +125,7 @@ fn malformed_lowcmd_gets_error_reply() {
 }
 
 #[test]
-fn client_disconnect_ends_session_cleanly() {
+fn client_disconnect_ends_connection_cleanly() {
     let mut sim = load29();
     let path = sock_path("disc");
     let p2 = path.clone();

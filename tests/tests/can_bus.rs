@@ -7,9 +7,9 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use firmware::operator::CommandSchedule;
+use control::operator::CommandSchedule;
+use control::spec::DeploySpec;
 use firmware::robot_run::{run_on, RunOptions, RunReport};
-use firmware::spec::DeploySpec;
 use integration_tests::*;
 use sensor_io::can::{decode_motor_rx, BusLayout, CanFrame, MotorRx, IMU_ACCEL_ID};
 use sim_hal::bridge::{SimLaunch, Wants};
@@ -395,7 +395,7 @@ fn same_inputs_give_the_same_commands_on_the_bus() {
     assert!(ca.len() > 12 * 900, "{}", ca.len());
     assert!(ca == cb, "the command frames differ between two identical runs");
     // And the log of a CAN run replays bit-exact through the same firmware code.
-    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    let rep = runlog::replay::replay(&log, &runlog::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
     assert!(
         rep.compared_commands >= 999 && rep.compared_policy_steps >= 60,
@@ -558,7 +558,7 @@ fn an_imu_that_stops_ends_the_run_in_damping() {
     // (The emulator, stepping on commands, serves the end's damping rounds too: it no longer goes
     // quiet after the IMU's last sample.)
     // Nothing already logged is lost: the log closes and replays to its last tick.
-    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    let rep = runlog::replay::replay(&log, &runlog::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none(), "{}", rep.divergence.unwrap());
     assert!(rep.compared_commands >= 700, "{rep:?}");
 }
@@ -597,7 +597,7 @@ fn a_panic_in_the_control_loop_damps_every_motor() {
     );
     assert!(r.fw.end_damping.sent >= 500);
     assert!(walk.iter().filter(|c| c.0 > 500).all(|&(_, _, kp, _)| kp > 0.0));
-    let rep = firmware::replay::replay(&log, &firmware::replay::ReplayOptions::default()).expect("replay");
+    let rep = runlog::replay::replay(&log, &runlog::replay::ReplayOptions::default()).expect("replay");
     assert!(rep.divergence.is_none() && rep.damaged.is_none(), "{rep:?}");
     assert!(rep.compared_commands >= 600, "{rep:?}");
 }

@@ -2,8 +2,8 @@
 //! perturbed weight file makes the replay fail naming the first divergent tick, channel and field.
 use std::path::PathBuf;
 
-use firmware::replay::{replay, ReplayOptions};
 use integration_tests::*;
+use runlog::replay::{replay, ReplayOptions};
 
 fn corpus() -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = std::fs::read_dir(repo_root().join("tests/corpus"))

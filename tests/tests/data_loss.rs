@@ -6,8 +6,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::LogFile;
 
 /// Children of `pid` (from /proc).
 fn children(pid: u32) -> Vec<u32> {

@@ -89,8 +89,8 @@ struct Outcome {
 
 /// The spec's gains per enabled slot, as the peer reads them.
 fn gains_file(dir: &Path) -> PathBuf {
-    let spec = firmware::spec::DeploySpec::load(&peer_spec_path()).expect("spec");
-    let controller = firmware::controller::Controller::new(spec).expect("controller");
+    let spec = control::spec::DeploySpec::load(&peer_spec_path()).expect("spec");
+    let controller = control::controller::Controller::new(spec).expect("controller");
     let mut text = String::new();
     for (slot, g) in controller.gain_table().iter().enumerate() {
         if let Some(g) = g {
@@ -438,7 +438,7 @@ fn the_stair_policy_runs_over_dds_with_the_mid360_over_udp() {
         "127.0.0.1:56301",
         "--lidar-from",
         "any",
-        // The speed the stair policy is judged at (docs/stair_results.md): at 0.4 m/s the
+        // The speed the stair policy is judged at (docs/results.md): at 0.4 m/s the
         // committed actor stalls at the first 5 cm riser and trips on knee speed after 4.3 s,
         // with or without DDS (`g1fw sim` does the same).
         "--cmd",

@@ -1,9 +1,9 @@
 //! State estimator acceptance: the peer policy walks 20 s (vx 0.5, then turning at wz 0.5) on the
 //! 12-dof model, with and without realistic IMU errors, and the firmware's estimate is judged
 //! against the simulator's ground truth beside the naive baseline (integrated accelerometer).
-use firmware::operator::CommandSchedule;
+use control::operator::CommandSchedule;
+use control::spec::DeploySpec;
 use firmware::sim_run::{run_sim, Report, SimOptions};
-use firmware::spec::DeploySpec;
 use integration_tests::*;
 
 fn walk(cmd: [f32; 3], imu_noise: Option<&str>) -> Option<Report> {

@@ -3,12 +3,12 @@
 //! the trip with its reason. Every fault starts at t = 1.5 s (tick 750), with the policy walking.
 use std::path::Path;
 
-use firmware::log::channels as ch;
-use firmware::log::LogFile;
-use firmware::operator::CommandSchedule;
+use control::operator::CommandSchedule;
+use control::spec::DeploySpec;
 use firmware::sim_run::{run_sim, Report, SimOptions};
-use firmware::spec::DeploySpec;
 use integration_tests::*;
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 
 const FAULT_TICK: u64 = 750;
 

@@ -166,12 +166,12 @@ fn bridge_protocol() {
 
 #[test]
 fn deploy_spec() {
-    smoke("deploy_spec", firmware::controller::fuzz_deploy_spec);
+    smoke("deploy_spec", control::controller::fuzz_deploy_spec);
 }
 
 #[test]
 fn command_envelope() {
-    smoke("command_envelope", firmware::envelope::fuzz_command_envelope);
+    smoke("command_envelope", control::envelope::fuzz_command_envelope);
 }
 
 #[test]
@@ -181,7 +181,7 @@ fn onnx_import() {
 
 #[test]
 fn mcap_log() {
-    smoke("mcap_log", firmware::log::reader::fuzz_log);
+    smoke("mcap_log", runlog::log::reader::fuzz_log);
 }
 
 /// Every target of fuzz/Cargo.toml has a smoke test here (a new target cannot be forgotten).
@@ -380,7 +380,7 @@ mod gen {
         bp::append_msg(&mut s, bp::Kind::Bye, &[]);
         let mut err = Vec::new();
         bp::append_msg(&mut err, bp::Kind::Error, b"model not found");
-        vec![("session", s), ("error", err)]
+        vec![("exchange", s), ("error", err)]
     }
 
     /// A 12-joint spec small enough to carry its weights (after a NUL) in a few KB.
@@ -489,7 +489,7 @@ terms = [
             })
             .collect();
         let weights = safetensors::serialize(views, &None).unwrap();
-        firmware::spec::DeploySpec::from_toml(spec, Path::new("/nonexistent/spec.toml"))
+        control::spec::DeploySpec::from_toml(spec, Path::new("/nonexistent/spec.toml"))
             .expect("the seed spec is valid");
         let mut out = vec![("small_with_weights", [spec.as_bytes(), b"\0", &weights].concat())];
         for (name, file) in [
@@ -505,7 +505,7 @@ terms = [
     /// lz4-chunked as g1fw writes them and uncompressed, plus one cut short as a killed writer
     /// leaves it.
     pub fn mcap_log() -> Vec<(&'static str, Vec<u8>)> {
-        use firmware::log::channels as ch;
+        use runlog::log::channels as ch;
         let write = |compression: Option<mcap::Compression>| {
             let mut out = std::io::Cursor::new(Vec::new());
             let mut w = mcap::WriteOptions::new()
@@ -553,7 +553,7 @@ terms = [
         };
         let lz4 = write(Some(mcap::Compression::Lz4));
         for bytes in [&lz4, &write(None)] {
-            let log = firmware::log::LogFile::from_bytes(Path::new("seed.mcap"), bytes.clone()).unwrap();
+            let log = runlog::log::LogFile::from_bytes(Path::new("seed.mcap"), bytes.clone()).unwrap();
             log.run_metadata().expect("the seed has run metadata");
             assert_eq!(log.scan(|_, _, _| {}).messages, 6, "the seed's messages read back");
         }

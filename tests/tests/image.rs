@@ -116,7 +116,7 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
     pack(&b);
     let bytes = std::fs::read(&a).unwrap();
     assert!(bytes == std::fs::read(&b).unwrap(), "two packs differ");
-    let sha = firmware::nn::sha256_hex(&bytes);
+    let sha = control::nn::sha256_hex(&bytes);
     assert!(
         said.contains(&format!("sha256 {sha}")),
         "xtask printed no/the wrong sha256:\n{said}"
@@ -280,7 +280,7 @@ fn deploy_image_is_reproducible_complete_and_runs_under_qemu() {
         String::from_utf8_lossy(&c.stderr)
     );
     assert!(
-        said.contains("ok: unitree_g1_lstm") && said.contains(&firmware::nn::sha256_hex(&policy)),
+        said.contains("ok: unitree_g1_lstm") && said.contains(&control::nn::sha256_hex(&policy)),
         "{said}"
     );
     // It read the image's weights: without them it fails.

@@ -16,17 +16,18 @@ fn tmux(args: &[&str]) -> std::process::Output {
     Command::new("tmux").args(args).output().expect("tmux runs")
 }
 
-/// Kills the tmux session on drop (a failing test leaves no pane behind).
-struct Session(String);
+/// A detached tmux pane, named; killed on drop (a failing test leaves no pane behind).
+/// tmux commands by their aliases: `new` starts one, `kill-ses` ends it.
+struct Pane(String);
 
-impl Drop for Session {
+impl Drop for Pane {
     fn drop(&mut self) {
-        let _ = tmux(&["kill-session", "-t", &self.0]);
+        let _ = tmux(&["kill-ses", "-t", &self.0]);
     }
 }
 
-impl Session {
-    fn pane(&self) -> String {
+impl Pane {
+    fn screen(&self) -> String {
         String::from_utf8_lossy(&tmux(&["capture-pane", "-p", "-t", &self.0]).stdout).to_string()
     }
 
@@ -85,18 +86,18 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
         log = log.display(),
         stderr = dir.join("stderr.txt").display(),
     );
-    let session = Session(format!("g1kbd-{}", std::process::id()));
-    let started = tmux(&["new-session", "-d", "-s", &session.0, "-x", "160", "-y", "48", &run]);
+    let tmux_pane = Pane(format!("g1kbd-{}", std::process::id()));
+    let started = tmux(&["new", "-d", "-s", &tmux_pane.0, "-x", "160", "-y", "48", &run]);
     assert!(started.status.success(), "{}", String::from_utf8_lossy(&started.stderr));
     // The card of keys goes to stderr (a file here) once the first state has come.
     let stderr_path = dir.join("stderr.txt");
     let t0 = Instant::now();
     while !std::fs::read_to_string(&stderr_path).is_ok_and(|s| s.contains("keyboard operator:")) {
         assert!(
-            t0.elapsed() < Duration::from_secs(30) && !session.pane().contains("exited"),
+            t0.elapsed() < Duration::from_secs(30) && !tmux_pane.screen().contains("exited"),
             "g1fw never printed its keys: {:?}\npane:\n{}",
             std::fs::read_to_string(&stderr_path),
-            session.pane()
+            tmux_pane.screen()
         );
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -110,38 +111,38 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
                 return;
             }
             assert!(
-                t0.elapsed() < Duration::from_secs(20) && !session.pane().contains("exited"),
+                t0.elapsed() < Duration::from_secs(20) && !tmux_pane.screen().contains("exited"),
                 "waited for `{text}` ({times}×):\n{err}\npane:\n{}",
-                session.pane()
+                tmux_pane.screen()
             );
             std::thread::sleep(Duration::from_millis(20));
         }
     };
-    session.keys("0"); // stand up: the ramp to the default pose, then standing
+    tmux_pane.keys("0"); // stand up: the ramp to the default pose, then standing
     seen("→ stand (ramp)", 1);
-    session.keys("1wwwww"); // walk, at 0.5 m/s
+    tmux_pane.keys("1wwwww"); // walk, at 0.5 m/s
     seen("→ policy (keyboard)", 1);
     std::thread::sleep(Duration::from_secs(5));
-    session.keys(" "); // stop walking, as an operator does before standing the robot still
+    tmux_pane.keys(" "); // stop walking, as an operator does before standing the robot still
     std::thread::sleep(Duration::from_secs(1));
-    session.keys("2"); // stand
+    tmux_pane.keys("2"); // stand
     seen("→ stand (ramp)", 2);
-    session.keys("9"); // sit down, then passive by itself
+    tmux_pane.keys("9"); // sit down, then passive by itself
     seen("→ passive (ramp)", 1);
     assert!(
-        tmux(&["send-keys", "-t", &session.0, "C-c"]).status.success(),
+        tmux(&["send-keys", "-t", &tmux_pane.0, "C-c"]).status.success(),
         "Ctrl-C ends the run"
     );
     let t0 = Instant::now();
-    while !session.pane().contains("exited") {
+    while !tmux_pane.screen().contains("exited") {
         assert!(
             t0.elapsed() < Duration::from_secs(30),
             "g1fw did not end:\n{}",
-            session.pane()
+            tmux_pane.screen()
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    let pane = session.pane();
+    let pane = tmux_pane.screen();
     let stderr = std::fs::read_to_string(&stderr_path).unwrap_or_default();
     let r = read_json(&report);
     let sim = sim.wait_json("g1-sim --dds --dds-free-run");
@@ -176,7 +177,7 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
     let x = sim["base_travel_m"][0].as_f64().unwrap();
     assert!(x > 1.5, "walked {x} m: {ctx}");
     // The log names where the requests came from.
-    let meta = firmware::log::LogFile::open(&log).unwrap().run_metadata().unwrap();
+    let meta = runlog::log::LogFile::open(&log).unwrap().run_metadata().unwrap();
     assert_eq!(meta.get("operator").map(String::as_str), Some("keyboard"), "{meta:?}");
     let replay = integration_tests::g1fw(&["replay", log.to_str().unwrap()]);
     assert!(

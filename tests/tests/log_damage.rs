@@ -3,10 +3,10 @@
 //! allocates what a flipped length field claims.
 use std::path::Path;
 
-use firmware::log::reader::{LogFile, ReadError, MAX_CHUNK_BYTES};
-use firmware::replay::{replay, ReplayOptions};
 use hal::XorShift64 as Rng;
 use integration_tests::*;
+use runlog::log::reader::{LogFile, ReadError, MAX_CHUNK_BYTES};
+use runlog::replay::{replay, ReplayOptions};
 
 const LOG: &str = "tests/corpus/rl_lab_estop_29dof.mcap";
 

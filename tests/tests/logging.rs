@@ -5,8 +5,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::LogFile;
 
 /// Ticks per chunk the logger flushes (LogOptions::default).
 const FLUSH_EVERY: u64 = 250;
@@ -15,9 +15,9 @@ fn rust_ticks(path: &Path) -> (Vec<u64>, Option<String>) {
     let log = LogFile::open(path).expect("opens");
     let mut ticks = Vec::new();
     let end = log.scan(|topic, _, data| {
-        if topic == firmware::log::channels::LOW_STATE {
+        if topic == runlog::log::channels::LOW_STATE {
             ticks.push(
-                firmware::log::channels::decode_low_state_frame(data)
+                runlog::log::channels::decode_low_state_frame(data)
                     .expect("decodes")
                     .tick,
             );

@@ -30,7 +30,7 @@ fn models(dir: &Path) -> Option<serde_json::Value> {
 fn max_error(dir: &Path, name: &str, reference: &serde_json::Value) -> f64 {
     let net = policy_import::import_file(&dir.join(format!("{name}.onnx"))).expect("imports");
     let bytes = net.safetensors_bytes().unwrap();
-    let mut exec = firmware::nn::Network::from_safetensors_bytes(&net.desc, &bytes).expect("loads");
+    let mut exec = control::nn::Network::from_safetensors_bytes(&net.desc, &bytes).expect("loads");
     let mut out = vec![0f32; exec.output_dim()];
     let mut worst = 0f64;
     let ins = reference["inputs"].as_array().unwrap();
@@ -91,11 +91,11 @@ fn the_peer_walker_reexported_to_onnx_equals_its_spec() {
     }
     let dir = scratch_dir("onnx-peer");
     let Some(_) = models(&dir) else { return };
-    let spec = firmware::spec::DeploySpec::load(&repo_root().join("specs/peer/unitree_g1_lstm.toml")).unwrap();
-    let mut original = firmware::nn::Network::load(&spec.policy.network, &spec.weights_path()).unwrap();
+    let spec = control::spec::DeploySpec::load(&repo_root().join("specs/peer/unitree_g1_lstm.toml")).unwrap();
+    let mut original = control::nn::Network::load(&spec.policy.network, &spec.weights_path()).unwrap();
     let net = policy_import::import_file(&dir.join("peer.onnx")).unwrap();
     let mut imported =
-        firmware::nn::Network::from_safetensors_bytes(&net.desc, &net.safetensors_bytes().unwrap()).unwrap();
+        control::nn::Network::from_safetensors_bytes(&net.desc, &net.safetensors_bytes().unwrap()).unwrap();
     assert_eq!(imported.input_dim(), 47);
     let (mut a, mut b) = (vec![0f32; 12], vec![0f32; 12]);
     let mut rng = hal::XorShift64(7);
@@ -144,7 +144,7 @@ fn a_refused_op_and_a_truncated_file_say_what_is_wrong() {
         let e = policy_import::import_file(&dir.join(format!("lstm_{variant}.onnx")))
             .map(|_| ())
             .unwrap_err();
-        let e = firmware::nn::with_causes(&e);
+        let e = control::nn::with_causes(&e);
         assert!(e.contains(says), "{variant}: {e}");
     }
 }
@@ -191,8 +191,8 @@ fn an_rl_lab_export_imports_into_the_hand_checked_spec_and_walks() {
         "{text}"
     );
 
-    let hand = firmware::spec::DeploySpec::load(&repo_root().join("specs/peer/unitree_g1_lstm.toml")).unwrap();
-    let imp = firmware::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
+    let hand = control::spec::DeploySpec::load(&repo_root().join("specs/peer/unitree_g1_lstm.toml")).unwrap();
+    let imp = control::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
     let (h, i) = (&hand.policy, &imp.policy);
     assert_eq!(i.joint_ids_map, h.joint_ids_map);
     assert_eq!(i.joint_names, h.joint_names);
@@ -331,10 +331,10 @@ fn an_onnx_with_mjlab_metadata_imports() {
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("policy.toml"), &imp.spec_toml).unwrap();
     std::fs::write(out.join("policy.safetensors"), &imp.weights).unwrap();
-    let spec = firmware::spec::DeploySpec::load(&out.join("policy.toml")).expect("the spec loads");
+    let spec = control::spec::DeploySpec::load(&out.join("policy.toml")).expect("the spec loads");
     assert_eq!(spec.observation_dim(), 45);
     assert_eq!(spec.motor_table().kd[29..], [0.0; 6]);
-    firmware::controller::Controller::new(spec).expect("the policy loads");
+    control::controller::Controller::new(spec).expect("the policy loads");
 
     let e = policy_import::import_onnx_metadata(&dir.join("mjlab_bad.onnx"), &Default::default())
         .err()
@@ -374,7 +374,7 @@ fn an_rl_lab_29dof_export_imports() {
     let text = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
     assert!(text.contains("warning: left_wrist_pitch: kd 10"), "{text}");
-    let spec = firmware::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
+    let spec = control::spec::DeploySpec::load(&out.join("policy.toml")).unwrap();
     assert_eq!(spec.observation_dim(), 480);
     assert_eq!(spec.num_joints(), 29);
     let p = &spec.policy;
@@ -388,7 +388,7 @@ fn an_rl_lab_29dof_export_imports() {
     assert_eq!(t[4].clip_before_scale, Some([-50.0, 50.0]));
     assert!(t.iter().all(|t| t.history == 5));
     assert_eq!(spec.commands.max, Some([1.0, 0.3, 0.2]));
-    firmware::controller::Controller::new(spec).expect("loads");
+    control::controller::Controller::new(spec).expect("loads");
 }
 
 /// Issue 30: an import never overwrites its own input (`--force` or not), and an imported spec

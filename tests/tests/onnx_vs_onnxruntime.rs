@@ -46,7 +46,7 @@ fn max_error(dir: &Path, m: &serde_json::Value) -> Result<f64, String> {
     let name = m["name"].as_str().unwrap();
     let net = policy_import::import_file(&dir.join(format!("{name}.onnx"))).map_err(|e| e.to_string())?;
     let bytes = net.safetensors_bytes().unwrap();
-    let mut exec = firmware::nn::Network::from_safetensors_bytes(&net.desc, &bytes)
+    let mut exec = control::nn::Network::from_safetensors_bytes(&net.desc, &bytes)
         .unwrap_or_else(|e| panic!("{name}: the imported network does not load: {e}"));
     let mut out = vec![0f32; exec.output_dim()];
     let mut worst = 0f64;

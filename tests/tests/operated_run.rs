@@ -1,8 +1,8 @@
 //! An operated run in the simulator, as an operator drives the robot: passive at start, then the
 //! schedule's requests (what the remote's buttons will send) stand it up, walk it 3 m, stand it and
 //! sit it down to passive. Every change of state is in the log, and the run replays bit for bit.
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::LogFile;
 
 #[test]
 fn the_operator_stands_walks_stands_and_sits_the_robot_and_replay_agrees() {

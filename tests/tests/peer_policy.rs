@@ -1,7 +1,7 @@
 //! The peer policy (Unitree's G1 LSTM walker) end to end: firmware ⇄ bridge ⇄ MuJoCo.
-use firmware::operator::CommandSchedule;
+use control::operator::CommandSchedule;
+use control::spec::DeploySpec;
 use firmware::sim_run::{run_sim, Report, SimOptions};
-use firmware::spec::DeploySpec;
 use integration_tests::*;
 
 fn run(model: &str, cmd: [f32; 3], duration_s: f64) -> Report {

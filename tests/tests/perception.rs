@@ -5,9 +5,9 @@
 use std::process::Command;
 
 use firmware::bev_render::grid_from_foxglove;
-use firmware::log::channels as ch;
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 use sensor_io::bev::{BevGrid, BEV_CELLS, CH_MAX, CH_MEAN};
 
 fn run(world: &str, log: Option<&std::path::Path>, report: &std::path::Path) -> serde_json::Value {

@@ -8,13 +8,13 @@
 //! variant of it that observes the terrain token), so it needs nothing from ../shared.
 // Integration tests never run on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
-use firmware::alloc_probe::{counts, CountingAlloc};
+use control::alloc_probe::{counts, CountingAlloc};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use firmware::log::channels as ch;
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 
 /// The rl_lab-style spec with the terrain token in its observation: the velocity command keeps one
 /// frame instead of five, and three frames of the token (12 values) take the other 12, so the
@@ -292,11 +292,11 @@ impl hal::LowLevel for LidarHal {
     }
 }
 
-impl firmware::runtime::FrameSource for LidarHal {
+impl control::runtime::FrameSource for LidarHal {
     fn received_frame(&self) -> Option<&[u8]> {
         Some(&self.frame)
     }
-    fn read_lidar(&mut self, out: &mut firmware::perception::LidarFrame) -> bool {
+    fn read_lidar(&mut self, out: &mut control::perception::LidarFrame) -> bool {
         // A grid of returns ahead of the sensor, varying per frame (the sensor frame of the
         // upside-down mount does not matter for allocation).
         out.clear(self.k * 2_000_000);
@@ -355,19 +355,19 @@ fn synthetic_point(i: usize) -> hal::LidarPoint {
 
 #[test]
 fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
-    use firmware::controller::Controller;
-    use firmware::log::{LogOptions, Logger, RunMeta};
-    use firmware::runtime::{run_loop, LoopEnd, Runtime};
+    use control::controller::Controller;
+    use control::runtime::{run_loop, LoopEnd, Runtime};
+    use runlog::log::{LogOptions, Logger, RunMeta};
 
     let dir = scratch_dir("replay-lidar-noalloc");
-    let spec = firmware::spec::DeploySpec::load(&terrain_spec(&dir)).expect("spec loads");
+    let spec = control::spec::DeploySpec::load(&terrain_spec(&dir)).expect("spec loads");
     let (obs, act) = (spec.observation_dim(), spec.num_joints());
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
     let log = dir.join("noalloc.mcap");
     let mut logger = Logger::create(&log, &RunMeta::default(), obs, act, LogOptions::default()).unwrap();
-    let schedule = firmware::operator::CommandSchedule::constant([0.0; 3]);
+    let schedule = control::operator::CommandSchedule::constant([0.0; 3]);
     let mut operator = schedule.source(2_000_000);
-    let _ = firmware::operator::OperatorSource::at(&mut operator, hal::TickTime::default());
+    let _ = control::operator::OperatorSource::at(&mut operator, hal::TickTime::default());
     let mut operator = schedule.source(2_000_000);
     let mut hal = LidarHal::new(false);
     let n = 3_000u64;
@@ -390,7 +390,7 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
     logger.finish().unwrap();
     // Every frame reached the log, exactly as delivered.
     let file = LogFile::open(&log).unwrap();
-    let mut frame: Box<firmware::perception::LidarFrame> = sensor_io::livox::boxed_point_frame();
+    let mut frame: Box<control::perception::LidarFrame> = sensor_io::livox::boxed_point_frame();
     let mut logged = 0u64;
     file.scan(|topic, _, data| {
         if topic == ch::LIDAR_FRAME {
@@ -414,13 +414,13 @@ fn tick_path_with_lidar_frames_and_logging_does_not_allocate() {
 /// from that tick's observation and present in the next policy step's).
 #[test]
 fn a_new_terrain_token_reaches_the_policy_at_the_next_policy_step() {
-    use firmware::controller::Controller;
-    use firmware::runtime::{run_loop, Runtime};
+    use control::controller::Controller;
+    use control::runtime::{run_loop, Runtime};
 
     let dir = scratch_dir("token-latency");
-    let spec = firmware::spec::DeploySpec::load(&terrain_spec(&dir)).expect("spec loads");
+    let spec = control::spec::DeploySpec::load(&terrain_spec(&dir)).expect("spec loads");
     let mut rt = Runtime::new(Controller::new(spec).expect("controller builds"));
-    let schedule = firmware::operator::CommandSchedule::constant([0.0; 3]);
+    let schedule = control::operator::CommandSchedule::constant([0.0; 3]);
     let mut operator = schedule.source(2_000_000);
     let mut hal = LidarHal::new(true);
     let mut tokens: Vec<(u64, u32)> = Vec::new();

@@ -6,9 +6,9 @@
 #![allow(clippy::disallowed_methods)]
 use std::path::Path;
 
-use firmware::log::channels as ch;
-use firmware::log::LogFile;
 use integration_tests::*;
+use runlog::log::channels as ch;
+use runlog::log::LogFile;
 
 fn ok(out: &std::process::Output, what: &str) {
     assert!(
@@ -194,7 +194,7 @@ fn hold_line_brings_the_robot_back_to_the_line_heading_hold_leaves_it_beside() {
         assert_eq!(r["fell"], false, "{extra:?}");
         let (x, y) = (r["distance_x_m"].as_f64().unwrap(), r["distance_y_m"].as_f64().unwrap());
         // Signed distance to the left of the line through the start along 30°.
-        firmware::operator::left_of_line(30f32.to_radians(), x as f32, y as f32)
+        control::operator::left_of_line(30f32.to_radians(), x as f32, y as f32)
     };
     let heading_only = off_line(&[]);
     let held = off_line(&["--hold-line"]);

@@ -79,7 +79,7 @@ fn stair_policy_short_staircase_through_g1fw_with_the_cnn_token() {
     // on the approach (before the first riser) the CNN's class is the truth's in most frames.
     let mut most = 0;
     let (mut perceived, mut truth) = (std::collections::BTreeMap::new(), std::collections::BTreeMap::new());
-    firmware::log::LogFile::open(&log).expect("log").scan(|topic, _, data| {
+    runlog::log::LogFile::open(&log).expect("log").scan(|topic, _, data| {
         let v: serde_json::Value = serde_json::from_slice(data).unwrap_or_default();
         match topic {
             "/sim/truth" => most = most.max(v["stairs"]["risers_passed"].as_u64().unwrap_or(0)),

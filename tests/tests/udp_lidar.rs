@@ -5,8 +5,8 @@
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 use std::time::Duration;
 
-use firmware::perception::Perception;
-use firmware::spec::DeploySpec;
+use control::perception::Perception;
+use control::spec::DeploySpec;
 use hal::{Lidar, LowCommand, LowLevel, LowState, TimeBase};
 use integration_tests::*;
 use robot_io::{UdpLidar, UdpLidarConfig};
@@ -43,7 +43,7 @@ fn udp_lidar_gives_the_bridge_paths_frames_and_tokens() {
     let spec = DeploySpec::load(&repo_root().join("specs/stairs/g1_stairs_lstm.toml")).expect("stair spec");
     let mut via_bridge = Perception::new(&spec.perception, &spec.base_dir);
     let mut via_udp = Perception::new(&spec.perception, &spec.base_dir);
-    let est = firmware::runtime::Estimate::default();
+    let est = control::runtime::Estimate::default();
     let (mut frame_a, mut frame_b) = (
         boxed_point_frame::<LIDAR_FRAME_CAP>(),
         boxed_point_frame::<LIDAR_FRAME_CAP>(),

@@ -18,7 +18,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use firmware::spec::DeploySpec;
+use control::spec::DeploySpec;
 use g1_sim::world::World;
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use train::ppo::env::{EnvConfig, EnvSettings, StairEnv, Timing, PHYSICS_DT};

@@ -10,7 +10,7 @@
 //!
 //! Nothing here re-implements the robot side: grids come from `sensor_io::bev` (through the
 //! dataset renderer), outputs are decoded by `estimator::terrain_cnn`, and evaluation runs the
-//! exported network in `firmware::nn`, the code the robot runs.
+//! exported network in `control::nn`, the code the robot runs.
 // The trainer never runs on the robot: std's math is fine here (see clippy.toml).
 #![allow(clippy::disallowed_methods)]
 pub mod cnn;

@@ -66,7 +66,7 @@ pub fn f32_values(t: &TensorView<'_>) -> anyhow::Result<Vec<f32>> {
 /// for weights.
 pub fn read_safetensors(path: &std::path::Path, dev: &candle_core::Device) -> anyhow::Result<HashMap<String, Tensor>> {
     use anyhow::Context;
-    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+    let bytes = input_file::read_capped(path, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading {}", path.display()))?;
     candle_core::safetensors::load_buffer(&bytes, dev)
         .with_context(|| format!("{} is not a safetensors file", path.display()))

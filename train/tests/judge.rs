@@ -77,9 +77,9 @@ fn the_committed_stair_policy_is_judged_through_g1fw() {
         ],
         "{j:?}"
     );
-    // docs/stair_results.md: the committed policy walks on flat ground (it climbs 5-8 cm, not 12).
+    // The committed policy walks on flat ground (docs/results.md).
     assert!(j.flat_ok, "the committed policy failed its flat run: {j:?}");
-    // It walks, and near the commanded 0.5 m/s (it overshoots by up to a third: README).
+    // It walks, and near the commanded 0.5 m/s (it overshoots by up to a third: docs/results.md).
     let v = j.flat_speed_mps.expect("the flat run's speed");
     assert!(
         (0.3..0.8).contains(&v),

@@ -3,7 +3,7 @@
 //! firmware's executor, on real BEV grids (the committed parity fixture's). ≤ 1e-4.
 use candle_core::{DType, Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use firmware::nn::Network;
+use control::nn::Network;
 use safetensors::SafeTensors;
 use train::cnn::data::GRID;
 use train::cnn::model::TerrainCnn;
@@ -46,7 +46,7 @@ fn candle_and_the_firmware_executor_agree_to_1e_4() {
 
     let exported = train::cnn::export::fold(&vm).unwrap();
     let bytes = exported.safetensors_bytes(&Default::default()).unwrap();
-    let desc: firmware::nn::NetworkDesc = toml::from_str(&exported.desc_toml().unwrap()).unwrap();
+    let desc: control::nn::NetworkDesc = toml::from_str(&exported.desc_toml().unwrap()).unwrap();
     let mut net = Network::from_safetensors_bytes(&desc, &bytes).unwrap();
     let mut out = [0.0f32; 7];
     let mut worst = 0.0f32;

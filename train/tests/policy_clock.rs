@@ -5,8 +5,8 @@
 #![allow(clippy::disallowed_methods)]
 use std::path::{Path, PathBuf};
 
-use firmware::controller::Controller;
-use firmware::spec::DeploySpec;
+use control::controller::Controller;
+use control::spec::DeploySpec;
 use hal::{LowState, TerrainToken};
 use train::ppo::policy::{ActorArch, ActorCritic, Sizes};
 

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use firmware::controller::Controller;
-use firmware::spec::DeploySpec;
+use control::controller::Controller;
+use control::spec::DeploySpec;
 use train::ppo::env::{Column, EnvConfig, EnvSettings, Randomization, StairEnv};
 use train::ppo::policy::ActorCritic;
 
@@ -94,7 +94,7 @@ fn walks_on(model: g1_sim::ModelChoice) {
 
 /// Trainer and firmware observe identically: the environment's observation of each state equals,
 /// bit for bit, the one the firmware's `Controller` builds from the same `LowState`, command and
-/// terrain token (both run `firmware::policy_io`; this checks nothing else slipped in between).
+/// terrain token (both run `control::policy_io`; this checks nothing else slipped in between).
 #[test]
 fn trainer_and_firmware_build_identical_observations() {
     let Some(peer) = peer_weights() else { return };
@@ -154,7 +154,7 @@ fn candle_actor_matches_the_firmware_executor() {
     let Some(peer) = peer_weights() else { return };
     // The network alone (the averaged policy has its own test below).
     let mut spec = stair_spec();
-    spec.policy.mirror = firmware::spec::MirrorMode::None;
+    spec.policy.mirror = control::spec::MirrorMode::None;
     let (ac, w) = warm_start(&spec, &peer);
     let mut e = env(spec.clone(), &w, 5, Column::Flat);
     let (t, o) = (40, spec.observation_dim());
@@ -185,7 +185,7 @@ fn candle_actor_matches_the_firmware_executor() {
 fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
     use candle_core::{Device, Tensor};
     let mut spec = stair_spec();
-    spec.policy.mirror = firmware::spec::MirrorMode::Average;
+    spec.policy.mirror = control::spec::MirrorMode::Average;
     let w = std::fs::read(spec.weights_path()).unwrap();
     let obs_dim = spec.observation_dim();
     let mut ac = ActorCritic::new(
@@ -197,7 +197,7 @@ fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
     )
     .unwrap();
     ac.load_actor_widened(&spec.weights_path()).unwrap();
-    ac.mirror = Some(firmware::mirror::PolicyMirror::from_spec(&spec).unwrap());
+    ac.mirror = Some(control::mirror::PolicyMirror::from_spec(&spec).unwrap());
     let mut e = env(spec.clone(), &w, 5, Column::Flat);
     let mut mean = vec![0.0; 12];
     // Start the replayed window mid-episode, from a non-zero state of both networks.
@@ -231,8 +231,8 @@ fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
 /// firmware: change them in the spec and both follow (issue 29: nothing hard-coded in `train/`).
 #[test]
 fn trainer_and_firmware_follow_the_spec_s_limits_rates_and_token_scale() {
-    use firmware::spec::{ObsKind, Scale};
-    use firmware::supervisor::{MotionLimits, Supervisor};
+    use control::spec::{ObsKind, Scale};
+    use control::supervisor::{MotionLimits, Supervisor};
     use train::ppo::env::FALL_CAUSES;
     let Some(peer) = peer_weights() else { return };
     let base = stair_spec();
@@ -657,7 +657,7 @@ fn supervisor_walls_hold_at_every_physics_step() {
         (at_steps, peaks, ended.then(|| e.last_end.unwrap()))
     };
     let (at_steps, peaks, _) = run(base.clone());
-    let limits = firmware::supervisor::MotionLimits::from_spec(&base);
+    let limits = control::supervisor::MotionLimits::from_spec(&base);
     // The joint whose physics steps outran its policy steps the most, under its motor's limit.
     let slot = (0..hal::NUM_MOTORS)
         .filter(|&s| peaks[s] < limits.joint_speed_rad_s[s])
@@ -1047,9 +1047,9 @@ fn hold_line_steers_training_walks_back_to_their_line() {
         for _ in 0..450 {
             let [x, y, _] = e.base_position();
             let h = e.target_heading();
-            let left = firmware::operator::left_of_line(h as f32, x as f32, y as f32);
-            let yaw = firmware::operator::imu_yaw(e.low_state());
-            let plain = firmware::operator::heading_command(0.5, h as f32, yaw)[2];
+            let left = control::operator::left_of_line(h as f32, x as f32, y as f32);
+            let yaw = control::operator::imu_yaw(e.low_state());
+            let plain = control::operator::heading_command(0.5, h as f32, yaw)[2];
             let cmd = e.operator_command()[2];
             if hold_line && left.abs() > 0.02 {
                 // Left of the line: turn right of what heading hold asks (and the reverse).
@@ -1071,7 +1071,7 @@ fn hold_line_steers_training_walks_back_to_their_line() {
         let [x, y, _] = e.base_position();
         let h = e.target_heading();
         (
-            firmware::operator::left_of_line(h as f32, x as f32, y as f32).abs(),
+            control::operator::left_of_line(h as f32, x as f32, y as f32).abs(),
             turned_back,
         )
     };
@@ -1103,9 +1103,9 @@ fn stair_turns_command_one_turn_off_the_axis_on_staircases_only() {
         let mut mean = vec![0.0f32; 12];
         let mut diffs = Vec::new();
         for _ in 0..450 {
-            let yaw = firmware::operator::imu_yaw(e.low_state());
+            let yaw = control::operator::imu_yaw(e.low_state());
             let cmd = e.operator_command();
-            let axis = firmware::operator::heading_command(cmd[0], e.target_heading() as f32, yaw);
+            let axis = control::operator::heading_command(cmd[0], e.target_heading() as f32, yaw);
             assert_eq!(cmd[..2], axis[..2], "a turn changed the speed command");
             diffs.push(cmd[2] - axis[2]);
             e.observe_and_act(&mut mean).unwrap();

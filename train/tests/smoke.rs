@@ -128,7 +128,7 @@ fn tiny_training_run_lowers_the_loss_and_exports_a_loadable_network() {
         .unwrap()
         .write(&out, &Default::default())
         .unwrap();
-    let mut net = firmware::terrain_net::TerrainNet::load(
+    let mut net = control::terrain_net::TerrainNet::load(
         &out.join(train::cnn::export::DESC_FILE),
         &out.join(train::cnn::export::WEIGHTS_FILE),
     )

@@ -3,8 +3,8 @@
 //! and a mirrored action gives the mirrored PD targets.
 use std::path::PathBuf;
 
-use firmware::policy_io::PolicyIo;
-use firmware::spec::DeploySpec;
+use control::policy_io::PolicyIo;
+use control::spec::DeploySpec;
 use hal::{LowState, TerrainClass, TerrainToken, XorShift64, NUM_MOTORS};
 use train::ppo::env::StairEnv;
 use train::ppo::symmetry::Mirror;

@@ -4,11 +4,11 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use firmware::operator::CommandSchedule;
-use firmware::replay::{replay, ReplayOptions};
+use control::operator::CommandSchedule;
+use control::spec::DeploySpec;
 #[cfg(feature = "lab")]
 use firmware::sim_run::{run_sim, SimOptions};
-use firmware::spec::DeploySpec;
+use runlog::replay::{replay, ReplayOptions};
 
 #[derive(Parser)]
 #[command(
@@ -206,22 +206,22 @@ struct SimArgs {
     /// none (the token stays flat: class flat, h = d = 0, yaw 0; the policy runs blind).
     /// Recorded in the log and the report.
     #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
-    terrain_source: Option<firmware::perception::TerrainSource>,
+    terrain_source: Option<control::perception::TerrainSource>,
     /// Where the perception step runs: `inline` (in the tick, after the command) or
     /// `threaded[:TICKS]` (on its own thread, its result used TICKS ticks after the frame, default
     /// 10; in simulation a late result is waited for, so runs stay deterministic). `g1fw run`
     /// defaults to threaded.
     #[arg(long, default_value = "inline", value_parser = parse_perception_sim, value_name = "inline|threaded[:TICKS]")]
-    perception: firmware::perception_worker::PerceptionExec,
+    perception: control::perception_worker::PerceptionExec,
     /// Heading correction: keep this heading (degrees, world frame = relative to the start
     /// heading) by replacing the command's wz every tick with 0.5·wrap(target − IMU yaw), clamped
-    /// to ±0.5 rad/s (`firmware::operator::heading_command`); vx comes from --cmd VX,0,0 or from
+    /// to ±0.5 rad/s (`control::operator::heading_command`); vx comes from --cmd VX,0,0 or from
     /// --cmd-schedule (whose vy and wz it then ignores).
     #[arg(long, value_name = "DEG", allow_hyphen_values = true, value_parser = parse_heading_deg)]
     heading: Option<f64>,
     /// With --heading: also steer back to the line through the start along that heading, from
     /// the estimator's position: the target heading turns toward the line by 1 rad per metre
-    /// across it, at most 0.5 rad (`firmware::operator::line_heading`). Heading hold alone lets a
+    /// across it, at most 0.5 rad (`control::operator::line_heading`). Heading hold alone lets a
     /// sideways drift grow until the robot leaves a staircase's side.
     #[arg(long, requires = "heading")]
     hold_line: bool,
@@ -237,16 +237,16 @@ struct SimArgs {
 
 /// Parses `--terrain-source`.
 #[cfg(feature = "lab")]
-fn parse_perception_sim(s: &str) -> Result<firmware::perception_worker::PerceptionExec, String> {
-    firmware::perception_worker::PerceptionExec::parse(s, true)
+fn parse_perception_sim(s: &str) -> Result<control::perception_worker::PerceptionExec, String> {
+    control::perception_worker::PerceptionExec::parse(s, true)
 }
 
-fn parse_perception_robot(s: &str) -> Result<firmware::perception_worker::PerceptionExec, String> {
-    firmware::perception_worker::PerceptionExec::parse(s, false)
+fn parse_perception_robot(s: &str) -> Result<control::perception_worker::PerceptionExec, String> {
+    control::perception_worker::PerceptionExec::parse(s, false)
 }
 
 #[cfg(feature = "lab")]
-fn parse_terrain_source(s: &str) -> Result<firmware::perception::TerrainSource, String> {
+fn parse_terrain_source(s: &str) -> Result<control::perception::TerrainSource, String> {
     s.parse()
 }
 
@@ -267,7 +267,7 @@ struct EvalArgs {
     /// default: the spec's `[perception] terrain_estimator`), truth (evaluation ablation: the
     /// simulator's ground-truth token) or none (flat token: the policy runs blind).
     #[arg(long, value_parser = parse_terrain_source, value_name = "cnn|geometric|truth|none")]
-    terrain_source: Option<firmware::perception::TerrainSource>,
+    terrain_source: Option<control::perception::TerrainSource>,
     /// Forward velocity command, m/s (vy = 0; wz from the heading correction).
     #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = parse_vx)]
     vx: f32,
@@ -426,7 +426,7 @@ struct RunArgs {
     /// used TICKS = 10 ticks after the frame, or counted late and not used) or `inline` (in the
     /// tick, after the command).
     #[arg(long, default_value = "threaded", value_parser = parse_perception_robot, value_name = "threaded[:TICKS]|inline")]
-    perception: firmware::perception_worker::PerceptionExec,
+    perception: control::perception_worker::PerceptionExec,
     #[command(flatten)]
     rt: RtArgs,
 }
@@ -446,8 +446,8 @@ struct RtArgs {
 }
 
 impl RtArgs {
-    fn options(&self) -> firmware::rt::RtOptions {
-        firmware::rt::RtOptions {
+    fn options(&self) -> control::rt::RtOptions {
+        control::rt::RtOptions {
             fifo_priority: self.rt_priority,
             cpu: self.cpu,
             mlockall: self.mlockall,
@@ -583,11 +583,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
         Cmd::CheckSpec { spec } => {
             let spec = DeploySpec::load(&spec)?;
-            let c = firmware::controller::Controller::new(spec)?;
+            let c = control::controller::Controller::new(spec)?;
             let s = c.spec();
             println!(
                 "ok: {} — {} joints{}, observation {} values, {} Hz control / {} Hz policy, weights sha256 {}",
-                firmware::text::for_terminal(&s.meta.name, firmware::text::MAX_QUOTED_LINE, false),
+                input_file::text::for_terminal(&s.meta.name, input_file::text::MAX_QUOTED_LINE, false),
                 s.num_joints(),
                 if s.action_dim() > s.num_joints() {
                     " and the gait clock's rate"

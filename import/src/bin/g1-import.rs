@@ -154,7 +154,7 @@ fn run(cli: Cli) -> Result<()> {
             let net = policy_import::import_file(&onnx)?;
             let weights = net.safetensors_bytes()?;
             // The firmware's own loader checks every shape before anything is written.
-            let check = firmware::nn::Network::from_safetensors_bytes(&net.desc, &weights)
+            let check = control::nn::Network::from_safetensors_bytes(&net.desc, &weights)
                 .context("the converted network does not load in the firmware's executor")?;
             let [toml_path, st_path] = dir.paths(NETWORK_FILES, &[&onnx])?;
             let table = net.spec_table()?;
@@ -210,13 +210,13 @@ fn write_spec(imp: &policy_import::RlLabImport, out: &SpecOut, what: &str, input
     let [spec_path, weights_path] = out.dir.paths(SPEC_FILES, inputs)?;
     // The firmware's own loader and controller judge the result before anything is written (the
     // spec as if it were in --out already, so its relative paths resolve as they will).
-    let spec = firmware::spec::DeploySpec::from_toml(&imp.spec_toml, &spec_path).context(
+    let spec = control::spec::DeploySpec::from_toml(&imp.spec_toml, &spec_path).context(
         "the imported spec does not load in g1fw (check --estimator-model and the inputs); nothing was written",
     )?;
     let warnings = spec.explicit_pd_warnings();
-    let net = firmware::nn::Network::from_safetensors_bytes(&spec.policy.network, &imp.weights)
+    let net = control::nn::Network::from_safetensors_bytes(&spec.policy.network, &imp.weights)
         .context("the imported weights do not load in g1fw; nothing was written")?;
-    firmware::controller::Controller::with_network(spec, net)
+    control::controller::Controller::with_network(spec, net)
         .context("the imported policy does not load in g1fw; nothing was written")?;
     write(&weights_path, &imp.weights)?;
     write(&spec_path, imp.spec_toml.as_bytes())?;

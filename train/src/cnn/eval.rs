@@ -3,8 +3,8 @@
 use std::path::Path;
 
 use crate::cnn::dataset::{render_worlds, token_array, DatasetConfig, EvalStats, WorldSet};
+use control::terrain_net::TerrainNet;
 use estimator::terrain::{GeometricTerrainConfig, GeometricTerrainEstimator};
-use firmware::terrain_net::TerrainNet;
 use hal::TerrainToken;
 use serde::Serialize;
 

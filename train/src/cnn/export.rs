@@ -1,5 +1,5 @@
 //! Export in the firmware's format: BatchNorm folded into each conv's weight and bias, written as
-//! a safetensors file, plus the `firmware::nn::NetworkDesc` that lists the same layers.
+//! a safetensors file, plus the `control::nn::NetworkDesc` that lists the same layers.
 //!
 //! Folding (per output channel c): `s = γ / sqrt(σ² + ε)`, `W'[c] = s · W[c]`,
 //! `b'[c] = β − s · μ`, computed in f64 and rounded once to f32. After folding, conv → ReLU in
@@ -10,7 +10,7 @@ use std::path::Path;
 use anyhow::{ensure, Context};
 use candle_core::Tensor;
 use candle_nn::VarMap;
-use firmware::nn::{sha256_hex, LayerDesc, NetworkDesc};
+use control::nn::{sha256_hex, LayerDesc, NetworkDesc};
 
 use crate::cnn::data::GRID;
 use crate::cnn::model::{BN_EPS, CONV_BLOCKS, PADDING, STRIDE};
@@ -99,7 +99,7 @@ pub fn fold(vm: &VarMap) -> anyhow::Result<Exported> {
 /// Whether the safetensors file at `path` is an export (conv biases, no BatchNorm) rather than a
 /// training checkpoint.
 pub fn is_export(path: &Path) -> anyhow::Result<bool> {
-    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+    let bytes = input_file::read_capped(path, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading {}", path.display()))?;
     let st = safetensors::SafeTensors::deserialize(&bytes)
         .map_err(|e| anyhow::anyhow!("{}: not a safetensors file ({e})", path.display()))?;

@@ -4,7 +4,7 @@
 //! documents (class logits, h cm, d cm, scaled yaw vector).
 //!
 //! This file is the single definition of the architecture: training builds it with candle, and
-//! [`crate::cnn::export`] writes the same layers (BatchNorm folded) as a `firmware::nn::NetworkDesc`
+//! [`crate::cnn::export`] writes the same layers (BatchNorm folded) as a `control::nn::NetworkDesc`
 //! for the firmware's executor.
 use candle_core::Var;
 use candle_core::{CpuStorage, CustomOp1, CustomOp3, Layout, Module, Result, Shape, Tensor};

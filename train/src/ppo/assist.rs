@@ -1,20 +1,21 @@
 //! Assisted climbs (`g1-train ppo --assist-share`): a helping hand on the base that lets the
 //! policy explore climbs it cannot yet do alone, decayed to nothing as training goes on.
 //!
-//! Why: every fine-tune from the committed actor plateaued at about 15.5 cm (docs/stair_policy.md,
-//! sessions 9–30). Training every environment at 18 cm or more taught nothing (run 45: success
-//! 8–12 % with no trend), and more action noise found nothing at all (run 46): at 18–22 cm the
-//! rollouts never contain the climb PPO would need to reinforce. The climbs that get a foot onto
-//! the first tread end with the body falling back over the trailing foot. A virtual assistant
-//! (Yu, Turk and Liu, "Learning Symmetric and Low-Energy Locomotion", SIGGRAPH 2018) carries part
-//! of the weight, holds the torso upright, damps its spin, lifts a base that sinks and pulls it
-//! along the staircase, so more such climbs succeed while the legs learn the motion; its strength
-//! then decays linearly to zero over `decay_steps` env steps, and the policy must carry itself.
+//! Why: every fine-tune from the committed actor plateaued at about 15.5 cm
+//! (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-11-29 to 12-02). Training every
+//! environment at 18 cm or more taught nothing (run 45: success 8–12 % with no trend), and more
+//! action noise found nothing at all (run 46): at 18–22 cm the rollouts never contain the climb PPO
+//! would need to reinforce. The climbs that get a foot onto the first tread end with the body
+//! falling back over the trailing foot. A virtual assistant (Yu, Turk and Liu, "Learning Symmetric
+//! and Low-Energy Locomotion", SIGGRAPH 2018) carries part of the weight, holds the torso upright,
+//! damps its spin, lifts a base that sinks and pulls it along the staircase, so more such climbs
+//! succeed while the legs learn the motion; its strength then decays linearly to zero over
+//! `decay_steps` env steps, and the policy must carry itself.
 //!
-//! How strong: the committed actor at 17.6 / 21.8 cm up (`g1-train ppo-eval --randomization`,
-//! 16 episodes each) succeeds 1 / 0 times alone; at full strength with the weight share, the
-//! upright torque and the pull only, 2 / 3 (falls on a sinking base and base spin); with the
-//! height spring and yaw damping as well, 7 / 7 (docs/stair_policy.md, session 31).
+//! How strong: the committed actor at 17.6 / 21.8 cm up (`g1-train ppo-eval --randomization`, 16
+//! episodes each) succeeds 1 / 0 times alone; at full strength with the weight share, the upright
+//! torque and the pull only, 2 / 3 (falls on a sinking base and base spin); with the height spring
+//! and yaw damping as well, 7 / 7 (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-12-02).
 //!
 //! The robot never has this: only training's simulator applies it ([`g1_sim::Simulator::
 //! set_base_wrench`]), the policy does not observe it, and the export is the same network. An

@@ -4,10 +4,11 @@
 //! Run 37's flat-ground speed jumps between 0.45 and 0.64 m/s for a command of 0.5 from one
 //! snapshot to the next, and a preset passed at one noise seed fails at the next. Along these
 //! fine-tunes the flat speed is close to linear in the weights: the average of snapshots walks at
-//! the mean of their speeds (docs/stair_policy.md, session 16). So averaging the snapshots of a
-//! stretch of training keeps what they share and cancels what each update added by chance, as
-//! stochastic weight averaging does. Averaging is only meaningful for actors fine-tuned from one
-//! start; actors trained apart have no common basin and their average is a broken network.
+//! the mean of their speeds (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-11-30). So
+//! averaging the snapshots of a stretch of training keeps what they share and cancels what each
+//! update added by chance, as stochastic weight averaging does. Averaging is only meaningful for
+//! actors fine-tuned from one start; actors trained apart have no common basin and their average is
+//! a broken network.
 use anyhow::Context;
 
 /// The weighted mean of `actors` (safetensors bytes, each with its weight > 0), tensor by tensor.

@@ -98,7 +98,7 @@ fn data_sha256(tensors: &[NamedTensor]) -> String {
         all.extend_from_slice(format!("{:?}{:?}", t.dtype, t.shape).as_bytes());
         all.extend_from_slice(&t.bytes);
     }
-    firmware::nn::sha256_hex(&all)
+    control::nn::sha256_hex(&all)
 }
 
 /// A checkpoint read and checked, before anything of it is applied.

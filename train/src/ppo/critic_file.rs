@@ -4,10 +4,11 @@
 //!
 //! Why: a fine-tune that starts from a committed actor with a new critic first trains against
 //! advantages from a critic that knows nothing, and measured through `g1fw` that cost about a third
-//! of the stair successes in the first ~9 M env steps (docs/stair_policy.md, runs 25–27). The
-//! checkpoint in `--out` holds the critic too, but `../data` does not survive between sessions and
-//! the repository keeps only the actor. With this file beside it, `g1-train ppo --init-critic`
-//! continues where the actor's training stopped.
+//! of the stair successes in the first ~9 M env steps (runs 25–27,
+//! notebook/2026-11-24_to_2026-12-02_stair_policy.md). The checkpoint in `--out` holds the critic
+//! too, but a run directory outside the repository may be lost, and the repository keeps only the
+//! actor. With this file beside it, `g1-train ppo --init-critic` continues where the actor's
+//! training stopped.
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -93,7 +94,7 @@ fn f64s(st: &safetensors::SafeTensors<'_>, name: &str, len: usize, path: &Path) 
 /// provenance. Every tensor must have the shape of `ac`'s: a critic of another spec's observation
 /// layout is refused, naming the tensor, before anything is overwritten.
 pub fn load(ac: &ActorCritic, path: &Path) -> anyhow::Result<(Normalizer, Provenance)> {
-    let bytes = input_file::read_capped(path, firmware::nn::MAX_WEIGHTS_BYTES)
+    let bytes = input_file::read_capped(path, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading the critic file {}", path.display()))?;
     let st = safetensors::SafeTensors::deserialize(&bytes)
         .with_context(|| format!("{}: not a safetensors file", path.display()))?;

@@ -2,7 +2,7 @@
 //! Built from candle's ops it was 8 ops forward and about twice that backward, each allocating a
 //! tensor: after the LSTM's recurrence ([`super::lstm_op`]), the largest part of the update.
 use candle_core::{CpuStorage, CustomOp1, Layout, Result, Shape, Tensor};
-use firmware::nn::activation::elu;
+use control::nn::activation::elu;
 
 /// `elu(x) = x` for `x > 0`, else `alpha·(eˣ − 1)`; its derivative `1`, else `elu(x) + alpha`.
 pub struct Elu {

@@ -1,26 +1,26 @@
 //! One training environment: the G1 in MuJoCo (`g1_sim::Simulator`, in process) on a stair world,
 //! observed and commanded through the firmware's own `PolicyIo` built from the deploy spec, with the
-//! actor run by the firmware's own executor (`firmware::nn::Network`).
+//! actor run by the firmware's own executor (`control::nn::Network`).
 //!
 //! Per policy step (50 Hz): the simulator's `LowState` (plus observation noise) → `PolicyIo::observe`
-//! with the operator command (`firmware::operator`-style heading hold) and the privileged terrain
+//! with the operator command (`control::operator`-style heading hold) and the privileged terrain
 //! token (`World::truth`, paper stage 1, refreshed at the perception rate of 10 Hz with noise shaped
 //! like the CNN's errors) → actor → `PolicyIo::apply_action` (clip, scale, joint-range clamp) → PD
 //! targets with the spec's gains → physics steps of 5 ms up to the spec's policy period (4 at
 //! 50 Hz), the new command arriving after a random latency of 0–4 of them. Rewards are in
 //! [`super::reward`]; the episode ends on the same walls the firmware's supervisor trips on
-//! (`firmware::supervisor::MotionLimits`, from the spec's `[safety]`), or a base too low.
+//! (`control::supervisor::MotionLimits`, from the spec's `[safety]`), or a base too low.
 //!
 //! Determinism: an environment draws everything from its own seeded generator, so a rollout is the
 //! same for the same seed whatever the thread count.
 use std::sync::Arc;
 
-use firmware::actor::Actor;
-use firmware::nn::Network;
-use firmware::policy_io::PolicyIo;
+use control::actor::Actor;
+use control::nn::Network;
+use control::policy_io::PolicyIo;
+use control::spec::{DeploySpec, ObsKind};
+use control::supervisor::MotionLimits;
 use firmware::sim_run::LandingHold;
-use firmware::spec::{DeploySpec, ObsKind};
-use firmware::supervisor::MotionLimits;
 use g1_sim::world::{Outdoor, TerrainKind, TerrainSpec, World};
 use g1_sim::{ModelChoice, SimConfig, Simulator};
 use hal::{LowCommand, LowState, TerrainClass, TerrainToken, MOTOR_MODE_ENABLED, NUM_MOTORS};
@@ -226,7 +226,7 @@ pub struct EnvSettings {
     /// 0 (default): off.
     pub drift_weight: f64,
     /// Heading-hold episodes also steer back to the line through the start along the target
-    /// heading, by `g1fw sim|eval --hold-line`'s rule (`firmware::operator::line_heading`), from
+    /// heading, by `g1fw sim|eval --hold-line`'s rule (`control::operator::line_heading`), from
     /// the simulator's base position (the firmware reads its estimator's). false (default): off.
     pub hold_line: bool,
     /// Share of heading-hold staircase episodes whose target heading leaves the axis once and
@@ -372,7 +372,7 @@ pub struct StairEnv {
     token_scale: [f32; 4],
     sim: Simulator,
     io: PolicyIo,
-    /// The actor as the spec runs it (the firmware's [`firmware::actor::Actor`]: the network, and
+    /// The actor as the spec runs it (the firmware's [`control::actor::Actor`]: the network, and
     /// its mirrored twin with `[policy] mirror = "average"`).
     pub net: Actor,
     rng: Rng,
@@ -472,7 +472,7 @@ impl StairEnv {
         let io = PolicyIo::new(spec);
         let net = Actor::new(spec, Network::from_safetensors_bytes(&spec.policy.network, weights)?)?;
         // Driven and held motors exactly as the firmware commands them; slots the model lacks off.
-        let firmware::spec::MotorTable {
+        let control::spec::MotorTable {
             mut enabled,
             default_q,
             kp,
@@ -878,12 +878,12 @@ impl StairEnv {
         }
         let axis = if self.cfg.settings.hold_line {
             let [x, y, _] = self.base_position();
-            firmware::operator::line_heading(self.heading as f32, x as f32, y as f32)
+            control::operator::line_heading(self.heading as f32, x as f32, y as f32)
         } else {
             self.heading as f32
         };
         let target = axis + self.turn.offset_at(self.time_s()) as f32;
-        firmware::operator::heading_command(self.vx_cmd, target, firmware::operator::imu_yaw(&self.state))
+        control::operator::heading_command(self.vx_cmd, target, control::operator::imu_yaw(&self.state))
     }
 
     /// The base's position in the world (the simulator's; the robot starts at the origin), m.
@@ -920,7 +920,7 @@ impl StairEnv {
     }
 
     /// The actor's layers, as the spec lists them.
-    pub fn network_desc(&self) -> &firmware::nn::NetworkDesc {
+    pub fn network_desc(&self) -> &control::nn::NetworkDesc {
         &self.cfg.spec.policy.network
     }
 
@@ -1156,7 +1156,7 @@ impl StairEnv {
                 r.joint_deviation += dev;
             }
             if name.contains("ankle") {
-                if let Some((lo, hi)) = firmware::robot::G1_JOINT_RANGE[slot] {
+                if let Some((lo, hi)) = control::robot::G1_JOINT_RANGE[slot] {
                     let (mid, half) = (0.5 * (lo + hi) as f64, 0.45 * (hi - lo) as f64);
                     r.ankle_limits += ((m.q as f64 - mid).abs() - half).max(0.0);
                 }

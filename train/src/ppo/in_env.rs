@@ -19,7 +19,7 @@ pub const LANES: usize = 8;
 #[derive(Clone, Debug)]
 pub struct InEnvOptions {
     pub model: g1_sim::ModelChoice,
-    pub spec: Arc<firmware::spec::DeploySpec>,
+    pub spec: Arc<control::spec::DeploySpec>,
     pub column: Column,
     pub level: usize,
     pub vx: f32,

@@ -33,7 +33,7 @@ pub struct IterLog {
     #[serde(default)]
     pub level_down: Option<f64>,
     /// Success of the assisted climbs (`--assist-share`; not in the rates above), and the strength
-    /// assisted episodes started with this iteration (histories before session 31 lack them).
+    /// assisted episodes started with this iteration (histories before 2026-12-02 lack them).
     #[serde(default)]
     pub success_assisted: Option<f64>,
     #[serde(default)]

@@ -24,7 +24,7 @@ use candle_core::{CpuStorage, CustomOp2, Layout, Result, Shape, Tensor};
 
 use super::matmul::MatMul;
 // The firmware executor's own activations: the replay computes what the rollout's actor computed.
-use firmware::nn::activation::{sigmoid, tanh};
+use control::nn::activation::{sigmoid, tanh};
 
 /// Everything the backward pass needs, per step, flat `[T, B, ·]`.
 struct Trace {

@@ -7,7 +7,7 @@
 //!   walker's (Unitree's unitree_rl_gym G1 policy: LSTM `obs → 64`, `Linear(64 → 32)`, ELU,
 //!   `Linear(32 → 12)`), and the field's MLP over a short observation history (IsaacLab,
 //!   unitree_rl_lab, mjlab: `linear`/`elu` only). A learned log standard deviation per action.
-//!   The rollout runs the *exported* actor in the firmware's executor (`firmware::nn::Network`);
+//!   The rollout runs the *exported* actor in the firmware's executor (`control::nn::Network`);
 //!   this module replays rollouts through the same maths with autograd.
 //! - Critic: an MLP `[critic_obs → 128 → 64 → 1]`, ELU, on the actor's observation plus privileged
 //!   inputs (asymmetric actor–critic; see `env::CRITIC_EXTRA`). It never leaves the trainer. It
@@ -17,8 +17,8 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{Init, VarMap};
-use firmware::mirror::{PolicyMirror, SignedPermutation};
-use firmware::nn::{LayerDesc, NetworkDesc};
+use control::mirror::{PolicyMirror, SignedPermutation};
+use control::nn::{LayerDesc, NetworkDesc};
 
 pub const CRITIC_HIDDEN: [usize; 2] = [128, 64];
 

@@ -56,13 +56,13 @@
 //! And the bonus waits until the base has stood on the landing for 1 s, as `g1fw eval` scores a
 //! climb: paid on crossing a line, it taught run 14 to dive across the line and fall just after.
 //!
-//! Why `drift`: heading hold turns the robot back to the staircase axis but nothing brought it
-//! back to the line, and a drift across the axis cost nothing until the base left the staircase.
-//! A quarter of the committed actor's failed climbs up 12–22 cm through `g1fw eval` ended off
-//! the side of the staircase (12-dof 99 of 372, 29-dof 66 of 179), and successes drifted 0.29 m
-//! (median of the largest offset) on stairs 1.2–2.0 m wide. The policy cannot see the offset, and
-//! run 39 (P = 2 from the committed actor) drifted more and climbed worse (docs/stair_policy.md,
-//! session 17): off by default.
+//! Why `drift`: heading hold turns the robot back to the staircase axis but nothing brought it back
+//! to the line, and a drift across the axis cost nothing until the base left the staircase. A
+//! quarter of the committed actor's failed climbs up 12–22 cm through `g1fw eval` ended off the
+//! side of the staircase (12-dof 99 of 372, 29-dof 66 of 179), and successes drifted 0.29 m (median
+//! of the largest offset) on stairs 1.2–2.0 m wide. The policy cannot see the offset, and run 39
+//! (P = 2 from the committed actor) drifted more and climbed worse
+//! (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-11-30): off by default.
 //!
 //! Why `yaw_rate_error`: on a flight the robot turns in bursts of 0.7–1.6 rad/s (a foot meeting
 //! a riser pivots the base) against heading hold's ±0.1, and these end climbs off the side of the
@@ -72,7 +72,7 @@
 //! 1.5 rad/s costs 2.25 P per second, the kernel's whole term is worth 2). Off by default: from the
 //! committed actor, P = 1 (run 42) cut the presets' turn-rate RMSE from 0.53 to 0.36 rad/s and
 //! taught the policy to stand before the stairs; P = 0.3 (run 43) passed 23 of 30 presets against
-//! 19 and swept a little below (docs/stair_policy.md, session 18).
+//! 19 and swept a little below (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-11-30).
 //!
 //! Why `--clearance-lookahead`: the foot's point is the ankle-roll body's origin, and the G1's toe
 //! contacts sit 0.12 m ahead of it, so the default look-ahead of 0.12 m reaches only the toe: a
@@ -85,12 +85,13 @@
 //! Why `riser_clearance`: through `g1fw`, the committed actor's swing foot lifts 11–14 cm on the
 //! approach to a staircase whatever its step height (8, 12, 16 or 20 cm, ground-truth token), and
 //! at 20 cm the swing that meets the first riser passes 7.8 cm below its top: the policy reads the
-//! token's class, not its height (docs/stair_policy.md, session 20). `foot_clearance` asks for
-//! 0.10 m above the terrain under the toe, so a riser counts only once the toe is over it, when a
-//! low foot has already met its face; a longer look-ahead there (run 44, 0.24 m) counts the
-//! highest terrain ahead, two risers up on shallow treads. This term measures the sole against
-//! the top of the *next* higher tread only, from liftoff on, so the lift it asks for is the step's
-//! height plus a margin: it grows with the step, as the paper's clearance does. Off by default.
+//! token's class, not its height (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-11-30).
+//! `foot_clearance` asks for 0.10 m above the terrain under the toe, so a riser counts only once
+//! the toe is over it, when a low foot has already met its face; a longer look-ahead there (run 44,
+//! 0.24 m) counts the highest terrain ahead, two risers up on shallow treads. This term measures
+//! the sole against the top of the *next* higher tread only, from liftoff on, so the lift it asks
+//! for is the step's height plus a margin: it grows with the step, as the paper's clearance does.
+//! Off by default.
 //!
 //! Why `token_clearance`: the policy observes no distance to the first riser, only the token
 //! (class, height, depth, yaw), so a term that asks for lift only near a riser (`riser_clearance`)
@@ -101,9 +102,9 @@
 //! default.
 //!
 //! Why `swing_apex`: `token_clearance` weighs its deficit by the foot's speed, and from
-//! `--token-clearance 12` on the policy escaped it by shuffling up to the flight with 2–4 cm
-//! swings that move slowly (runs 54–55, docs/stair_policy.md, session 23). Charged once per swing
-//! for the swing's apex, a shuffle pays for every short step. Off by default.
+//! `--token-clearance 12` on the policy escaped it by shuffling up to the flight with 2–4 cm swings
+//! that move slowly (runs 54–55, notebook/2026-11-24_to_2026-12-02_stair_policy.md). Charged once
+//! per swing for the swing's apex, a shuffle pays for every short step. Off by default.
 //!
 //! Why `swing_advance`: with `--swing-apex 2` alone (run 56) the policy stopped at the riser
 //! and inched there, and with `--token-clearance` it shuffled up to the flight (runs 54–55):
@@ -114,44 +115,46 @@
 //!
 //! Why `swing_overshoot`: the lift terms charge only a swing that stays low. With them on, the
 //! climbs at 20 cm passed two risers and then fell, with swings rising 40–55 cm over the ground
-//! under the foot (runs 57–58, docs/stair_policy.md, session 24): twice the 25 cm asked for. This
-//! charges only the excess past the asked apex plus [`SWING_OVERSHOOT_MARGIN_M`], so the swings of a
-//! normal climb pay nothing. Off by default.
+//! under the foot (runs 57–58, notebook/2026-11-24_to_2026-12-02_stair_policy.md): twice the 25 cm
+//! asked for. This charges only the excess past the asked apex plus [`SWING_OVERSHOOT_MARGIN_M`],
+//! so the swings of a normal climb pay nothing. Off by default.
 //!
-//! Why `base_height`: once the lift terms got both feet onto the first two treads of a 20 cm
-//! flight (run 58), the climbs ended with the feet on the treads and the body left behind: the
-//! robot stopped with its feet at the second riser and fell back down the flight (docs/stair_policy.md,
-//! session 25). Measured from the feet's ground rather than the ground under the base, a body that
-//! stays low while its feet stand higher pays, and one that rises onto them does not; 0.70 m lies
-//! below the G1's walking height, so flat walking would pay nothing. legged_gym's `base_height`
-//! measures from the terrain too. Off by default.
+//! Why `base_height`: once the lift terms got both feet onto the first two treads of a 20 cm flight
+//! (run 58), the climbs ended with the feet on the treads and the body left behind: the robot
+//! stopped with its feet at the second riser and fell back down the flight
+//! (notebook/2026-11-24_to_2026-12-02_stair_policy.md). Measured from the feet's ground rather than
+//! the ground under the base, a body that stays low while its feet stand higher pays, and one that
+//! rises onto them does not; 0.70 m lies below the G1's walking height, so flat walking would pay
+//! nothing. legged_gym's `base_height` measures from the terrain too. Off by default.
 //!
 //! Why `up_lean`: the policy walks with its body pitched back 3–8°, on flat ground and on flights
 //! alike. On a 20 cm flight, with the ankles at their dorsiflexion stop (−0.87 rad; the stance
-//! ankle reads −0.92 to −1.05 under load), the shin cannot tilt further over the foot on the
-//! tread, so only a forward lean of the upper body can bring the centre of mass over the higher
-//! foot. Run 58's climbs at 20 cm get both feet onto the second tread with the base over the rear
-//! foot, pitched back 6–8°, and then slide back down the flight (docs/stair_policy.md, session
-//! 26). This asks for the body pitched 0.10 rad (6°) forward while the token reads up; flat
-//! walking and descents pay nothing. Off by default.
+//! ankle reads −0.92 to −1.05 under load), the shin cannot tilt further over the foot on the tread,
+//! so only a forward lean of the upper body can bring the centre of mass over the higher foot. Run
+//! 58's climbs at 20 cm get both feet onto the second tread with the base over the rear foot,
+//! pitched back 6–8°, and then slide back down the flight
+//! (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-12-01). This asks for the body pitched
+//! 0.10 rad (6°) forward while the token reads up; flat walking and descents pay nothing. Off by
+//! default.
 //!
-//! Why `stance_lead`: where run 62's 20 cm climbs end (docs/stair_policy.md, session 26), a long
-//! step up (0.34 m forward and 0.21 m up) puts the leading foot on the second tread while the base
-//! stays 0.25 m behind it, and the trailing foot then lifts, as the gait clock has it, leaving the
-//! robot on one foot far ahead of its body: it pitches back and falls down the flight. Climbing
-//! the `ppo_env` test's 15 cm flight, the committed actor's lone stance foot lies at most 0.10 m
-//! ahead of the base (median: 0.06 m behind it). This charges standing on one foot more than
-//! 0.05 m ahead of the base while the token reads up, so the trailing foot waits until the body
-//! has come over the leading one. Off by default.
+//! Why `stance_lead`: where run 62's 20 cm climbs end
+//! (notebook/2026-11-24_to_2026-12-02_stair_policy.md), a long step up (0.34 m forward and 0.21 m
+//! up) puts the leading foot on the second tread while the base stays 0.25 m behind it, and the
+//! trailing foot then lifts, as the gait clock has it, leaving the robot on one foot far ahead of
+//! its body: it pitches back and falls down the flight. Climbing the `ppo_env` test's 15 cm flight,
+//! the committed actor's lone stance foot lies at most 0.10 m ahead of the base (median: 0.06 m
+//! behind it). This charges standing on one foot more than 0.05 m ahead of the base while the token
+//! reads up, so the trailing foot waits until the body has come over the leading one. Off by
+//! default.
 //!
-//! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift
-//! 24–30 cm and both feet reach the first tread, and then the robot falls back; both failures
-//! traced at 20 cm start with the toe on the riser's face or a heel over the tread's nose, not
-//! with a foot flat on a tread (docs/stair_policy.md, sessions 21–22). Legged robots' stair and
-//! parkour rewards charge such footholds (extreme-parkour's `feet_edge`). Off by default.
+//! Why `foothold_edge`: with `riser_clearance` on (run 51), the swings at a 20 cm riser lift 24–30
+//! cm and both feet reach the first tread, and then the robot falls back; both failures traced at
+//! 20 cm start with the toe on the riser's face or a heel over the tread's nose, not with a foot
+//! flat on a tread (run 51, notebook/2026-11-24_to_2026-12-02_stair_policy.md). Legged robots'
+//! stair and parkour rewards charge such footholds (extreme-parkour's `feet_edge`). Off by default.
 //!
 //! Terminations mirror what stops the robot in `g1fw`, from the same spec values through the
-//! supervisor's own type (`firmware::supervisor::MotionLimits`): tilt, a joint faster than its
+//! supervisor's own type (`control::supervisor::MotionLimits`): tilt, a joint faster than its
 //! motor's limit, a gyro axis past the angular-speed limit; plus the base within 0.4 m of the ground
 //! under it (fallen).
 
@@ -345,17 +348,17 @@ pub fn straddles_edge(ground: impl Fn(f64, f64) -> f64, (x, y): (f64, f64), (ux,
 
 /// Base height above the ground under it below which the episode ends, m. (Tilt, joint-speed and
 /// base angular-speed terminations come from the spec's `[safety]`, as the supervisor's do:
-/// `firmware::supervisor::MotionLimits`.)
+/// `control::supervisor::MotionLimits`.)
 pub const MIN_BASE_HEIGHT: f64 = 0.4;
 
 /// Largest drift the `drift` term counts, m: past it the base is off any staircase we draw.
 pub const MAX_DRIFT_M: f64 = 1.0;
 
 /// The `drift` term: the distance of `(x, y)` from the line through the start `(0, 0)` along
-/// `heading` (rad; `firmware::operator::left_of_line`, the line `--hold-line` steers to), capped
+/// `heading` (rad; `control::operator::left_of_line`, the line `--hold-line` steers to), capped
 /// at [`MAX_DRIFT_M`].
 pub fn drift(heading: f64, x: f64, y: f64) -> f64 {
-    (firmware::operator::left_of_line(heading as f32, x as f32, y as f32) as f64)
+    (control::operator::left_of_line(heading as f32, x as f32, y as f32) as f64)
         .abs()
         .min(MAX_DRIFT_M)
 }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::Context;
-use firmware::spec::DeploySpec;
+use control::spec::DeploySpec;
 use g1_sim::ModelChoice;
 use labkit::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -176,8 +176,8 @@ pub fn train(cfg: &RunConfig) -> anyhow::Result<Vec<IterLog>> {
         "--rate-std and --rate-hold need a spec whose policy sets its gait clock ([phase] rate); {} has none",
         cfg.spec.display()
     );
-    let spec_sha256 = firmware::nn::sha256_hex(
-        &input_file::read_capped(&cfg.spec, firmware::spec::MAX_SPEC_BYTES as u64)
+    let spec_sha256 = control::nn::sha256_hex(
+        &input_file::read_capped(&cfg.spec, control::spec::MAX_SPEC_BYTES as u64)
             .with_context(|| format!("reading {}", cfg.spec.display()))?,
     );
     let recipe = recipe_text(cfg);
@@ -390,7 +390,7 @@ fn start_or_resume(
     };
     let bytes = match &sized_by {
         Some(p) => Some(
-            input_file::read_capped(p, firmware::nn::MAX_WEIGHTS_BYTES)
+            input_file::read_capped(p, control::nn::MAX_WEIGHTS_BYTES)
                 .with_context(|| format!("reading {}", p.display()))?,
         ),
         None => None,
@@ -404,7 +404,7 @@ fn start_or_resume(
     let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std.unwrap_or(DEFAULT_INIT_STD), cfg.seed)?;
     ac.recurrence = cfg.ppo.recurrence;
     // The policy as the spec runs it: with `mirror = "average"` the update replays the twin too.
-    ac.mirror = firmware::mirror::PolicyMirror::averaged_with(spec)?;
+    ac.mirror = control::mirror::PolicyMirror::averaged_with(spec)?;
     if let Some(l) = loaded {
         let c = &l.counters;
         let mut st = RunState {
@@ -467,7 +467,7 @@ fn start_or_resume(
                 // An explicit --init-std wins over the file's noise (e.g. more exploration).
                 ac.set_action_std(std)?;
             }
-            let actor_sha = firmware::nn::sha256_hex(&ac.actor_safetensors()?);
+            let actor_sha = control::nn::sha256_hex(&ac.actor_safetensors()?);
             if from.actor_sha256 != actor_sha {
                 // Allowed (a critic of a related actor beats a new one), but never silently.
                 tracing::warn!(
@@ -695,7 +695,7 @@ impl Pipeline {
             // Loaded once and cloned: loading packs and hashes the weights, 128 times an update.
             let weights = ac.actor_safetensors()?;
             let desc = slots[0].env.network_desc().clone();
-            let net = firmware::nn::Network::from_safetensors_bytes(&desc, &weights)?;
+            let net = control::nn::Network::from_safetensors_bytes(&desc, &weights)?;
             for s in slots.iter_mut() {
                 s.env.set_actor(&net);
             }
@@ -850,7 +850,7 @@ fn save(
     let actor = ac.actor_safetensors()?;
     std::fs::write(out.join(weights_name), &actor)?;
     let from = super::critic_file::Provenance {
-        actor_sha256: firmware::nn::sha256_hex(&actor),
+        actor_sha256: control::nn::sha256_hex(&actor),
         env_steps: state.env_steps,
     };
     super::critic_file::save(
@@ -946,7 +946,7 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
     if j.score > best {
         write_atomically(
             &cfg.out.join(BEST),
-            &input_file::read_capped(actor, firmware::nn::MAX_WEIGHTS_BYTES)?,
+            &input_file::read_capped(actor, control::nn::MAX_WEIGHTS_BYTES)?,
         )?;
         write_atomically(&cfg.out.join("best.json"), serde_json::to_string_pretty(&j)?.as_bytes())?;
     }
@@ -960,7 +960,7 @@ fn judge_checkpoint(cfg: &RunConfig, actor: &Path, state: &RunState, history: &[
 pub fn export(checkpoint: &Path, spec_path: &Path) -> anyhow::Result<PathBuf> {
     let spec = DeploySpec::load(spec_path)?;
     let obs = spec.observation_dim();
-    let bytes = input_file::read_capped(checkpoint, firmware::nn::MAX_WEIGHTS_BYTES)
+    let bytes = input_file::read_capped(checkpoint, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading {}", checkpoint.display()))?;
     let arch = ActorArch::from_desc(&spec.policy.network, spec.action_dim(), Sizes::Weights(&bytes))?;
     let mut ac = ActorCritic::with_arch(arch, obs + CRITIC_EXTRA, 1.0, 0)?;

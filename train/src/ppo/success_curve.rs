@@ -1,5 +1,5 @@
 //! Stair success against env steps, measured through `g1fw eval` (issue 29: while the policy falls
-//! short of the paper, the README shows the per-height table and this curve, so the gap reads at a
+//! short of the paper, docs/results.md shows the per-height table and this curve, so the gap reads at a
 //! glance). Each point is one `g1fw eval` report of one actor; every point must come from the same
 //! evaluation (model, token source, command, seed, heights, episodes per cell), or the curve would
 //! compare different tests.

@@ -1,10 +1,10 @@
 //! Symmetry augmentation (IsaacLab ships it for the G1; rsl_rl's `use_data_augmentation`): each
 //! transition is also learned mirrored, which doubles the data per simulated step. The mirror of
-//! the observation and action is the firmware's own ([`firmware::mirror`]), built from the deploy
+//! the observation and action is the firmware's own ([`control::mirror`]), built from the deploy
 //! spec; the critic's privileged inputs add their own mirror after it.
-use firmware::mirror::PolicyMirror;
-pub use firmware::mirror::SignedPermutation;
-use firmware::spec::DeploySpec;
+use control::mirror::PolicyMirror;
+pub use control::mirror::SignedPermutation;
+use control::spec::DeploySpec;
 
 /// The mirrors of one spec: actor observation, critic observation, action.
 #[derive(Clone, Debug, PartialEq)]

@@ -2,7 +2,7 @@
 //! base angular speed per axis), from the spec's `[safety]` through `MotionLimits`, and a base too
 //! low (the field's termination; the robot has no such guard); optionally a robot stalled on a
 //! staircase (`EnvConfig::end_stalled`).
-use firmware::supervisor::MotionLimits;
+use control::supervisor::MotionLimits;
 
 use super::reward::MIN_BASE_HEIGHT;
 

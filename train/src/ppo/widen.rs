@@ -2,9 +2,10 @@
 //! `g1-train widen-actor`.
 //!
 //! Why: fine-tunes of the committed actor (the peer walker's LSTM-64 → 32 → 12) trade descents for
-//! climbs at about the same total (docs/stair_policy.md, runs 27–29), as a network out of capacity
-//! does, and the field's rough-terrain actors are far wider. Training a wide actor from scratch
-//! costs more env steps than this machine has, so the trained one is widened instead:
+//! climbs at about the same total (runs 27–29, notebook/2026-11-24_to_2026-12-02_stair_policy.md),
+//! as a network out of capacity does, and the field's rough-terrain actors are far wider. Training
+//! a wide actor from scratch costs more env steps than this machine has, so the trained one is
+//! widened instead:
 //! - every old unit reads only old units (the new inputs of an old row are zero), so the old units
 //!   compute exactly what they did;
 //! - every new unit gets PyTorch's uniform initialisation, but its output is read with weight zero
@@ -16,7 +17,7 @@
 use std::collections::HashMap;
 
 use anyhow::Context;
-use firmware::nn::NetworkDesc;
+use control::nn::NetworkDesc;
 
 use super::policy::{ActorArch, ActorLayer, Sizes};
 
@@ -161,8 +162,8 @@ pub fn widen_actor(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use firmware::nn::Network;
-    use firmware::spec::DeploySpec;
+    use control::nn::Network;
+    use control::spec::DeploySpec;
     use std::path::PathBuf;
 
     fn root() -> PathBuf {

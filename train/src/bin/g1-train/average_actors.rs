@@ -27,12 +27,12 @@ fn parse_actor(s: &str) -> (PathBuf, f64) {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let spec = firmware::spec::DeploySpec::load(&args.spec)
+    let spec = control::spec::DeploySpec::load(&args.spec)
         .with_context(|| format!("loading the deploy spec {}", args.spec.display()))?;
     let mut files = Vec::with_capacity(args.actors.len());
     for a in &args.actors {
         let (path, w) = parse_actor(a);
-        let bytes = input_file::read_capped(&path, firmware::nn::MAX_WEIGHTS_BYTES)
+        let bytes = input_file::read_capped(&path, control::nn::MAX_WEIGHTS_BYTES)
             .with_context(|| format!("reading the actor {}", path.display()))?;
         files.push((path, bytes, w));
     }
@@ -49,7 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let names: Vec<_> = files.iter().map(|(p, _, _)| p.display().to_string()).collect();
         format!("averaging {}", names.join(", "))
     })?;
-    firmware::nn::Network::from_safetensors_bytes(&spec.policy.network, &averaged).with_context(|| {
+    control::nn::Network::from_safetensors_bytes(&spec.policy.network, &averaged).with_context(|| {
         format!(
             "the average does not load as {}'s [policy.network]: are these actors of that spec?",
             args.spec.display()

@@ -141,10 +141,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<firmware::terrain_net::TerrainNet> {
+fn load_net(weights: Option<&std::path::Path>) -> anyhow::Result<control::terrain_net::TerrainNet> {
     Ok(match weights {
-        None => firmware::terrain_net::TerrainNet::embedded()?,
-        Some(dir) => firmware::terrain_net::TerrainNet::load(&dir.join(DESC_FILE), &dir.join(WEIGHTS_FILE))
+        None => control::terrain_net::TerrainNet::embedded()?,
+        Some(dir) => control::terrain_net::TerrainNet::load(&dir.join(DESC_FILE), &dir.join(WEIGHTS_FILE))
             .with_context(|| {
                 format!(
                     "loading the terrain CNN from {} (written by `g1-train fit`)",

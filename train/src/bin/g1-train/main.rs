@@ -46,7 +46,7 @@ enum Cmd {
     /// exports start at seed 0); --worlds FILE.toml,PRESET,... evaluates scenario files or presets
     /// (flat, stairs-up, stairs-down, outdoor, random:SEED) instead.
     EvalTerrain(eval_terrain::Args),
-    /// Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
+    /// Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_policy.md).
     ///
     /// Observations, action rules and the actor's executor are the firmware's own, built from
     /// --spec. Writes into --out: checkpoint.safetensors + state.json (re-running the same
@@ -61,7 +61,7 @@ enum Cmd {
     /// Write a PPO checkpoint's actor as the weights file its deploy spec names.
     PpoExport(ppo_export::Args),
     /// Stair success through `g1fw eval` against env steps (one report per actor) and per riser
-    /// height against the paper: a PNG and a markdown table (README "Stair policy").
+    /// height against the paper: a PNG and a markdown table (docs/results.md).
     SuccessCurve(success_curve::Args),
     /// Widen an actor's hidden layers so that it still computes what it did (new units start
     /// unread), to fine-tune it with more capacity: `g1-train ppo --init-actor` takes the result.

@@ -8,7 +8,7 @@ pub use output_file::Kind;
 pub fn refuse_clashes(
     outputs: &[(&str, Option<&Path>, Kind)],
     inputs: &[(&str, Option<&Path>)],
-    spec: Option<&firmware::spec::DeploySpec>,
+    spec: Option<&control::spec::DeploySpec>,
 ) -> anyhow::Result<()> {
     let read = spec.map(|s| s.files_read()).unwrap_or_default();
     let mut ins = inputs.to_vec();

@@ -1,4 +1,4 @@
-//! `g1-train ppo`: Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_results.md).
+//! `g1-train ppo`: Train the stair policy with PPO on in-process MuJoCo environments (docs/stair_policy.md).
 use anyhow::Context;
 use labkit::progress::default_jobs;
 use std::path::PathBuf;
@@ -250,7 +250,7 @@ pub struct Args {
     /// lifted, a pull along the staircase up to the commanded speed) that decays to nothing over
     /// --assist-decay env steps, on staircases drawn from --assist-levels. They move no curriculum
     /// level and have their own success rate. For climbs the policy cannot yet do alone
-    /// (docs/stair_policy.md, session 31). 0 (default): off.
+    /// (notebook/2026-11-24_to_2026-12-02_stair_policy.md, 2026-12-02). 0 (default): off.
     #[arg(long, default_value_t = 0.0, value_name = "SHARE", value_parser = parse_assist_share)]
     assist_share: f64,
     /// Curriculum levels of the assisted episodes' staircases, LO,HI (0: 5 cm … 10: 26 cm; 6,8:
@@ -420,7 +420,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
     let judge_also: Vec<String> = mix_model.iter().map(|(m, _)| m.to_string()).collect();
     // The run directory may hold nothing the run reads: `--out specs/stairs` would overwrite the
     // committed actor and critic it started from.
-    let deploy = firmware::spec::DeploySpec::load(&spec)?;
+    let deploy = control::spec::DeploySpec::load(&spec)?;
     crate::outputs::refuse_clashes(
         &[("--out", Some(&out), crate::outputs::Kind::Dir)],
         &[

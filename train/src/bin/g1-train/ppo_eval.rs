@@ -75,7 +75,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         vx.is_finite() && episode_s.is_finite() && episode_s > 0.0,
         "--vx and --episode-s must be numbers (--episode-s positive)"
     );
-    let deploy = firmware::spec::DeploySpec::load(&spec)
+    let deploy = control::spec::DeploySpec::load(&spec)
         .with_context(|| format!("loading the deploy spec {}", spec.display()))?;
     crate::outputs::refuse_clashes(
         &[("--json", json.as_deref(), crate::outputs::Kind::File)],
@@ -83,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(&deploy),
     )?;
     let wpath = weights.unwrap_or_else(|| deploy.weights_path());
-    let bytes = firmware::read_capped(&wpath, firmware::nn::MAX_WEIGHTS_BYTES)
+    let bytes = input_file::read_capped(&wpath, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading the actor {}", wpath.display()))?;
     let deploy = std::sync::Arc::new(deploy);
     let mut reports = Vec::new();

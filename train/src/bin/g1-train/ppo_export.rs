@@ -14,7 +14,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Args { checkpoint, spec } = args;
     // The export is the spec's weights file: never the checkpoint it comes from.
-    let deploy = firmware::spec::DeploySpec::load(&spec)?;
+    let deploy = control::spec::DeploySpec::load(&spec)?;
     crate::outputs::refuse_clashes(
         &[(
             "the spec's policy.weights",

@@ -25,14 +25,14 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let spec = firmware::spec::DeploySpec::load(&args.spec)
+    let spec = control::spec::DeploySpec::load(&args.spec)
         .with_context(|| format!("loading the deploy spec {}", args.spec.display()))?;
     crate::outputs::refuse_clashes(
         &[("--out", Some(&args.out), crate::outputs::Kind::File)],
         &[("--actor", Some(&args.actor)), ("--spec", Some(&args.spec))],
         Some(&spec),
     )?;
-    let weights = input_file::read_capped(&args.actor, firmware::nn::MAX_WEIGHTS_BYTES)
+    let weights = input_file::read_capped(&args.actor, control::nn::MAX_WEIGHTS_BYTES)
         .with_context(|| format!("reading {}", args.actor.display()))?;
     let wide = train::ppo::widen::widen_actor(
         &spec.policy.network,
