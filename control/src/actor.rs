@@ -2,8 +2,8 @@
 //! mean of the network's action and the mirror image of its action on the mirrored observation,
 //! the second run keeping its own recurrent state. The controller and the trainer's rollouts both
 //! step this type, so what trains is what runs.
-use crate::mirror::{MirrorError, PolicyMirror};
 use crate::nn::{Network, NnError};
+use crate::spec::mirror::{MirrorError, PolicyMirror};
 use crate::spec::DeploySpec;
 
 /// The network run a second time on the mirror image of each observation; buffers allocated once,

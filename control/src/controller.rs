@@ -6,10 +6,10 @@ use hal::{LowCommand, LowState, MotorCommand, TickTime, MOTOR_MODE_ENABLED, NUM_
 
 use crate::actor::Actor;
 use crate::envelope::{CommandEnvelope, CommandSource, EnvelopeVerdict, Violation};
-use crate::mirror::MirrorError;
 use crate::nn::{Network, NnError};
 use crate::operator::Request;
 use crate::policy_io::PolicyIo;
+use crate::spec::mirror::MirrorError;
 use crate::spec::DeploySpec;
 
 #[derive(Debug, thiserror::Error)]

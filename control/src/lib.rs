@@ -26,7 +26,6 @@ pub mod controller;
 pub mod envelope;
 pub mod keyboard;
 pub mod lidar_source;
-pub mod mirror;
 pub mod nn;
 pub mod obs;
 pub mod operator;
@@ -38,7 +37,6 @@ pub mod robot;
 pub mod rt;
 pub mod runtime;
 pub mod spec;
-pub mod spec_limits;
 pub mod supervisor;
 pub mod terrain_net;
 

@@ -11,6 +11,11 @@ use serde::Deserialize;
 
 use crate::nn::NetworkDesc;
 
+/// Every safety and rate setting's bounds (a spec may tighten a guard, never switch it off).
+pub mod limits;
+/// The left–right mirror of a spec's observation and action, built from its layout.
+pub mod mirror;
+
 #[derive(Debug, thiserror::Error)]
 pub enum SpecError {
     #[error("cannot read deploy spec {path}")]
@@ -371,7 +376,7 @@ pub struct Policy {
     pub action_clip: Option<f32>,
     /// `average`: also run the network, with its own recurrent state, on the left–right mirror image
     /// of every observation, and act on the mean of its action and the mirrored one: a policy with
-    /// no left–right bias by construction ([`crate::mirror`]). Absent or `none`: the network alone.
+    /// no left–right bias by construction ([`crate::spec::mirror`]). Absent or `none`: the network alone.
     #[serde(default)]
     pub mirror: MirrorMode,
     /// PD gains of the driven joints, in policy order (`kp[i]` drives slot `joint_ids_map[i]`);
@@ -949,7 +954,7 @@ impl DeploySpec {
         self.validate_estimator()?;
         self.validate_perception()?;
         self.validate_rates_and_startup()?;
-        if let Some((field, message)) = crate::spec_limits::first_violation(self) {
+        if let Some((field, message)) = limits::first_violation(self) {
             return Err(self.invalid(field, message));
         }
         let used = self.validate_policy()?;
@@ -957,7 +962,7 @@ impl DeploySpec {
         self.validate_commands_and_phase()?;
         self.validate_observation()?;
         self.validate_operator()?;
-        if let Err(e) = crate::mirror::PolicyMirror::averaged_with(self) {
+        if let Err(e) = mirror::PolicyMirror::averaged_with(self) {
             return Err(self.invalid("policy.mirror", format!("\"average\" needs a mirrored policy: {e}")));
         }
         Ok(())

@@ -3,8 +3,8 @@
 use std::path::Path;
 
 use control::actor::Actor;
-use control::mirror::PolicyMirror;
 use control::nn::Network;
+use control::spec::mirror::PolicyMirror;
 use control::spec::{DeploySpec, MirrorMode};
 
 fn stair_spec() -> DeploySpec {

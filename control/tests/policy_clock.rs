@@ -8,8 +8,8 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use control::controller::Controller;
-use control::mirror::PolicyMirror;
 use control::policy_io::PolicyIo;
+use control::spec::mirror::PolicyMirror;
 use control::spec::DeploySpec;
 use hal::{TerrainToken, NUM_MOTORS};
 

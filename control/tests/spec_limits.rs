@@ -8,8 +8,8 @@ mod common;
 use common::healthy;
 use std::path::{Path, PathBuf};
 
+use control::spec::limits::{markdown_table, BOUNDS};
 use control::spec::DeploySpec;
-use control::spec_limits::{markdown_table, BOUNDS};
 use control::supervisor::{DampingReason, FrameStatus, Supervisor};
 use hal::{ErrorKind, LowState, NUM_MOTORS};
 
@@ -242,6 +242,6 @@ fn docs_list_every_bound() {
     let table = markdown_table();
     assert!(
         doc.contains(&table),
-        "docs/spec_limits.md must hold control::spec_limits::markdown_table() verbatim; paste this:\n{table}"
+        "docs/spec_limits.md must hold control::spec::limits::markdown_table() verbatim; paste this:\n{table}"
     );
 }

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """ONNX Runtime baseline for the terrain CNN, for firmware/benches/perception_frame.rs.
 
-Builds an ONNX graph (Conv / Relu / Tanh / Elu / Flatten / Gemm) from a firmware::nn network
+Builds an ONNX graph (Conv / Relu / Tanh / Elu / Flatten / Gemm) from a control::nn network
 description (JSON, as serde writes a NetworkDesc) and the same safetensors weights, checks that
 it reproduces a reference input/output pair computed by our executor (max abs diff <= --tol),
 then times `InferenceSession.run` on one BEV with intra_op_num_threads=1 and with ORT's default threading,
@@ -34,7 +34,7 @@ from safetensors.numpy import load_file  # noqa: E402
 
 
 def build_model(desc: dict, w: dict) -> onnx.ModelProto:
-    """The network of `desc` (firmware::nn::NetworkDesc as JSON) as an ONNX graph, batch 1."""
+    """The network of `desc` (control::nn::NetworkDesc as JSON) as an ONNX graph, batch 1."""
     shape = list(desc.get("input_shape") or [desc["input"]])
     inits, nodes = [], []
     cur = "input"

@@ -197,7 +197,7 @@ fn candle_replays_the_mirror_averaged_policy_as_the_firmware_runs_it() {
     )
     .unwrap();
     ac.load_actor_widened(&spec.weights_path()).unwrap();
-    ac.mirror = Some(control::mirror::PolicyMirror::from_spec(&spec).unwrap());
+    ac.mirror = Some(control::spec::mirror::PolicyMirror::from_spec(&spec).unwrap());
     let mut e = env(spec.clone(), &w, 5, Column::Flat);
     let mut mean = vec![0.0; 12];
     // Start the replayed window mid-episode, from a non-zero state of both networks.

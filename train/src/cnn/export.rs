@@ -241,7 +241,7 @@ pub fn parity_fixture_from(
         pick.extend(pool.iter().copied().filter(|&i| ds.class[i] == class).take(2));
     }
     ensure!(!pick.is_empty(), "parity fixture: no samples to pick from");
-    let outs = crate::cnn::fit::predict(model, ds, &pick, dev)?;
+    let outs = crate::cnn::model::predict(model, ds, &pick, dev)?;
     let grids: Vec<f32> = pick.iter().flat_map(|&i| ds.grid(i).iter().copied()).collect();
     write_parity_fixture(path, &grids, &outs, weights_sha256)
 }

@@ -112,17 +112,6 @@ pub struct EpochLog {
     pub seconds: f64,
 }
 
-/// Predictions of `model` (eval mode) for samples `idx`, as raw outputs.
-pub fn predict(model: &TerrainCnn, ds: &Dataset, idx: &[usize], dev: &Device) -> candle_core::Result<Vec<[f32; 7]>> {
-    let mut outs = Vec::with_capacity(idx.len());
-    for chunk in idx.chunks(256) {
-        let b = batch(ds, chunk, &[], dev)?;
-        let o = model.forward_t(&b.x, false)?.to_vec2::<f32>()?;
-        outs.extend(o.into_iter().map(|r| <[f32; 7]>::try_from(r).expect("7 outputs")));
-    }
-    Ok(outs)
-}
-
 /// Errors of raw outputs against the dataset's truth, decoded exactly as the firmware decodes.
 pub fn score(ds: &Dataset, idx: &[usize], outs: &[[f32; 7]]) -> EvalStats {
     let mut s = EvalStats::default();
@@ -298,7 +287,7 @@ pub fn fit(
         let val_stats = if val.is_empty() {
             None
         } else {
-            Some(score(ds, val, &predict(&model, ds, val, dev)?))
+            Some(score(ds, val, &crate::cnn::model::predict(&model, ds, val, dev)?))
         };
         let e = EpochLog {
             epoch,

@@ -394,6 +394,22 @@ impl CustomOp1 for Col2Im {
     }
 }
 
+/// Predictions of `model` (eval mode) for samples `idx`, as raw outputs.
+pub fn predict(
+    model: &TerrainCnn,
+    ds: &crate::cnn::data::Dataset,
+    idx: &[usize],
+    dev: &candle_core::Device,
+) -> candle_core::Result<Vec<[f32; 7]>> {
+    let mut outs = Vec::with_capacity(idx.len());
+    for chunk in idx.chunks(256) {
+        let b = crate::cnn::data::batch(ds, chunk, &[], dev)?;
+        let o = model.forward_t(&b.x, false)?.to_vec2::<f32>()?;
+        outs.extend(o.into_iter().map(|r| <[f32; 7]>::try_from(r).expect("7 outputs")));
+    }
+    Ok(outs)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,6 +11,7 @@
 //! Written to a temporary file and renamed; read back only whole: a file that does not parse, is
 //! not a run checkpoint, fails its sha256, or misses a tensor is refused, naming the file and what
 //! is wrong with it.
+use anyhow::Context;
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -84,7 +85,7 @@ pub fn write(
         ("data_sha256".to_string(), data_sha256(&tensors)),
     ]);
     let bytes = serialize(&tensors, Some(meta))?;
-    super::runner::write_atomically(path, &bytes)
+    output_file::write_atomically(path, &bytes).with_context(|| format!("writing {}", path.display()))
 }
 
 /// sha256 over every tensor's name, type, shape and bytes, in name order: damage anywhere in the

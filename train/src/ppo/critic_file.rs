@@ -70,7 +70,8 @@ pub fn to_bytes(ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) ->
 
 /// Writes [`to_bytes`] to `path` (write, then rename: a killed run keeps the previous file).
 pub fn save(path: &Path, ac: &ActorCritic, normalizer: &Normalizer, from: &Provenance) -> anyhow::Result<()> {
-    super::runner::write_atomically(path, &to_bytes(ac, normalizer, from)?)
+    output_file::write_atomically(path, &to_bytes(ac, normalizer, from)?)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn f64s(st: &safetensors::SafeTensors<'_>, name: &str, len: usize, path: &Path) -> anyhow::Result<Vec<f64>> {

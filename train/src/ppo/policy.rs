@@ -17,8 +17,8 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{Init, VarMap};
-use control::mirror::{PolicyMirror, SignedPermutation};
 use control::nn::{LayerDesc, NetworkDesc};
+use control::spec::mirror::{PolicyMirror, SignedPermutation};
 
 pub const CRITIC_HIDDEN: [usize; 2] = [128, 64];
 

@@ -404,7 +404,7 @@ fn start_or_resume(
     let mut ac = ActorCritic::with_arch(arch, dims.critic, cfg.init_std.unwrap_or(DEFAULT_INIT_STD), cfg.seed)?;
     ac.recurrence = cfg.ppo.recurrence;
     // The policy as the spec runs it: with `mirror = "average"` the update replays the twin too.
-    ac.mirror = control::mirror::PolicyMirror::averaged_with(spec)?;
+    ac.mirror = control::spec::mirror::PolicyMirror::averaged_with(spec)?;
     if let Some(l) = loaded {
         let c = &l.counters;
         let mut st = RunState {

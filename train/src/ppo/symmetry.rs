@@ -1,9 +1,9 @@
 //! Symmetry augmentation (IsaacLab ships it for the G1; rsl_rl's `use_data_augmentation`): each
 //! transition is also learned mirrored, which doubles the data per simulated step. The mirror of
-//! the observation and action is the firmware's own ([`control::mirror`]), built from the deploy
+//! the observation and action is the firmware's own ([`control::spec::mirror`]), built from the deploy
 //! spec; the critic's privileged inputs add their own mirror after it.
-use control::mirror::PolicyMirror;
-pub use control::mirror::SignedPermutation;
+use control::spec::mirror::PolicyMirror;
+pub use control::spec::mirror::SignedPermutation;
 use control::spec::DeploySpec;
 
 /// The mirrors of one spec: actor observation, critic observation, action.

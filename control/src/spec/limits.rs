@@ -4,7 +4,7 @@
 //! side where the setting stops making sense (no damping at all, a rate no HAL runs).
 //!
 //! `docs/spec_limits.md` prints this table (a test keeps the two equal).
-use crate::spec::{DeploySpec, MAX_KD};
+use super::{DeploySpec, MAX_KD};
 
 /// One numeric setting's bounds, inclusive.
 pub struct Bound {

@@ -14,7 +14,7 @@
 //! - the two-leg gait clock moves half a period (the other leg leads): (sin, cos) → (−sin, −cos);
 //! - the terrain token keeps class, height and depth and negates its yaw;
 //! - a policy-set gait clock's rate (`[phase] rate`, the action after the joints) is its own mirror.
-use crate::spec::{DeploySpec, HistoryLayout, ObsKind};
+use super::{DeploySpec, HistoryLayout, ObsKind};
 
 /// Why a spec has no mirror.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -115,8 +115,8 @@ impl PolicyMirror {
     /// the network runs alone: the one place that reads the setting.
     pub fn averaged_with(spec: &DeploySpec) -> Result<Option<Self>, MirrorError> {
         match spec.policy.mirror {
-            crate::spec::MirrorMode::None => Ok(None),
-            crate::spec::MirrorMode::Average => Self::from_spec(spec).map(Some),
+            super::MirrorMode::None => Ok(None),
+            super::MirrorMode::Average => Self::from_spec(spec).map(Some),
         }
     }
 
