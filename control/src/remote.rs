@@ -63,7 +63,12 @@ impl StickCommand {
 
     /// The command for this tick (`dt` seconds after the last), from the remote's reading.
     pub fn update(&mut self, remote: &Remote, dt: f32) -> [f32; 3] {
-        if let Err(fault) = remote.check() {
+        self.update_checked(remote, remote.check(), dt)
+    }
+
+    /// [`StickCommand::update`] with the reading's [`Remote::check`] already made (once per tick).
+    pub fn update_checked(&mut self, remote: &Remote, check: Result<(), RemoteFault>, dt: f32) -> [f32; 3] {
+        if let Err(fault) = check {
             self.faults += 1;
             self.last_fault = Some(fault);
             self.last = [0.0; 3];
@@ -122,8 +127,9 @@ impl RemoteOperator {
     /// This tick's input from the remote's bytes.
     pub fn input(&mut self, bytes: &[u8; sensor_io::unitree_hg::remote::REMOTE_LEN]) -> OperatorInput {
         let remote = Remote::decode(bytes);
-        let velocity = self.sticks.update(&remote, self.dt);
-        let ok = remote.check().is_ok();
+        let check = remote.check();
+        let velocity = self.sticks.update_checked(&remote, check, self.dt);
+        let ok = check.is_ok();
         let pressed = if ok { remote.buttons } else { 0 };
         // The first combination (in the spec's order, passive first) completed this tick.
         let request = self

@@ -81,6 +81,13 @@ pub fn check(outputs: &[(&str, &Path, Kind)], inputs: &[(&str, &Path)]) -> Resul
     Ok(())
 }
 
+/// Whether `path` lies inside the directory `dir` (or is it), paths resolved as [`check`] resolves
+/// them (links followed): e.g. a run directory inside a data directory would be read as data.
+pub fn is_inside(path: &Path, dir: &Path) -> bool {
+    let (p, d) = (resolve(path), resolve(dir));
+    p.same(&d) || p.path.starts_with(&d.path)
+}
+
 /// [`check`] over the paths given: a flag whose value is `None` was not passed and takes no part.
 pub fn check_given(outputs: &[(&str, Option<&Path>, Kind)], inputs: &[(&str, Option<&Path>)]) -> Result<(), Clash> {
     let outs: Vec<(&str, &Path, Kind)> = outputs.iter().filter_map(|(f, p, k)| p.map(|p| (*f, p, *k))).collect();
@@ -148,6 +155,22 @@ mod tests {
         assert!(e.to_string().contains("the directory of --spec"), "{e}");
         // Distinct files pass, a new one included.
         check(&[("--report", &d.join("new.json"), Kind::File)], &[("--spec", &spec)]).unwrap();
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn inside_follows_links_and_dots() {
+        let d = scratch("inside");
+        let data = d.join("data");
+        std::fs::create_dir_all(data.join("shard")).unwrap();
+        std::fs::create_dir_all(d.join("other")).unwrap();
+        std::os::unix::fs::symlink(&data, d.join("link")).unwrap();
+        assert!(is_inside(&data.join("run"), &data));
+        assert!(is_inside(&d.join("link/run"), &data), "through a link");
+        assert!(is_inside(&d.join("other/../data/run"), &data), "through ..");
+        assert!(is_inside(&data, &data));
+        assert!(!is_inside(&d.join("run"), &data));
+        assert!(!is_inside(&d.join("data-2"), &data), "a name that only starts alike");
         std::fs::remove_dir_all(&d).unwrap();
     }
 

@@ -187,19 +187,12 @@ fn fit_output_is_free(out: &Path, data: &[PathBuf], init: Option<&Path>, force: 
     inputs.push(("--init", init));
     crate::outputs::refuse_clashes(&[("--out", Some(out), crate::outputs::Kind::Dir)], &inputs, None)?;
     // A --data directory that holds the run directory would take its checkpoints as data.
-    for d in data {
-        crate::outputs::refuse_clashes(
-            &[("a --data directory", Some(d.as_path()), crate::outputs::Kind::Dir)],
-            &[("--out", Some(out))],
-            None,
-        )
-        .map_err(|_| {
-            anyhow::anyhow!(
-                "--out {} is inside the --data directory {}: write the training run elsewhere",
-                out.display(),
-                d.display()
-            )
-        })?;
+    if let Some(d) = data.iter().find(|d| output_file::is_inside(out, d)) {
+        anyhow::bail!(
+            "--out {} is inside the --data directory {}: write the training run elsewhere",
+            out.display(),
+            d.display()
+        );
     }
     let occupied = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_some());
     anyhow::ensure!(
