@@ -296,3 +296,47 @@ mod scratch_tests {
         std::fs::remove_dir_all(kept).unwrap();
     }
 }
+
+/// A report's `transitions` as (to, source, time s), in order.
+pub fn transitions(report: &serde_json::Value) -> Vec<(String, String, f64)> {
+    report["transitions"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no transitions in {report}"))
+        .iter()
+        .map(|c| {
+            (
+                c["to"].as_str().unwrap().to_string(),
+                c["source"].as_str().unwrap().to_string(),
+                c["time_s"].as_f64().unwrap(),
+            )
+        })
+        .collect()
+}
+
+/// `g1fw replay LOG` succeeds and says the replay is identical.
+pub fn assert_replays_identical(log: &Path) {
+    let out = g1fw(&["replay", log.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && text.contains("replay identical"), "{text}");
+}
+
+/// `g1-sim --dds lo,1 --model g1-12dof --quiet --dds-idle-exit 1 EXTRA…` in `ns`, its output piped.
+pub fn g1_sim_dds(ns: &Netns, extra: &[&str]) -> Reaped {
+    Reaped(Some(
+        ns.command(&built_bin("g1-sim"))
+            .args([
+                "--dds",
+                "lo,1",
+                "--model",
+                "g1-12dof",
+                "--quiet",
+                "--dds-idle-exit",
+                "1",
+            ])
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("g1-sim"),
+    ))
+}

@@ -4,12 +4,12 @@
 //! stand, sit down, Ctrl-C.
 //! The report names each change and its source, the robot walked, and the log replays bit for bit.
 #![allow(clippy::disallowed_methods)]
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use integration_tests::{
-    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns,
-    Reaped,
+    assert_replays_identical, built_bin, g1_sim_dds, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir,
+    skip_loudly_or_fail, skip_or_fail, transitions, Netns,
 };
 
 fn tmux(args: &[&str]) -> std::process::Output {
@@ -54,23 +54,7 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
         return;
     };
     let dir = scratch_dir("keyboard-tmux");
-    let sim = Reaped(Some(
-        ns.command(&built_bin("g1-sim"))
-            .args([
-                "--dds",
-                "lo,1",
-                "--model",
-                "g1-12dof",
-                "--quiet",
-                "--dds-idle-exit",
-                "1",
-                "--dds-free-run",
-            ])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("g1-sim"),
-    ));
+    let sim = g1_sim_dds(&ns, &["--dds-free-run"]);
     let (report, log) = (dir.join("report.json"), dir.join("run.mcap"));
     // As a user types it in a terminal (the pane), inside the test's network namespace. The state
     // timeout is widened as in the other wall-clock tests (a shared 2-core VM wakes up late).
@@ -150,17 +134,7 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
     assert!(pane.contains("exited 0"), "{ctx}");
     assert_eq!(r["final_mode"], "Passive", "{ctx}");
     assert!(r["trip"].is_null(), "{ctx}");
-    let changes: Vec<(String, String)> = r["transitions"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| {
-            (
-                c["to"].as_str().unwrap().to_string(),
-                c["source"].as_str().unwrap().to_string(),
-            )
-        })
-        .collect();
+    let changes = transitions(&r);
     let want = [
         ("startup", "keyboard"),
         ("stand", "ramp"),
@@ -170,7 +144,7 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
         ("sit_down", "keyboard"),
         ("passive", "ramp"),
     ];
-    let got: Vec<(&str, &str)> = changes.iter().map(|(a, b)| (a.as_str(), b.as_str())).collect();
+    let got: Vec<(&str, &str)> = changes.iter().map(|(a, b, _)| (a.as_str(), b.as_str())).collect();
     assert_eq!(got, want, "{ctx}");
     assert_eq!(r["end"].as_str().map(|e| e.starts_with("stopped")), Some(true), "{ctx}");
     // Walked about 5 s at up to 0.5 m/s.
@@ -179,10 +153,5 @@ fn keys_in_a_tmux_pane_stand_walk_stand_and_sit_the_robot() {
     // The log names where the requests came from.
     let meta = runlog::log::LogFile::open(&log).unwrap().run_metadata().unwrap();
     assert_eq!(meta.get("operator").map(String::as_str), Some("keyboard"), "{meta:?}");
-    let replay = integration_tests::g1fw(&["replay", log.to_str().unwrap()]);
-    assert!(
-        replay.status.success(),
-        "replay: {}\n{ctx}",
-        String::from_utf8_lossy(&replay.stderr)
-    );
+    assert_replays_identical(&log);
 }

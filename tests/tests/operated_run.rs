@@ -35,18 +35,7 @@ fn the_operator_stands_walks_stands_and_sits_the_robot_and_replay_agrees() {
     assert!(r["distance_x_m"].as_f64().unwrap() > 2.5, "{r}");
     assert!(r["policy_steps"].as_u64().unwrap() > 250, "{r}");
     // The report names each change, its source and time.
-    let changes: Vec<(String, String, f64)> = r["transitions"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| {
-            (
-                c["to"].as_str().unwrap().to_string(),
-                c["source"].as_str().unwrap().to_string(),
-                c["time_s"].as_f64().unwrap(),
-            )
-        })
-        .collect();
+    let changes = transitions(&r);
     let want = [
         ("startup", "schedule", 0.0),
         ("stand", "ramp", 0.6),

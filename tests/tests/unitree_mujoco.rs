@@ -10,9 +10,7 @@
 use std::path::PathBuf;
 use std::process::Stdio;
 
-use integration_tests::{
-    built_bin, peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail,
-};
+use integration_tests::{peer_spec_path, read_json, repo_root, scratch_dir, shared_dir, skip_loudly_or_fail};
 use integration_tests::{Netns, Reaped};
 
 /// The Python with unitree_sdk2py's CycloneDDS 0.10.2, MuJoCo and pygame (scripts/install.sh).
@@ -170,13 +168,7 @@ fn the_peer_walker_walks_in_unitree_mujoco_and_damps_at_the_end() {
         "walked {walked:.2} m forward upright (≥ 4 m expected): {ctx}"
     );
     // The robot went down after the damping (nobody holds it): the end was reached.
-    let replay = std::process::Command::new(built_bin("g1fw"))
-        .arg("replay")
-        .arg(&o.log)
-        .output()
-        .expect("g1fw replay");
-    let text = String::from_utf8_lossy(&replay.stdout).to_string() + &String::from_utf8_lossy(&replay.stderr);
-    assert!(replay.status.success() && text.contains("replay identical"), "{text}");
+    integration_tests::assert_replays_identical(&o.log);
 }
 
 /// Without the flag, Unitree's simulator's states (CRC 0) are refused at once, and the run's end
@@ -238,18 +230,7 @@ fn the_remote_as_unitrees_bridge_writes_it_stands_walks_stands_and_damps_the_rob
     let ctx = format!("report {r}\nsimulator {}\nstderr {}", o.sim, o.stderr);
     assert!(r["trip"].is_null(), "no trip expected: {ctx}");
     assert_eq!(r["final_mode"], "Passive", "{ctx}");
-    let changes: Vec<(String, String, f64)> = r["transitions"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|c| {
-            (
-                c["to"].as_str().unwrap().to_string(),
-                c["source"].as_str().unwrap().to_string(),
-                c["time_s"].as_f64().unwrap(),
-            )
-        })
-        .collect();
+    let changes = integration_tests::transitions(r);
     let want = [
         ("startup", "remote", 0.3),
         ("stand", "ramp", 0.9),
@@ -287,11 +268,5 @@ fn the_remote_as_unitrees_bridge_writes_it_stands_walks_stands_and_damps_the_rob
         stood_until >= 10.0,
         "upright until {stood_until:.1} s (simulated): {ctx}"
     );
-    let replay = std::process::Command::new(built_bin("g1fw"))
-        .arg("replay")
-        .arg(&o.log)
-        .output()
-        .expect("g1fw replay");
-    let text = String::from_utf8_lossy(&replay.stdout).to_string() + &String::from_utf8_lossy(&replay.stderr);
-    assert!(replay.status.success() && text.contains("replay identical"), "{text}");
+    integration_tests::assert_replays_identical(&o.log);
 }
