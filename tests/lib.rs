@@ -271,32 +271,6 @@ impl Drop for Reaped {
     }
 }
 
-#[cfg(test)]
-mod scratch_tests {
-    use super::scratch_dir;
-
-    #[test]
-    fn scratch_dirs_go_away_unless_the_test_fails() {
-        let passed = scratch_dir("scratch-selftest-pass");
-        std::fs::write(passed.join("log.mcap"), b"x").unwrap();
-        let path = passed.to_path_buf();
-        drop(passed);
-        assert!(!path.exists(), "a passing test's scratch dir is removed");
-
-        let failing = scratch_dir("scratch-selftest-fail");
-        std::fs::write(failing.join("log.mcap"), b"x").unwrap();
-        let kept = failing.to_path_buf();
-        // The guard drops while the panic unwinds, as in a failing test.
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
-            let _guard = failing;
-            panic!("a failing test");
-        }))
-        .unwrap_err();
-        assert!(kept.join("log.mcap").exists(), "a failing test keeps its files");
-        std::fs::remove_dir_all(kept).unwrap();
-    }
-}
-
 /// A report's `transitions` as (to, source, time s), in order.
 pub fn transitions(report: &serde_json::Value) -> Vec<(String, String, f64)> {
     report["transitions"]
@@ -339,4 +313,30 @@ pub fn g1_sim_dds(ns: &Netns, extra: &[&str]) -> Reaped {
             .spawn()
             .expect("g1-sim"),
     ))
+}
+
+#[cfg(test)]
+mod scratch_tests {
+    use super::scratch_dir;
+
+    #[test]
+    fn scratch_dirs_go_away_unless_the_test_fails() {
+        let passed = scratch_dir("scratch-selftest-pass");
+        std::fs::write(passed.join("log.mcap"), b"x").unwrap();
+        let path = passed.to_path_buf();
+        drop(passed);
+        assert!(!path.exists(), "a passing test's scratch dir is removed");
+
+        let failing = scratch_dir("scratch-selftest-fail");
+        std::fs::write(failing.join("log.mcap"), b"x").unwrap();
+        let kept = failing.to_path_buf();
+        // The guard drops while the panic unwinds, as in a failing test.
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(move || {
+            let _guard = failing;
+            panic!("a failing test");
+        }))
+        .unwrap_err();
+        assert!(kept.join("log.mcap").exists(), "a failing test keeps its files");
+        std::fs::remove_dir_all(kept).unwrap();
+    }
 }
