@@ -99,7 +99,8 @@ pub fn render_bev_png(log: &Path, at_s: Option<f64>, out: &Path) -> Result<Rende
     let grid_bytes = f.grid.take().context("the chosen frame lost its grid")?;
     let grid = grid_from_foxglove(&grid_bytes)?;
     let points = f.points.take().map(|b| points_from_foxglove(&b)).unwrap_or_default();
-    draw(out, &grid, &points, &f).map_err(|e| anyhow::anyhow!("drawing {}: {e}", out.display()))?;
+    output_file::write_through(out, |tmp| draw(tmp, &grid, &points, &f))
+        .map_err(|e| anyhow::anyhow!("drawing {}: {e}", out.display()))?;
     let occupied = (0..BEV_CELLS * BEV_CELLS)
         .filter(|i| grid.data[CH_DENSITY * BEV_CELLS * BEV_CELLS + i] > 0.0)
         .count();

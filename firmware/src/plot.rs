@@ -118,15 +118,20 @@ pub fn velocity_tracking_png(path: &Path, s: &VelocitySeries) -> Result<(), Plot
         })?;
     }
 
-    let write_err = |e: DrawingAreaErrorKind<_>| PlotError::Write {
+    let write_err = |e: Box<dyn StdError + Send + Sync>| PlotError::Write {
         path: path.to_path_buf(),
-        cause: Box::new(e),
+        cause: e,
     };
-    let mut file = BitMapBackend::new(path, (WIDTH, HEIGHT));
-    file.blit_bitmap((0, 0), (WIDTH, HEIGHT), &rgb)
-        .map_err(|e| write_err(DrawingAreaErrorKind::BackendError(e)))?;
-    file.present()
-        .map_err(|e| write_err(DrawingAreaErrorKind::BackendError(e)))
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    output_file::write_through(path, |tmp| -> Result<(), Box<dyn StdError + Send + Sync>> {
+        let mut file = BitMapBackend::new(tmp, (WIDTH, HEIGHT));
+        file.blit_bitmap((0, 0), (WIDTH, HEIGHT), &rgb)
+            .map_err(|e| Box::new(DrawingAreaErrorKind::BackendError(e)))?;
+        file.present()
+            .map_err(|e| Box::new(DrawingAreaErrorKind::BackendError(e)))?;
+        Ok(())
+    })
+    .map_err(write_err)
 }
 
 /// Checks shapes and time order; returns the finite time span.

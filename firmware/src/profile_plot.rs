@@ -68,8 +68,9 @@ pub fn profile_png(path: &Path, p: &Profile) -> Result<(), PlotError> {
         path: path.into(),
         cause: e,
     };
-    let root = BitMapBackend::new(path, (W, H)).into_drawing_area();
-    let r: Result<(), Box<dyn std::error::Error + Send + Sync>> = (|| {
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    let r = output_file::write_through(path, |tmp| -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        let root = BitMapBackend::new(tmp, (W, H)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(&p.title, ("sans-serif", 26))
@@ -130,6 +131,6 @@ pub fn profile_png(path: &Path, p: &Profile) -> Result<(), PlotError> {
             .draw()?;
         root.present()?;
         Ok(())
-    })();
+    });
     r.map_err(draw_err)
 }

@@ -102,6 +102,33 @@ pub fn temporary(path: &Path) -> PathBuf {
     PathBuf::from(t)
 }
 
+/// The temporary file [`write_through`] has a writer create: `path` with `.partial-<pid>` put
+/// before its extension (`plot.png` → `plot.partial-<pid>.png`), for encoders that pick their
+/// format by the extension.
+pub fn temporary_keeping_extension(path: &Path) -> PathBuf {
+    let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+    let name = match path.extension() {
+        Some(ext) => format!("{stem}.partial-{}.{}", std::process::id(), ext.to_string_lossy()),
+        None => format!("{stem}.partial-{}", std::process::id()),
+    };
+    path.with_file_name(name)
+}
+
+/// Has `write` create the file at [`temporary_keeping_extension`]`(path)`, then renames it over
+/// `path`: a writer that fails or is killed half-way leaves `path` as it was. On error the
+/// temporary file is removed.
+pub fn write_through<E: From<std::io::Error>>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+) -> Result<(), E> {
+    let tmp = temporary_keeping_extension(path);
+    let done = write(&tmp).and_then(|()| std::fs::rename(&tmp, path).map_err(E::from));
+    if done.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    done
+}
+
 /// Writes `bytes` to `path` through a temporary file beside it, synced, then renamed over it. On
 /// any error the temporary file is removed and `path` is as it was.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
@@ -155,6 +182,26 @@ mod tests {
         assert!(e.to_string().contains("the directory of --spec"), "{e}");
         // Distinct files pass, a new one included.
         check(&[("--report", &d.join("new.json"), Kind::File)], &[("--spec", &spec)]).unwrap();
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn a_writer_through_a_temporary_replaces_the_file_or_leaves_it() {
+        let d = scratch("through");
+        let f = d.join("plot.png");
+        std::fs::write(&f, b"old").unwrap();
+        let tmp = temporary_keeping_extension(&f);
+        assert_eq!(tmp.extension().unwrap(), "png");
+        let failed: std::io::Result<()> = write_through(&f, |t| {
+            std::fs::write(t, b"half")?;
+            Err(std::io::Error::other("the encoder failed"))
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(&f).unwrap(), b"old", "a failed writer leaves the file");
+        assert!(!tmp.exists(), "and no temporary");
+        write_through(&f, |t| std::fs::write(t, b"new")).unwrap();
+        assert_eq!(std::fs::read(&f).unwrap(), b"new");
+        assert!(!tmp.exists());
         std::fs::remove_dir_all(&d).unwrap();
     }
 

@@ -123,6 +123,18 @@ pub fn error_vs_riser_png(path: &Path, bins: &[Bin], title: &str) -> anyhow::Res
 
 /// Four panels over binned stairs samples; a bin sits at `scale` × its centre on the x axis.
 fn error_bins_png(path: &Path, bins: &[Bin], title: &str, xl: &str, scale: f64, x: (f64, f64)) -> anyhow::Result<()> {
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    output_file::write_through(path, |tmp| draw_error_bins_png(tmp, bins, title, xl, scale, x))
+}
+
+fn draw_error_bins_png(
+    path: &Path,
+    bins: &[Bin],
+    title: &str,
+    xl: &str,
+    scale: f64,
+    x: (f64, f64),
+) -> anyhow::Result<()> {
     check_png(path)?;
     let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -178,6 +190,11 @@ fn error_bins_png(path: &Path, bins: &[Bin], title: &str, xl: &str, scale: f64, 
 
 /// Training loss and validation errors per epoch.
 pub fn training_png(path: &Path, log: &[EpochLog]) -> anyhow::Result<()> {
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    output_file::write_through(path, |tmp| draw_training_png(tmp, log))
+}
+
+fn draw_training_png(path: &Path, log: &[EpochLog]) -> anyhow::Result<()> {
     check_png(path)?;
     let root = BitMapBackend::new(path, (1400, 1000)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
@@ -350,6 +367,16 @@ where
 /// command); x: env steps and wall time.
 /// `reference`: the deployed policy judged on the same set, drawn as a level line.
 pub fn ppo_curves_png(
+    path: &Path,
+    log: &[crate::ppo::iter_log::IterLog],
+    judged: &[crate::ppo::judge::Judgement],
+    reference: Option<&crate::ppo::judge::Judgement>,
+) -> anyhow::Result<()> {
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    output_file::write_through(path, |tmp| draw_ppo_curves_png(tmp, log, judged, reference))
+}
+
+fn draw_ppo_curves_png(
     path: &Path,
     log: &[crate::ppo::iter_log::IterLog],
     judged: &[crate::ppo::judge::Judgement],
@@ -541,6 +568,15 @@ fn success_axes<'a, DB: DrawingBackend + 'a>(
 }
 
 pub fn success_curve_png(
+    path: &Path,
+    points: &[crate::ppo::success_curve::CurvePoint],
+    table: &firmware::eval::EvalReport,
+) -> anyhow::Result<()> {
+    // Through a temporary file: a failed or killed write leaves an older plot as it was.
+    output_file::write_through(path, |tmp| draw_success_curve_png(tmp, points, table))
+}
+
+fn draw_success_curve_png(
     path: &Path,
     points: &[crate::ppo::success_curve::CurvePoint],
     table: &firmware::eval::EvalReport,
