@@ -226,3 +226,23 @@ fn the_critic_warm_up_equals_candles() {
     };
     compare(cfg, true, true, 4);
 }
+
+/// `max_std` caps the action noise after the update, by either path: the actors start at σ 0.6,
+/// the cap is 0.5, and every output ends at or below it (those the update lowered further stay).
+#[test]
+fn the_noise_cap_holds_after_an_update_by_either_path() {
+    let cfg = PpoConfig {
+        steps: T,
+        epochs: 1,
+        minibatches: 1,
+        max_std: Some(0.5),
+        lr: 1e-3,
+        ..PpoConfig::default()
+    };
+    for (stats, p) in both(cfg, false, false) {
+        let ls = &p.iter().find(|(n, _)| n == "log_std").expect("log_std").1;
+        assert!(ls.iter().all(|&l| l <= 0.5f32.ln()), "{ls:?}");
+        assert!(ls.iter().any(|&l| l == 0.5f32.ln()), "the cap applied: {ls:?}");
+        assert!(stats.mean_std <= 0.5 + 1e-6, "{stats:?}");
+    }
+}

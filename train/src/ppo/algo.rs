@@ -30,6 +30,11 @@ pub struct PpoConfig {
     /// A feed-forward actor's update without a tensor graph ([`super::mlp_update`]); off: candle's
     /// ops (the reference the fused step is checked against, and the bench's baseline).
     pub fused_mlp: bool,
+    /// The largest action noise σ per output, applied after every update (`None`: no cap). Where a
+    /// joint's target saturates at its range (the G1's ankle roll: ±0.26 rad against 0.25 rad per
+    /// unit of action), more noise no longer changes the return, the surrogate stops pulling σ down
+    /// and the entropy bonus inflates it without bound (the reference run's ankle roll reached σ 2.6).
+    pub max_std: Option<f64>,
 }
 
 impl Default for PpoConfig {
@@ -49,6 +54,7 @@ impl Default for PpoConfig {
             lr: 1e-4,
             recurrence: super::policy::Recurrence::Fused,
             fused_mlp: true,
+            max_std: None,
         }
     }
 }
@@ -505,6 +511,10 @@ impl Learner {
         }
         if let Some(f) = &self.fused {
             f.store(&self.opt)?;
+        }
+        if let Some(max) = cfg.max_std {
+            ac.cap_action_std(max)
+                .map_err(|e| candle_core::Error::Msg(format!("capping the action noise: {e}")))?;
         }
         for v in [
             &mut stats.surrogate,

@@ -482,6 +482,23 @@ impl ActorCritic {
         Ok(())
     }
 
+    /// Caps every output's action noise σ at `max` (those below stay as they are).
+    pub fn cap_action_std(&self, max: f64) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            max.is_finite() && max > 0.0,
+            "the largest action noise σ must be positive (got {max})"
+        );
+        let cap = max.ln() as f32;
+        let mut ls: Vec<f32> = self.log_std().to_vec1()?;
+        if ls.iter().all(|&v| v <= cap) {
+            return Ok(());
+        }
+        ls.iter_mut().for_each(|v| *v = v.min(cap));
+        let t = Tensor::from_vec(ls, self.act_dim, &Device::Cpu)?;
+        self.vars.data().lock().expect("var map lock")["log_std"].set(&t)?;
+        Ok(())
+    }
+
     pub fn log_std(&self) -> Tensor {
         get(&self.vars, "log_std")
     }

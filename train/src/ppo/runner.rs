@@ -130,7 +130,19 @@ pub fn recipe_text(cfg: &RunConfig) -> String {
     c.spec = PathBuf::new();
     c.init_actor = None;
     c.init_critic = None;
-    without_judge(&format!("{c:#?}"))
+    without_added_defaults(&without_judge(&format!("{c:#?}")))
+}
+
+/// Settings added after runs began, at their defaults: left out of the recipe's text, so a run
+/// whose checkpoint predates them resumes as before (set, they show as a change).
+const ADDED_AT_DEFAULT: [&str; 1] = ["max_std: None,"];
+
+fn without_added_defaults(recipe: &str) -> String {
+    recipe
+        .lines()
+        .filter(|l| !ADDED_AT_DEFAULT.contains(&l.trim()))
+        .map(|l| format!("{l}\n"))
+        .collect()
 }
 
 /// A recipe's text without its `judge` block (how a run is judged changes nothing it computes;
@@ -979,6 +991,28 @@ mod tests {
     fn the_recipe_leaves_the_judge_out() {
         let text = "RunConfig {\n    envs: 4,\n    judge: JudgeConfig {\n        every: 5,\n        heights: [\n            0.12,\n        ],\n    },\n    quiet: false,\n}";
         assert_eq!(without_judge(text), "RunConfig {\n    envs: 4,\n    quiet: false,\n}\n");
+    }
+
+    #[test]
+    fn a_setting_added_later_is_in_the_recipe_only_when_set() {
+        let text = |max_std: Option<f64>| {
+            let c = crate::ppo::algo::PpoConfig {
+                max_std,
+                ..Default::default()
+            };
+            without_added_defaults(&format!("RunConfig {{\n    ppo: {c:#?},\n}}"))
+        };
+        let (unset, set) = (text(None), text(Some(1.0)));
+        assert!(!unset.contains("max_std"), "{unset}");
+        assert!(
+            set.contains("max_std: Some(\n") || set.contains("max_std: Some("),
+            "{set}"
+        );
+        assert_eq!(
+            unset.lines().count() + 3,
+            set.lines().count(),
+            "only the setting's own lines differ:\n{unset}\n{set}"
+        );
     }
 
     #[test]

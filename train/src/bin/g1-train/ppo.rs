@@ -94,6 +94,10 @@ pub struct Args {
     lr: f64,
     #[arg(long, default_value_t = 0.005)]
     entropy_coef: f64,
+    /// The largest action noise σ per output, applied after every update (default: no cap). Where
+    /// a joint's target saturates at its range, the entropy bonus otherwise inflates its σ unchecked.
+    #[arg(long, value_parser = parse_max_std)]
+    max_std: Option<f64>,
     /// KL divergence per update that the adaptive learning rate aims at (rsl_rl's 0.01); a smaller
     /// target takes smaller steps, for fine-tuning a policy that already works.
     #[arg(long, default_value_t = 0.01)]
@@ -356,6 +360,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
         critic_warmup,
         lr,
         entropy_coef,
+        max_std,
         desired_kl,
         checkpoint_every,
         max_wall,
@@ -462,6 +467,7 @@ pub fn run(args: Args, argv: &[std::ffi::OsString]) -> anyhow::Result<()> {
             lr,
             entropy_coef,
             desired_kl,
+            max_std,
             ..Default::default()
         },
         env,
@@ -542,6 +548,11 @@ fn parse_up_share(s: &str) -> Result<f64, String> {
 }
 
 /// `--tracking-std STD`: the tracking kernels' standard deviation, in (0, 2].
+fn parse_max_std(s: &str) -> Result<f64, String> {
+    let want = "the largest action noise σ in (0, 10], e.g. 1.0 (the usual starting σ)";
+    parse_number(s, |v| v > 0.0 && v <= 10.0, want)
+}
+
 fn parse_tracking_std(s: &str) -> Result<f64, String> {
     let want = "the tracking kernels' standard deviation in (0, 2] m/s, e.g. 0.35";
     parse_number(s, |v| v > 0.0 && v <= 2.0, want)
