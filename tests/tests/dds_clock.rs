@@ -2,10 +2,9 @@
 //! --dds-free-run`, which steps in wall-clock time as the robot and unitree_mujoco do. Each scenario
 //! runs in its own network namespace.
 #![allow(clippy::disallowed_methods)]
-use std::process::Stdio;
 
 use integration_tests::{
-    built_bin, peer_spec_path, read_json, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns, Reaped,
+    g1_sim_dds, peer_spec_path, read_json, scratch_dir, shared_dir, skip_loudly_or_fail, skip_or_fail, Netns,
 };
 
 /// Both run in wall-clock time: one scenario at a time.
@@ -30,24 +29,9 @@ fn run(tag: &str, sim_args: &[&str], duration: f64) -> Option<Outcome> {
         return None;
     };
     let dir = scratch_dir(&format!("dds-clock-{tag}"));
-    let sim = Reaped(Some(
-        ns.command(&built_bin("g1-sim"))
-            .args([
-                "--dds",
-                "lo,1",
-                "--model",
-                "g1-12dof",
-                "--quiet",
-                "--dds-idle-exit",
-                "1",
-                "--dds-free-run",
-            ])
-            .args(sim_args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("g1-sim"),
-    ));
+    let mut sim_extra = vec!["--dds-free-run"];
+    sim_extra.extend_from_slice(sim_args);
+    let sim = g1_sim_dds(&ns, &sim_extra);
     let report = dir.join("report.json");
     let log = dir.join("run.mcap");
     // Both programs pace themselves by the wall clock on a shared 2-core VM, where even a lone

@@ -47,6 +47,20 @@ enum SimPace {
     LockStep,
 }
 
+/// Metres walked forward while upright (the pelvis above 0.6 m) from where the band let go, and
+/// how many 10 Hz trajectory samples that upright stretch has.
+fn walked_upright(sim: &serde_json::Value) -> (f64, usize) {
+    let upright: Vec<(f64, f64)> = sim["trajectory"]
+        .as_array()
+        .expect("trajectory")
+        .iter()
+        .map(|p| (p[1].as_f64().unwrap(), p[3].as_f64().unwrap()))
+        .take_while(|&(_, z)| z > 0.6)
+        .collect();
+    let walked = upright.last().map_or(0.0, |&(x, _)| x) - upright.first().map_or(0.0, |&(x, _)| x);
+    (walked, upright.len())
+}
+
 /// Unitree's simulator and `g1fw run --dds lo,1 EXTRA… --duration S` in one namespace.
 fn run(tag: &str, extra: &[&str], duration: f64, pace: SimPace) -> Option<Outcome> {
     run_with(tag, extra, &[], duration, pace)
@@ -156,13 +170,7 @@ fn the_peer_walker_walks_in_unitree_mujoco_and_damps_at_the_end() {
     );
     assert!(o.status.success(), "{ctx}");
     // Distance walked while upright (the pelvis above 0.6 m), from where the band let go.
-    let traj = o.sim["trajectory"].as_array().expect("trajectory");
-    let upright: Vec<(f64, f64)> = traj
-        .iter()
-        .map(|p| (p[1].as_f64().unwrap(), p[3].as_f64().unwrap()))
-        .take_while(|&(_, z)| z > 0.6)
-        .collect();
-    let walked = upright.last().map_or(0.0, |&(x, _)| x) - upright.first().map_or(0.0, |&(x, _)| x);
+    let (walked, _) = walked_upright(&o.sim);
     assert!(
         walked >= 4.0,
         "walked {walked:.2} m forward upright (≥ 4 m expected): {ctx}"
@@ -252,18 +260,12 @@ fn the_remote_as_unitrees_bridge_writes_it_stands_walks_stands_and_damps_the_rob
     }
     // 3 m with the left stick, upright (the pelvis above 0.6 m) from where the band let go to the end
     // of the run: standing still again, the robot did not fall.
-    let traj = o.sim["trajectory"].as_array().expect("trajectory");
-    let upright: Vec<(f64, f64)> = traj
-        .iter()
-        .map(|p| (p[1].as_f64().unwrap(), p[3].as_f64().unwrap()))
-        .take_while(|&(_, z)| z > 0.6)
-        .collect();
-    let walked = upright.last().map_or(0.0, |&(x, _)| x) - upright.first().map_or(0.0, |&(x, _)| x);
+    let (walked, samples) = walked_upright(&o.sim);
     assert!(
         walked >= 3.0,
         "walked {walked:.2} m forward upright (≥ 3 m expected): {ctx}"
     );
-    let stood_until = upright.len() as f64 * 0.1 + 1.2;
+    let stood_until = samples as f64 * 0.1 + 1.2;
     assert!(
         stood_until >= 10.0,
         "upright until {stood_until:.1} s (simulated): {ctx}"
