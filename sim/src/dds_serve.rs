@@ -16,6 +16,10 @@
 //! one control tick per period on a monotonic clock at absolute deadlines, with the newest command
 //! (the last one again when none came), and the state published after each. Ticks whose step ended
 //! past the next deadline are counted (`late_ticks`), as are ticks without a new command.
+//!
+//! Faults (`--fault`, [`crate::faults`]) act on the state of control tick k as on the bridge: a
+//! `drop` publishes nothing (the controller sees silence, as on a lossy link), `disconnect` stops
+//! publishing for good and ends the run (the robot's DDS went away).
 use std::time::{Duration, Instant};
 
 use hal::{LowCommand, LowState};
@@ -23,6 +27,7 @@ use robot_io::dds::{DdsLink, Endpoint, ROBOT, SAMPLE_CAP};
 use sensor_io::unitree_hg::cdr::{low_cmd_from_cdr, low_state_to_cdr, LOW_STATE_CDR_LEN};
 use sensor_io::unitree_hg::{decode_low_cmd, encode_low_state, LOW_CMD_LEN, LOW_STATE_LEN};
 
+use crate::faults::{FaultInjector, FaultPlan, Wire};
 use crate::Simulator;
 
 /// Base height under which a DDS run counts the robot as fallen.
@@ -43,6 +48,8 @@ pub struct DdsServeOptions {
     /// Step on the wall clock at the control period instead of once per command.
     pub free_run: bool,
     pub quiet: bool,
+    /// Faults to inject on the published states (empty: none).
+    pub faults: FaultPlan,
 }
 
 /// What a DDS run did (`g1-sim --dds` prints it as one JSON line).
@@ -70,6 +77,10 @@ pub struct DdsSummary {
     /// command (the last one held).
     pub late_ticks: u64,
     pub ticks_without_command: u64,
+    /// States a `drop` fault kept off the wire.
+    pub dropped_states: u64,
+    /// A `disconnect` fault ended the run (`g1-sim` exits with status 4).
+    pub fault_disconnect: bool,
 }
 
 /// Serves until idle, the time limit, or a DDS failure.
@@ -97,13 +108,32 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
     let mut c_cmd = [0u8; LOW_CMD_LEN];
     let mut cmd = LowCommand::default();
     let mut summary = DdsSummary::default();
-    let mut publish = |sim: &Simulator, link: &DdsLink| -> anyhow::Result<()> {
+    let mut faults = FaultInjector::new(&opts.faults, sim.config().control_dt, sim.motor_slots_present())?;
+    // The state of the tick stepped last, through the faults; `false` once a `disconnect` fault
+    // says the robot is gone (nothing sent).
+    let mut publish = |sim: &mut Simulator, link: &DdsLink, summary: &mut DdsSummary| -> anyhow::Result<bool> {
         sim.low_state(&mut state);
-        encode_low_state(&state, &mut c_state);
-        low_state_to_cdr(&c_state, &mut cdr_state);
-        Ok(link.send(&cdr_state)?)
+        let wire = match faults.as_mut() {
+            None => {
+                encode_low_state(&state, &mut c_state);
+                Wire::Frame
+            }
+            Some(f) => f.apply(summary.ticks, sim, &mut state, &mut c_state),
+        };
+        match wire {
+            Wire::Frame => {
+                low_state_to_cdr(&c_state, &mut cdr_state);
+                link.send(&cdr_state)?;
+            }
+            Wire::NoFrame => summary.dropped_states += 1,
+            Wire::Disconnect => {
+                summary.fault_disconnect = true;
+                return Ok(false);
+            }
+        }
+        Ok(true)
     };
-    publish(sim, &link)?;
+    publish(sim, &link, &mut summary)?;
     let start = sim.truth().base_pos;
     summary.base_z_min_m = start[2];
     let mut seen = 0u64;
@@ -111,7 +141,7 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
     let period = Duration::from_secs_f64(sim.config().control_dt);
     let mut free_start: Option<Instant> = None;
     let mut free_tick = 0u32;
-    loop {
+    while !summary.fault_disconnect {
         if opts.free_run {
             // Held until the first command; then one tick per period whatever arrives.
             let wait = if free_start.is_some() { Duration::ZERO } else { period };
@@ -134,11 +164,15 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
             }
             let Some(t0) = free_start else {
                 summary.resent_states += 1;
-                publish(sim, &link)?;
+                if !publish(sim, &link, &mut summary)? {
+                    break;
+                }
                 continue;
             };
             control_tick(sim, lidar.as_ref(), &mut summary);
-            publish(sim, &link)?;
+            if !publish(sim, &link, &mut summary)? {
+                break;
+            }
             free_tick += 1;
             let deadline = t0 + period * free_tick;
             match deadline.checked_duration_since(Instant::now()) {
@@ -168,12 +202,16 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                 ) {
                     // A robot ignores a command it cannot read; the controller's next one counts.
                     summary.resent_states += 1;
-                    publish(sim, &link)?;
+                    if !publish(sim, &link, &mut summary)? {
+                        break;
+                    }
                     continue;
                 }
                 sim.apply_command(&cmd)?;
                 control_tick(sim, lidar.as_ref(), &mut summary);
-                publish(sim, &link)?;
+                if !publish(sim, &link, &mut summary)? {
+                    break;
+                }
             }
             None => {
                 if let (Some(t), Some(idle)) = (last_command, opts.idle_exit) {
@@ -182,7 +220,9 @@ pub fn serve_dds(sim: &mut Simulator, opts: &DdsServeOptions, ready: impl FnOnce
                     }
                 }
                 summary.resent_states += 1;
-                publish(sim, &link)?;
+                if !publish(sim, &link, &mut summary)? {
+                    break;
+                }
             }
         }
         if opts.max_sim_s.is_some_and(|m| sim.time() >= m) {

@@ -337,6 +337,56 @@ pub struct Simulator {
     base_qpos: Vec<f64>,
     /// What the model cache did at load (`$G1_SIM_MODEL_CACHE`), if one is configured.
     model_cache_note: Option<String>,
+    /// The test gantry's rope ([`Simulator::hang_on_gantry`]) and where it is tied, if hung.
+    gantry: Option<(Gantry, [f64; 3])>,
+}
+
+/// A rope from a point above the robot's start pose to its pelvis, as on a test gantry (or
+/// unitree_mujoco's elastic band): slack while the robot stands, it catches a fall. Long runs
+/// with faults (each trip damps the motors, and a damped robot sinks) then go on standing after
+/// each operator reset instead of lying on the floor.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gantry {
+    /// Rope length minus the tie point's height above the pelvis at the start pose, m: how far
+    /// the pelvis may sink (or, further, sway) before the rope pulls.
+    pub slack_m: f64,
+    /// Height of the tie point above the start pelvis, m.
+    pub height_m: f64,
+    /// Rope stiffness (N/m) and damping (N·s/m) while taut.
+    pub stiffness: f64,
+    pub damping: f64,
+}
+
+impl Default for Gantry {
+    fn default() -> Self {
+        // Taut 5 cm below the standing pelvis or 0.32 m to either side of the tie point; the
+        // 35 kg robot hangs on it ~4 cm further down (a damped robot's knees barely bend, so a
+        // start-up from there is a start-up from standing), close to critically damped.
+        Self {
+            slack_m: 0.05,
+            height_m: 1.0,
+            stiffness: 8000.0,
+            damping: 1000.0,
+        }
+    }
+}
+
+impl Gantry {
+    /// The rope's pull on a pelvis at `pos` moving at `vel` (world frame), tied at `anchor`: along
+    /// the rope, never pushing.
+    pub fn force(&self, anchor: [f64; 3], pos: [f64; 3], vel: [f64; 3]) -> [f64; 3] {
+        let d = [anchor[0] - pos[0], anchor[1] - pos[1], anchor[2] - pos[2]];
+        let dist = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let stretch = dist - (self.height_m + self.slack_m);
+        if stretch <= 0.0 || dist == 0.0 {
+            return [0.0; 3];
+        }
+        let u = [d[0] / dist, d[1] / dist, d[2] / dist];
+        // The stretch grows as the pelvis moves away from the tie point.
+        let stretch_rate = -(vel[0] * u[0] + vel[1] * u[1] + vel[2] * u[2]);
+        let tension = (self.stiffness * stretch + self.damping * stretch_rate).max(0.0);
+        [tension * u[0], tension * u[1], tension * u[2]]
+    }
 }
 
 /// The simulated MID-360 and its packet stream, with per-tick buffers sized at attach time.
@@ -445,6 +495,7 @@ impl Simulator {
             pelvis_mass0,
             pelvis_inertia0,
             start_offset: [0.0; 3],
+            gantry: None,
             base_qpos: l.base_qpos,
             model_cache_note: l.cache_note,
         };
@@ -621,6 +672,12 @@ impl Simulator {
 
     /// One physics step; the applied torque is the (clamped) force MuJoCo computed for it.
     fn physics_step(&mut self) {
+        if let Some((rope, anchor)) = self.gantry {
+            let b = self.base_kinematics();
+            let f = rope.force(anchor, b.pos, b.lin_vel_world);
+            let x = &mut self.data.xfrc_applied_mut()[self.pelvis_body];
+            x[..3].copy_from_slice(&f);
+        }
         self.data.step();
         let f = self.data.actuator_force();
         for s in &self.slots {
@@ -805,6 +862,35 @@ impl Simulator {
         }
         let b = self.pelvis_body;
         self.data.xfrc_applied_mut()[b] = [force[0], force[1], force[2], torque[0], torque[1], torque[2]];
+        Ok(())
+    }
+
+    /// Hangs the robot on a test gantry's rope ([`Gantry`]), tied above the pelvis as it is now
+    /// (call after a reset: the start pose) and kept there across resets; `None` takes it down.
+    /// The rope's force replaces a base wrench's force ([`Simulator::set_base_wrench`]): the two
+    /// are for different tools and do not combine.
+    pub fn hang_on_gantry(&mut self, gantry: Option<Gantry>) -> Result<(), SimError> {
+        let Some(g) = gantry else {
+            self.gantry = None;
+            self.data.xfrc_applied_mut()[self.pelvis_body][..3].fill(0.0);
+            return Ok(());
+        };
+        for (what, v) in [
+            ("gantry slack", g.slack_m),
+            ("gantry height", g.height_m),
+            ("gantry stiffness", g.stiffness),
+            ("gantry damping", g.damping),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SimError::BadParameter {
+                    what,
+                    value: v,
+                    hint: "give a finite value >= 0",
+                });
+            }
+        }
+        let p = self.base_kinematics().pos;
+        self.gantry = Some((g, [p[0], p[1], p[2] + g.height_m]));
         Ok(())
     }
 

@@ -292,3 +292,56 @@ fn missing_model_names_the_fix() {
         .unwrap();
     assert!(err.to_string().contains("/nonexistent/g1.xml"), "{err}");
 }
+
+/// The test gantry's rope: slack while standing, pulling along itself when stretched, never pushing.
+#[test]
+fn the_gantry_rope_is_slack_near_the_start_and_only_pulls() {
+    let g = g1_sim::Gantry::default();
+    let anchor = [0.0, 0.0, 1.8];
+    let standing = [0.0, 0.0, 0.8];
+    assert_eq!(g.force(anchor, standing, [0.0; 3]), [0.0; 3]);
+    // 10 cm down: 5 cm stretched, pulled up by k · 0.05 (plus damping while sinking).
+    let f = g.force(anchor, [0.0, 0.0, 0.7], [0.0; 3]);
+    assert!((f[2] - g.stiffness * 0.05).abs() < 1e-9 && f[0] == 0.0, "{f:?}");
+    assert!(g.force(anchor, [0.0, 0.0, 0.7], [0.0, 0.0, -0.5])[2] > f[2]);
+    // Rising fast on a stretched rope: the damping may cancel the pull, never reverse it.
+    assert_eq!(g.force(anchor, [0.0, 0.0, 0.7], [0.0, 0.0, 5.0]), [0.0; 3]);
+    // Off to the side: pulled back toward the tie point.
+    let f = g.force(anchor, [0.6, 0.0, 0.8], [0.0; 3]);
+    assert!(f[0] < 0.0 && f[2] > 0.0, "{f:?}");
+}
+
+/// With every motor damped (a tripped controller), the 12-dof G1 falls; on the gantry it hangs
+/// a few centimetres below its start height.
+#[test]
+fn a_damped_robot_on_the_gantry_hangs_instead_of_falling() {
+    if !have_12dof("a_damped_robot_on_the_gantry_hangs_instead_of_falling") {
+        return;
+    }
+    let mut damping = LowCommand::default();
+    for m in damping.motors.iter_mut() {
+        m.mode = MOTOR_MODE_ENABLED;
+        m.kd = 5.0;
+    }
+    let lowest = |gantry: bool| {
+        let mut sim = load(ModelChoice::G1_12Dof);
+        let z0 = sim.truth().base_pos[2];
+        if gantry {
+            sim.hang_on_gantry(Some(g1_sim::Gantry::default())).unwrap();
+        }
+        sim.apply_command(&damping).unwrap();
+        let mut low = z0;
+        for _ in 0..1500 {
+            sim.step_control_tick();
+            low = low.min(sim.truth().base_pos[2]);
+        }
+        (z0, low)
+    };
+    let (z0, fell) = lowest(false);
+    assert!(
+        fell < z0 - 0.3,
+        "without the gantry the damped robot falls: {z0} → {fell}"
+    );
+    let (z0, hung) = lowest(true);
+    assert!(hung > z0 - 0.15, "on the gantry it hangs: {z0} → {hung}");
+}
