@@ -1,7 +1,8 @@
 //! A long run that must stay healthy (issue 73): `g1fw run --dds` against `g1-sim --dds` on its
 //! gantry, a fault every few minutes, each tripping damping and each recovered by an operator
 //! reset. Measured: the controller's resident memory over the run, the tick's compute time and
-//! clock lateness per window, every trip and reset, and a bit-exact replay of the log.
+//! clock lateness per window, every trip and reset, and a bit-exact replay of every file of the
+//! log, which is split at a size (`--log-split-mb`).
 //!
 //! The bench (`cargo bench --workspace --bench soak`, an hour) and the test (three minutes) run
 //! this same code; `docs/reliability.md` keeps the bench's figures.
@@ -35,6 +36,8 @@ pub struct SoakPlan {
     pub rss_every_s: f64,
     /// Windows the tick timing is summarised in (first against last shows a drift).
     pub windows: usize,
+    /// `g1fw run --log-split-mb`.
+    pub split_mb: f64,
 }
 
 /// Compute time of the tick (all three groups) and clock lateness in one window, µs.
@@ -72,8 +75,12 @@ pub struct SoakFigures {
     /// The report's clock lateness over the whole run.
     pub period_jitter: serde_json::Value,
     pub report_end: String,
+    /// All files of the log together.
     pub log_bytes: u64,
-    pub replay_identical: bool,
+    pub log_files: u64,
+    /// Files whose replay (each on its own) was bit-exact.
+    pub files_replayed_identical: u64,
+    /// Replay's wall time, all files.
     pub replay_s: f64,
 }
 
@@ -140,32 +147,34 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[((p * (sorted.len() - 1) as f64).round() as usize).min(sorted.len() - 1)]
 }
 
-/// The log's per-tick timing in `windows` equal windows, its trips and its resets.
-fn read_log(log: &Path, windows: usize) -> (Vec<TimingWindow>, Vec<(f64, String)>, Vec<f64>) {
-    let file = runlog::log::reader::LogFile::open(log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+/// The log's per-tick timing in `windows` equal windows, its trips and its resets (all files).
+fn read_log(files: &[PathBuf], windows: usize) -> (Vec<TimingWindow>, Vec<(f64, String)>, Vec<f64>) {
     let mut ticks: Vec<(f64, f64, u64)> = Vec::new();
     let (mut trips, mut resets) = (Vec::new(), Vec::new());
-    let end = file.scan(|topic, time_ns, data| match topic {
-        runlog::log::channels::TIMING => {
-            let v: serde_json::Value = serde_json::from_slice(data).expect("timing JSON");
-            let ns = ["fast_ns", "perception_ns", "policy_ns"]
-                .iter()
-                .map(|k| v[k].as_f64().unwrap_or(0.0))
-                .sum::<f64>();
-            ticks.push((time_ns as f64 * 1e-9, ns * 1e-3, v["overruns"].as_u64().unwrap_or(0)));
-        }
-        runlog::log::channels::SAFETY_EVENT => {
-            let v: serde_json::Value = serde_json::from_slice(data).expect("safety event JSON");
-            let t = v["time_s"].as_f64().unwrap_or(f64::NAN);
-            match v["event"].as_str() {
-                Some("trip") => trips.push((t, v["reason"].as_str().unwrap_or("?").to_string())),
-                Some("reset") => resets.push(t),
-                _ => {}
+    for log in files {
+        let file = runlog::log::reader::LogFile::open(log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+        let end = file.scan(|topic, time_ns, data| match topic {
+            runlog::log::channels::TIMING => {
+                let v: serde_json::Value = serde_json::from_slice(data).expect("timing JSON");
+                let ns = ["fast_ns", "perception_ns", "policy_ns"]
+                    .iter()
+                    .map(|k| v[k].as_f64().unwrap_or(0.0))
+                    .sum::<f64>();
+                ticks.push((time_ns as f64 * 1e-9, ns * 1e-3, v["overruns"].as_u64().unwrap_or(0)));
             }
-        }
-        _ => {}
-    });
-    file.undamaged(end).expect("the soak's log is whole");
+            runlog::log::channels::SAFETY_EVENT => {
+                let v: serde_json::Value = serde_json::from_slice(data).expect("safety event JSON");
+                let t = v["time_s"].as_f64().unwrap_or(f64::NAN);
+                match v["event"].as_str() {
+                    Some("trip") => trips.push((t, v["reason"].as_str().unwrap_or("?").to_string())),
+                    Some("reset") => resets.push(t),
+                    _ => {}
+                }
+            }
+            _ => {}
+        });
+        file.undamaged(end).expect("the soak's log is whole");
+    }
     let span = ticks.last().map_or(0.0, |t| t.0);
     let mut out = Vec::new();
     for w in 0..windows {
@@ -221,6 +230,7 @@ pub fn soak(dir: &Path, plan: SoakPlan) -> Option<SoakFigures> {
         // A slower start-up than the spec's 0.5 s: after a reset the robot starts from the rope.
         .args(["--ramp", "1.5", "--cmd-schedule"])
         .arg(&ops_file)
+        .args(["--log-split-mb", &plan.split_mb.to_string()])
         .args(["--duration", &duration, "--report"])
         .arg(&report)
         .arg("--log")
@@ -262,15 +272,21 @@ pub fn soak(dir: &Path, plan: SoakPlan) -> Option<SoakFigures> {
         Some(first) => settled.iter().map(|p| p.1).fold(f64::MIN, f64::max) - first.1,
         None => f64::NAN,
     };
-    let (timing, trips, resets) = read_log(&log, plan.windows);
+    let log_files = r["log"]["files"].as_u64().unwrap_or(0);
+    let files: Vec<PathBuf> = (0..log_files).map(|n| runlog::log::split_path(&log, n)).collect();
+    let (timing, trips, resets) = read_log(&files, plan.windows);
     let t0 = Instant::now();
-    let out = crate::g1fw(&["replay", log.to_str().unwrap()]);
-    let replay_s = t0.elapsed().as_secs_f64();
-    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    let replay_identical = out.status.success() && text.contains("replay identical");
-    if !replay_identical {
-        eprintln!("soak replay: {text}");
+    let mut files_replayed_identical = 0;
+    for f in &files {
+        let out = crate::g1fw(&["replay", f.to_str().unwrap()]);
+        let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+        if out.status.success() && text.contains("replay identical") {
+            files_replayed_identical += 1;
+        } else {
+            eprintln!("soak replay of {}: {text}", f.display());
+        }
     }
+    let replay_s = t0.elapsed().as_secs_f64();
     Some(SoakFigures {
         duration_s: plan.duration_s,
         ticks: r["ticks"].as_u64().unwrap_or(0),
@@ -284,8 +300,9 @@ pub fn soak(dir: &Path, plan: SoakPlan) -> Option<SoakFigures> {
         timing,
         period_jitter: r["period_jitter"].clone(),
         report_end: r["end"].as_str().unwrap_or("?").to_string(),
-        log_bytes: std::fs::metadata(&log).map_or(0, |m| m.len()),
-        replay_identical,
+        log_bytes: r["log"]["bytes"].as_u64().unwrap_or(0),
+        log_files,
+        files_replayed_identical,
         replay_s,
     })
 }
@@ -312,7 +329,11 @@ pub fn check(f: &SoakFigures) {
         f.faults.len(),
         "every reset back to the policy: {ctx}"
     );
-    assert!(f.replay_identical, "{ctx}");
+    assert!(f.log_files >= 1, "{ctx}");
+    assert_eq!(
+        f.files_replayed_identical, f.log_files,
+        "every file replays on its own: {ctx}"
+    );
 }
 
 /// Where a soak keeps its files: `$G1_SOAK_DIR` or a fresh folder under the system's temp.

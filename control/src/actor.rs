@@ -115,3 +115,21 @@ impl Actor {
         self.write_state(&state);
     }
 }
+
+/// The network's recurrent state, and its mirrored twin's.
+impl snapshot::Snapshot for Actor {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.net.save(out);
+        if let Some(t) = &self.twin {
+            t.net.save(out);
+        }
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        self.net.restore(input)?;
+        if let Some(t) = &mut self.twin {
+            t.net.restore(input)?;
+        }
+        Ok(())
+    }
+}

@@ -536,3 +536,104 @@ pub fn fuzz_deploy_spec(data: &[u8]) {
         }
     }
 }
+
+impl snapshot::Snapshot for Mode {
+    fn save(&self, out: &mut Vec<u8>) {
+        let code: u8 = match self {
+            Mode::Passive => 0,
+            Mode::Startup => 1,
+            Mode::Stand => 2,
+            Mode::Policy => 3,
+            Mode::SitDown => 4,
+            Mode::Damping(_) => 5,
+        };
+        out.push(code);
+        if let Mode::Damping(r) = self {
+            r.save(out);
+        }
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        let code = snapshot::take::<1>(input, "mode")?[0];
+        *self = match code {
+            0 => Mode::Passive,
+            1 => Mode::Startup,
+            2 => Mode::Stand,
+            3 => Mode::Policy,
+            4 => Mode::SitDown,
+            5 => {
+                let mut r = DampingReason::Tilt;
+                r.restore(input)?;
+                Mode::Damping(r)
+            }
+            _ => {
+                return Err(snapshot::SnapshotError::Invalid {
+                    what: "mode",
+                    value: code as u64,
+                })
+            }
+        };
+        Ok(())
+    }
+}
+
+/// What the controller carries between ticks. Not written: the spec, gains and limits (the
+/// log pins the spec), and the envelope's last violation (a report's detail; a split file's
+/// report starts without it). A violation is taken on its own tick, so none is pending here.
+impl snapshot::Snapshot for Controller {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.net.is_some().save(out);
+        if let Some(n) = &self.net {
+            n.save(out);
+        }
+        self.io.save(out);
+        self.action.save(out);
+        self.target_q.save(out);
+        self.start_q.save(out);
+        self.clamped_targets.save(out);
+        self.envelope_counts.range_clamps.save(out);
+        self.envelope_counts.violations.save(out);
+        self.start_tick.save(out);
+        self.ramp_ticks.save(out);
+        self.engage_tick.save(out);
+        self.policy_steps.save(out);
+        self.mode.save(out);
+        self.operated.save(out);
+        self.engaged_at.save(out);
+        self.sit_start.save(out);
+        self.sit_from.save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        let mut has_net = false;
+        has_net.restore(input)?;
+        match (&mut self.net, has_net) {
+            (Some(n), true) => n.restore(input)?,
+            (None, false) => {}
+            _ => {
+                return Err(snapshot::SnapshotError::Invalid {
+                    what: "policy presence (hold-only run?)",
+                    value: has_net as u64,
+                })
+            }
+        }
+        self.io.restore(input)?;
+        self.action.restore(input)?;
+        self.target_q.restore(input)?;
+        self.start_q.restore(input)?;
+        self.clamped_targets.restore(input)?;
+        self.envelope_counts.range_clamps.restore(input)?;
+        self.envelope_counts.violations.restore(input)?;
+        self.envelope_counts.last = None;
+        self.envelope_trip = None;
+        self.start_tick.restore(input)?;
+        self.ramp_ticks.restore(input)?;
+        self.engage_tick.restore(input)?;
+        self.policy_steps.restore(input)?;
+        self.mode.restore(input)?;
+        self.operated.restore(input)?;
+        self.engaged_at.restore(input)?;
+        self.sit_start.restore(input)?;
+        self.sit_from.restore(input)
+    }
+}

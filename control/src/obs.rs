@@ -142,3 +142,6 @@ impl ObservationBuilder {
         }
     }
 }
+
+snapshot::snapshot_fields!(Term { ring, head });
+snapshot::snapshot_fields!(ObservationBuilder { terms, primed });

@@ -186,3 +186,15 @@ impl PolicyIo {
 fn clock_start(phase: Option<(f64, f64)>) -> f64 {
     phase.map_or(0.0, |(first, period)| (first / period).rem_euclid(1.0))
 }
+
+snapshot::snapshot_fields!(PolicyIo {
+    obs,
+    obs_buf,
+    last_action,
+    joint_pos_rel,
+    joint_vel,
+    rate_phase,
+    next_rate,
+    phase_now,
+    steps_since_reset,
+});

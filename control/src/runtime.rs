@@ -183,6 +183,9 @@ pub struct Runtime {
     truth_token: hal::TerrainToken,
 }
 
+/// The layout of [`Runtime::save_snapshot`]: a change to what it writes changes this number.
+pub const SNAPSHOT_FORMAT: u32 = 1;
+
 impl Runtime {
     pub fn new(controller: Controller) -> Self {
         let spec = controller.spec();
@@ -312,6 +315,75 @@ impl Runtime {
         self.worker = None;
         late_steps.sort_by_key(|l| l.step_tick);
         self.replayed_late_steps = Some(late_steps);
+    }
+
+    /// Appends the state this runtime carries into its next tick to `out` (see the `snapshot`
+    /// crate): what a log file split after this tick starts from. `false` (nothing written) while
+    /// a threaded perception step is out; it comes home within a perception period.
+    pub fn save_snapshot(&self, out: &mut Vec<u8>) -> bool {
+        use snapshot::Snapshot;
+        let Some(p) = self.perception.as_deref() else {
+            return false;
+        };
+        if self.pending.is_some() || self.replay_away.is_some() || self.away_len > 0 {
+            return false;
+        }
+        SNAPSHOT_FORMAT.save(out);
+        self.controller.save(out);
+        self.supervisor.save(out);
+        self.estimator.save(out);
+        p.save(out);
+        self.policy_token.save(out);
+        self.trip.is_some().save(out);
+        if let Some((k, r)) = self.trip {
+            k.save(out);
+            r.save(out);
+        }
+        self.perception_late.save(out);
+        self.perception_skipped.save(out);
+        true
+    }
+
+    /// Restores what [`Runtime::save_snapshot`] wrote, into a runtime built from the same spec
+    /// and set up the same way (perception execution, frozen check), before its first tick.
+    pub fn restore_snapshot(&mut self, bytes: &[u8]) -> Result<(), snapshot::SnapshotError> {
+        use snapshot::Snapshot;
+        let mut input = bytes;
+        let mut format = 0u32;
+        format.restore(&mut input)?;
+        if format != SNAPSHOT_FORMAT {
+            return Err(snapshot::SnapshotError::Version {
+                expected: SNAPSHOT_FORMAT,
+                found: format,
+            });
+        }
+        self.controller.restore(&mut input)?;
+        self.supervisor.restore(&mut input)?;
+        self.estimator.restore(&mut input)?;
+        let Some(p) = self.perception.as_deref_mut() else {
+            return Err(snapshot::SnapshotError::Invalid {
+                what: "perception at home",
+                value: 0,
+            });
+        };
+        p.restore(&mut input)?;
+        self.policy_token.restore(&mut input)?;
+        let mut tripped = false;
+        tripped.restore(&mut input)?;
+        self.trip = None;
+        if tripped {
+            let (mut k, mut r) = (0u64, DampingReason::Tilt);
+            k.restore(&mut input)?;
+            r.restore(&mut input)?;
+            self.trip = Some((k, r));
+        }
+        self.perception_late.restore(&mut input)?;
+        self.perception_skipped.restore(&mut input)?;
+        if input.is_empty() {
+            Ok(())
+        } else {
+            Err(snapshot::SnapshotError::Trailing(input.len()))
+        }
     }
 
     /// Threaded steps whose result was not ready when due (their token was not used), and

@@ -401,3 +401,80 @@ impl Supervisor {
         trip
     }
 }
+
+/// A reason as (code, slot): the code numbers the variants in their order of declaration.
+impl snapshot::Snapshot for DampingReason {
+    fn save(&self, out: &mut Vec<u8>) {
+        use DampingReason as R;
+        let code = match self {
+            R::Tilt => 0,
+            R::JointSpeed { .. } => 1,
+            R::BaseAngularSpeed => 2,
+            R::MotorTemperature { .. } => 3,
+            R::StateTimeout => 4,
+            R::CrcStreak => 5,
+            R::MalformedFrame => 6,
+            R::NonFiniteInput => 7,
+            R::NonFiniteObservation => 8,
+            R::NonFiniteAction => 9,
+            R::FrozenJoint { .. } => 10,
+            R::HalFault => 11,
+            R::MotorSilent { .. } => 12,
+            R::EStop => 13,
+            R::Requested => 14,
+            R::InvalidImu => 15,
+            R::CommandEnvelope { .. } => 16,
+        };
+        out.extend_from_slice(&[code, self.slot().unwrap_or(0)]);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        use DampingReason as R;
+        let [code, slot] = snapshot::take::<2>(input, "damping reason")?;
+        *self = match code {
+            0 => R::Tilt,
+            1 => R::JointSpeed { slot },
+            2 => R::BaseAngularSpeed,
+            3 => R::MotorTemperature { slot },
+            4 => R::StateTimeout,
+            5 => R::CrcStreak,
+            6 => R::MalformedFrame,
+            7 => R::NonFiniteInput,
+            8 => R::NonFiniteObservation,
+            9 => R::NonFiniteAction,
+            10 => R::FrozenJoint { slot },
+            11 => R::HalFault,
+            12 => R::MotorSilent { slot },
+            13 => R::EStop,
+            14 => R::Requested,
+            15 => R::InvalidImu,
+            16 => R::CommandEnvelope { slot },
+            _ => {
+                return Err(snapshot::SnapshotError::Invalid {
+                    what: "damping reason",
+                    value: code as u64,
+                })
+            }
+        };
+        Ok(())
+    }
+}
+
+snapshot::snapshot_fields!(SafetyCounters {
+    crc_failures,
+    crc_streak,
+    missing_frames,
+    stale_frames,
+    malformed_frames,
+    state_age_ticks,
+});
+
+snapshot::snapshot_fields!(Supervisor {
+    frozen_watch,
+    frozen_last,
+    frozen_count,
+    last_accepted_tick,
+    last_frame_counter,
+    counters,
+    motion_checks,
+});

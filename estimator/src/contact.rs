@@ -145,3 +145,5 @@ mod tests {
         );
     }
 }
+
+snapshot::snapshot_fields!(ContactDetector { contact, loaded, force });

@@ -276,3 +276,18 @@ mod tests {
         assert!(f.is_finite());
     }
 }
+
+/// The state and its covariance (and the rejections counted).
+impl snapshot::Snapshot for BaseFilter {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.x.as_slice().save(out);
+        self.p.as_slice().save(out);
+        self.rejected.save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        self.x.as_mut_slice().restore(input)?;
+        self.p.as_mut_slice().restore(input)?;
+        self.rejected.restore(input)
+    }
+}

@@ -798,3 +798,13 @@ impl GeometricTerrainEstimator {
         nr
     }
 }
+
+snapshot::snapshot_fields!(TerrainEstimate {
+    token,
+    confidence,
+    cells_used,
+    levels,
+    risers,
+    fit_residual_m,
+    depth_measured,
+});

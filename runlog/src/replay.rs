@@ -699,6 +699,61 @@ fn controller_from_log(
     Ok((controller, terrain_source))
 }
 
+/// Restores the runtime's state from a split file's [`crate::log::writer::SPLIT_METADATA`]
+/// (checked against its sha256, and against this runtime's spec by every length), and returns the
+/// last LowState the recorded loop held.
+fn restore_split(rt: &mut Runtime, split: &BTreeMap<String, String>, log_path: &Path) -> Result<LowState> {
+    use crate::log::writer::split_key as k;
+    let get = |key: &str| {
+        split
+            .get(key)
+            .with_context(|| format!("{}: the split record lacks '{key}'", log_path.display()))
+    };
+    let snapshot =
+        unhex(get(k::SNAPSHOT_HEX)?).with_context(|| format!("{}: {}", log_path.display(), k::SNAPSHOT_HEX))?;
+    if sha256_hex(&snapshot) != *get(k::SNAPSHOT_SHA256)? {
+        bail!(
+            "{}: the runtime state it starts from does not match its sha256 (the file is damaged)",
+            log_path.display()
+        );
+    }
+    rt.restore_snapshot(&snapshot).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: the runtime state it starts from does not fit this spec and g1fw: {e}",
+            log_path.display()
+        )
+    })?;
+    let bytes =
+        unhex(get(k::LAST_STATE_HEX)?).with_context(|| format!("{}: {}", log_path.display(), k::LAST_STATE_HEX))?;
+    let frame: [u8; LOW_STATE_LEN] = bytes.as_slice().try_into().map_err(|_| {
+        anyhow::anyhow!(
+            "{}: the last state is {} bytes, not {LOW_STATE_LEN}",
+            log_path.display(),
+            bytes.len()
+        )
+    })?;
+    let mut state = LowState::default();
+    decode_low_state(&frame, &mut state).with_context(|| format!("{}: the last state", log_path.display()))?;
+    Ok(state)
+}
+
+/// Bytes from lower- or upper-case hex.
+fn unhex(text: &str) -> Result<Vec<u8>> {
+    let digit = |c: u8| match c {
+        b'0'..=b'9' => Ok(c - b'0'),
+        b'a'..=b'f' => Ok(c - b'a' + 10),
+        b'A'..=b'F' => Ok(c - b'A' + 10),
+        _ => Err(anyhow::anyhow!("'{}' is not a hex digit", c as char)),
+    };
+    let b = text.as_bytes();
+    if b.len() % 2 != 0 {
+        bail!("an odd number of hex digits ({})", b.len());
+    }
+    b.chunks_exact(2)
+        .map(|p| Ok(digit(p[0])? << 4 | digit(p[1])?))
+        .collect()
+}
+
 fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOptions) -> Result<ReplayReport> {
     let meta = log.run_metadata()?;
     let mut notes = Vec::new();
@@ -743,11 +798,26 @@ fn replay_log(wall: Instant, log_path: &Path, log: &LogFile, opts: &ReplayOption
             ),
         },
     }
+    // A file that continues a split log starts from the state the run had at the cut.
+    let mut start_state = LowState::default();
+    if let Some(split) = log.metadata(crate::log::writer::SPLIT_METADATA) {
+        start_state = restore_split(&mut rt, &split, log_path)?;
+        let first = split
+            .get(crate::log::writer::split_key::FIRST_TICK)
+            .cloned()
+            .unwrap_or_default();
+        notes.push(format!(
+            "part {} of a split log: started from the state the run had before tick {first}",
+            split
+                .get(crate::log::writer::split_key::PART)
+                .map_or("?", String::as_str)
+        ));
+    }
     let mut hal = ReplayHal {
         rec: &rec,
         next: 0,
         cur: 0,
-        state: LowState::default(),
+        state: start_state,
         scratch: LowState::default(),
         unread: false,
         lidar_fed: 0,

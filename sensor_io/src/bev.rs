@@ -508,3 +508,11 @@ impl BevBuilder {
         }
     }
 }
+
+snapshot::snapshot_fields!(BevStats {
+    input,
+    used,
+    self_hits,
+    outside,
+    non_finite
+});

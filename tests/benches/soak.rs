@@ -19,6 +19,8 @@ fn main() {
         fault_every_s: 120.0,
         rss_every_s: 5.0,
         windows: 6,
+        // About 1.2 GB an hour: a dozen files.
+        split_mb: 100.0,
     };
     let Some(f) = soak(&dir, plan) else { return };
     let json = serde_json::to_string_pretty(&f).unwrap();
@@ -37,7 +39,7 @@ fn main() {
         .find(|p| p.0 >= duration_s / 10.0)
         .map_or(f64::NAN, |p| p.1);
     println!(
-        "\nfaults {}, trips {}, resets back to the policy {}; g1fw resident {:.1} MiB after the first tenth, growth {:.2} MiB, slope {:.2} MiB/h; log {:.0} MB, replay identical: {} ({:.0} s); clock lateness {}",
+        "\nfaults {}, trips {}, resets back to the policy {}; g1fw resident {:.1} MiB after the first tenth, growth {:.2} MiB, slope {:.2} MiB/h; log {:.0} MB in {} files, {} replayed bit-exact ({:.0} s); clock lateness {}",
         f.faults.len(),
         f.trips.len(),
         f.back_to_policy,
@@ -45,7 +47,8 @@ fn main() {
         f.rss_growth_mib,
         f.rss_slope_mib_per_h,
         f.log_bytes as f64 / 1e6,
-        f.replay_identical,
+        f.log_files,
+        f.files_replayed_identical,
         f.replay_s,
         f.period_jitter
     );

@@ -458,3 +458,17 @@ impl TensorSource<'_, '_> {
         })
     }
 }
+
+/// An LSTM's recurrent state: `h` (the tail of `xh`) and `c`.
+impl snapshot::Snapshot for Lstm {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.xh[self.input..].save(out);
+        self.c.save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        let at = self.input;
+        self.xh[at..].restore(input)?;
+        self.c.restore(input)
+    }
+}

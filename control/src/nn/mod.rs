@@ -418,3 +418,23 @@ mod safetensors_words {
         assert!(s.contains("truncated"), "{s}");
     }
 }
+
+/// The recurrent state of every stateful layer, in order (nothing for a feed-forward network).
+impl snapshot::Snapshot for Network {
+    fn save(&self, out: &mut Vec<u8>) {
+        for l in &self.layers {
+            if let layers::Layer::Lstm(lstm) = l {
+                lstm.save(out);
+            }
+        }
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        for l in &mut self.layers {
+            if let layers::Layer::Lstm(lstm) = l {
+                lstm.restore(input)?;
+            }
+        }
+        Ok(())
+    }
+}

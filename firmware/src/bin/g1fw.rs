@@ -132,6 +132,11 @@ struct SimArgs {
     /// (opens in Foxglove; replay with `g1fw replay`).
     #[arg(long)]
     log: Option<PathBuf>,
+    /// Go on in a new log file once one has this many megabytes (as rosbag2's --max-bag-size):
+    /// RUN.mcap, then RUN_1.mcap, RUN_2.mcap, … Each file starts with the run's state at its first
+    /// tick, so each replays on its own (`g1fw replay RUN_2.mcap`).
+    #[arg(long, value_name = "MB", value_parser = parse_log_split_mb, requires = "log")]
+    log_split_mb: Option<f64>,
     /// Render commanded vs measured velocity to this PNG after the run.
     #[arg(long)]
     plot: Option<PathBuf>,
@@ -379,6 +384,11 @@ struct RunArgs {
     /// Record an MCAP log (replay with `g1fw replay`).
     #[arg(long)]
     log: Option<PathBuf>,
+    /// Go on in a new log file once one has this many megabytes (as rosbag2's --max-bag-size):
+    /// RUN.mcap, then RUN_1.mcap, RUN_2.mcap, … Each file starts with the run's state at its first
+    /// tick, so each replays on its own (`g1fw replay RUN_2.mcap`).
+    #[arg(long, value_name = "MB", value_parser = parse_log_split_mb, requires = "log")]
+    log_split_mb: Option<f64>,
     /// Write the JSON report here too.
     #[arg(long)]
     report: Option<PathBuf>,
@@ -471,6 +481,19 @@ fn parse_run_s(s: &str) -> Result<f64, String> {
 }
 
 /// A start-up ramp, s, within what a spec may hold (`startup.ramp_s`).
+/// A log file's size before the next one, MB (0.1 MB to 1 TB).
+fn parse_log_split_mb(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.1, 1e6, "MB")
+}
+
+/// The logger's options for `--log-split-mb`.
+fn log_options(split_mb: Option<f64>) -> runlog::log::LogOptions {
+    runlog::log::LogOptions {
+        split_bytes: split_mb.map(|mb| (mb * 1e6) as u64),
+        ..Default::default()
+    }
+}
+
 fn parse_ramp_s(s: &str) -> Result<f64, String> {
     finite_in(s, 0.0, control::spec::MAX_STARTUP_S, "s")
 }
@@ -783,7 +806,7 @@ fn sim(a: SimArgs) -> Result<ExitCode> {
         physics: a.sim_physics,
         world: a.world.clone(),
         log: a.log.clone(),
-        log_options: Default::default(),
+        log_options: log_options(a.log_split_mb),
         rt: a.rt.options(),
         terrain_source: a.terrain_source,
         perception: a.perception,
@@ -1060,7 +1083,7 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
         keyboard: a.keyboard,
         startup_timeout: std::time::Duration::from_secs_f64(a.startup_timeout),
         log: a.log.clone(),
-        log_options: Default::default(),
+        log_options: log_options(a.log_split_mb),
         rt: a.rt.options(),
         stop,
         perception: a.perception,
@@ -1094,6 +1117,12 @@ fn run_robot(a: RunArgs) -> Result<ExitCode> {
             let tick_timeout = a
                 .dds_tick_timeout_ms
                 .map(|ms| std::time::Duration::from_millis(ms as u64));
+            if a.unitree_mujoco && a.log_split_mb.is_some() {
+                bail!(
+                    "--log-split-mb does not go with --unitree-mujoco: the states that simulator sends \
+                     unsealed are stamped by their count since the start, which a later file cannot know"
+                );
+            }
             if a.unitree_mujoco {
                 tracing::warn!(
                     "--unitree-mujoco: states without a CRC or an advancing tick are accepted (Unitree's Python \

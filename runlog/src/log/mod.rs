@@ -8,4 +8,4 @@ pub mod reader;
 pub mod writer;
 
 pub use reader::LogFile;
-pub use writer::{mode_name, LogOptions, LogStats, Logger, RunMeta};
+pub use writer::{mode_name, split_key, split_path, LogOptions, LogStats, Logger, RunMeta, SPLIT_METADATA};

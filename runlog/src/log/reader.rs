@@ -142,6 +142,19 @@ impl LogFile {
         }
     }
 
+    /// The metadata record `name` (before any chunk), if the file has one.
+    pub fn metadata(&self, name: &str) -> Option<BTreeMap<String, String>> {
+        let mut found = None;
+        Scanner::new(&self.bytes).run(&mut |_, _, _| {}, &mut |n, map| {
+            if n == name {
+                found = Some(map);
+                return false;
+            }
+            true
+        });
+        found
+    }
+
     /// Calls `f(topic, log_time_ns, data)` for every message in file order, up to the end of the
     /// last complete chunk or up to the first damage.
     pub fn scan(&self, mut f: impl FnMut(&str, u64, &[u8])) -> ScanEnd {

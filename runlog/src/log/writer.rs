@@ -4,18 +4,24 @@
 //! Crash safety: the run metadata is written before the first message, and the writer closes a
 //! chunk and hands it to the OS every `flush_every_ticks` ticks, so after `kill -9` every chunk
 //! written before the kill reads back (only the summary at the end is missing).
+//!
+//! Split files ([`LogOptions::split_bytes`], as rosbag2's `--max-bag-size`): once a file has
+//! reached the size, the control thread writes the runtime's state after the next tick that can
+//! be cut ([`control::runtime::Runtime::save_snapshot`]: no perception step out, no fresh frame on
+//! the tick) and the writer goes on in `NAME_1.mcap`, `NAME_2.mcap`, … Each file starts with the
+//! run metadata and that state ([`SPLIT_METADATA`]), so each replays on its own.
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam_queue::ArrayQueue;
 use hal::GroundTruth;
-use hal::LowCommand;
+use hal::{LowCommand, LowState};
 use serde::Serialize;
 
 use super::channels::{self as ch, encode_lidar_frame, encode_low_cmd_frame, encode_low_state_frame};
@@ -23,6 +29,46 @@ use control::controller::Mode;
 use control::perception::{LidarFrame, PerceptionSummary};
 use control::runtime::{HalFailure, TickSummary, TickView};
 use sensor_io::bev::{BevGrid, BEV_CELLS, BEV_CELL_M, BEV_CHANNELS, BEV_HALF_EXTENT_M, CHANNEL_NAMES};
+
+/// Name of the metadata record a split file starts with, after the run's (see the module doc).
+pub const SPLIT_METADATA: &str = "g1fw.split";
+
+/// Keys of [`SPLIT_METADATA`].
+pub mod split_key {
+    /// 1 for the second file, 2 for the third, …
+    pub const PART: &str = "part";
+    /// The first tick this file holds.
+    pub const FIRST_TICK: &str = "first_tick";
+    /// The runtime's state before that tick (`Runtime::save_snapshot`), hex, and its sha256.
+    pub const SNAPSHOT_HEX: &str = "snapshot_hex";
+    pub const SNAPSHOT_SHA256: &str = "snapshot_sha256";
+    /// The last LowState the loop held (what a tick without a frame reuses), unitree_hg C layout, hex.
+    pub const LAST_STATE_HEX: &str = "last_state_hex";
+    /// The file before this one.
+    pub const PREVIOUS: &str = "previous";
+}
+
+/// The `part`-th file of a log split from `base` (`run.mcap` → `run_1.mcap`; part 0 is `base`).
+pub fn split_path(base: &Path, part: u64) -> PathBuf {
+    if part == 0 {
+        return base.to_path_buf();
+    }
+    let stem = base
+        .file_stem()
+        .map_or_else(String::new, |s| s.to_string_lossy().into_owned());
+    let name = match base.extension() {
+        Some(ext) => format!("{stem}_{part}.{}", ext.to_string_lossy()),
+        None => format!("{stem}_{part}"),
+    };
+    base.with_file_name(name)
+}
+
+/// Where the control thread cut the run: the state the next file starts from.
+struct SplitPoint {
+    snapshot: Vec<u8>,
+    last_state: LowState,
+    first_tick: u64,
+}
 
 /// Largest observation / action the log record holds.
 pub const MAX_OBS: usize = 1024;
@@ -61,6 +107,8 @@ pub struct Record {
     pub hal_error: Option<HalFailure>,
     /// Records dropped (pool full) since the previous record.
     pub dropped_before: u64,
+    /// The log goes on in a new file after this record.
+    pub split_after: bool,
 }
 
 impl Record {
@@ -80,6 +128,7 @@ impl Record {
             truth: None,
             hal_error: None,
             dropped_before: 0,
+            split_after: false,
         })
     }
 
@@ -106,6 +155,7 @@ impl Record {
         self.truth = v.truth.copied();
         self.hal_error = v.hal_error;
         self.dropped_before = dropped_before;
+        self.split_after = false;
     }
 }
 
@@ -201,6 +251,8 @@ pub struct LogOptions {
     /// When the pool is full: wait for the writer (simulation and replay, where time is virtual) or
     /// drop the record and count it (hardware, where the tick must not wait).
     pub block_when_full: bool,
+    /// Go on in a new file once one has this many bytes (see the module doc); `None`: one file.
+    pub split_bytes: Option<u64>,
 }
 
 impl Default for LogOptions {
@@ -209,6 +261,7 @@ impl Default for LogOptions {
             flush_every_ticks: 250,
             pool: 512,
             block_when_full: true,
+            split_bytes: None,
         }
     }
 }
@@ -220,7 +273,10 @@ pub struct LogStats {
     pub messages: u64,
     pub dropped_records: u64,
     pub chunks_flushed: u64,
+    /// All files together.
     pub bytes: u64,
+    /// Files written (1 unless the log was split).
+    pub files: u64,
 }
 
 pub struct Logger {
@@ -235,6 +291,9 @@ pub struct Logger {
     dropped: u64,
     dropped_total: u64,
     path: PathBuf,
+    /// Set by the writer when the current file has reached [`LogOptions::split_bytes`].
+    split_wanted: Arc<AtomicBool>,
+    split: Arc<Mutex<Option<SplitPoint>>>,
 }
 
 impl Logger {
@@ -269,13 +328,22 @@ impl Logger {
         let pfull = Arc::new(ArrayQueue::new(PERCEPTION_POOL));
         let stop = Arc::new(AtomicBool::new(false));
         let flushed_ticks = Arc::new(AtomicU64::new(0));
+        let split_wanted = Arc::new(AtomicBool::new(false));
+        let split = Arc::new(Mutex::new(None));
         let thread = {
             let (free, full, stop, flushed) = (free.clone(), full.clone(), stop.clone(), flushed_ticks.clone());
             let (pfree, pfull) = (pfree.clone(), pfull.clone());
+            let splits = Splits {
+                bytes: opts.split_bytes,
+                wanted: split_wanted.clone(),
+                point: split.clone(),
+                base: path.to_path_buf(),
+                meta: meta.clone(),
+            };
             let every = opts.flush_every_ticks.max(1);
             std::thread::Builder::new()
                 .name("g1fw-log".into())
-                .spawn(move || writer_loop(w, (&free, &full), (&pfree, &pfull), &stop, &flushed, every))
+                .spawn(move || writer_loop(w, (&free, &full), (&pfree, &pfull), &stop, &flushed, every, splits))
                 .map_err(|source| LogError::Io {
                     path: path.into(),
                     source,
@@ -293,6 +361,8 @@ impl Logger {
             dropped: 0,
             dropped_total: 0,
             path: path.into(),
+            split_wanted,
+            split,
         })
     }
 
@@ -320,6 +390,9 @@ impl Logger {
         };
         rec.fill(view, self.dropped);
         self.dropped = 0;
+        if self.split_wanted.load(Ordering::Acquire) {
+            rec.split_after = self.cut_after(view);
+        }
         // Cannot fail: the pool and the queue have the same capacity.
         let _ = self.full.push(rec);
         if let Some(p) = view.summary.perception.filter(|p| p.fresh) {
@@ -341,6 +414,32 @@ impl Logger {
                 None => self.dropped_total += 1,
             }
         }
+        true
+    }
+
+    /// The writer asked for a new file: cut after `view`'s tick if it can be cut there (no
+    /// perception step out, no fresh perception record to follow, the HAL fine). Allocates the
+    /// snapshot (a few tens of kB), once per file.
+    fn cut_after(&mut self, view: &TickView) -> bool {
+        if view.summary.perception.is_some_and(|p| p.fresh) || view.hal_error.is_some() {
+            return false;
+        }
+        let mut snapshot = Vec::new();
+        if !view.runtime.save_snapshot(&mut snapshot) {
+            return false;
+        }
+        let Ok(mut slot) = self.split.lock() else {
+            return false;
+        };
+        if slot.is_some() {
+            return false;
+        }
+        *slot = Some(SplitPoint {
+            snapshot,
+            last_state: *view.state,
+            first_tick: view.summary.tick.index + 1,
+        });
+        self.split_wanted.store(false, Ordering::Release);
         true
     }
 
@@ -376,6 +475,62 @@ impl Drop for Logger {
 
 type Pool<T> = ArrayQueue<Box<T>>;
 
+/// The writer's side of splitting.
+struct Splits {
+    bytes: Option<u64>,
+    wanted: Arc<AtomicBool>,
+    point: Arc<Mutex<Option<SplitPoint>>>,
+    base: PathBuf,
+    meta: RunMeta,
+}
+
+impl Splits {
+    /// The next file, opened with the run metadata and the state at the cut.
+    fn open(&self, part: u64, point: &SplitPoint) -> Result<McapSink, LogError> {
+        let path = split_path(&self.base, part);
+        let mut last_state = [0u8; FRAME_CAP];
+        sensor_io::unitree_hg::encode_low_state(&point.last_state, &mut last_state);
+        let previous = split_path(&self.base, part - 1);
+        let entries = BTreeMap::from([
+            (split_key::PART.to_string(), part.to_string()),
+            (split_key::FIRST_TICK.to_string(), point.first_tick.to_string()),
+            (split_key::SNAPSHOT_HEX.to_string(), hex(&point.snapshot)),
+            (
+                split_key::SNAPSHOT_SHA256.to_string(),
+                control::nn::sha256_hex(&point.snapshot),
+            ),
+            (split_key::LAST_STATE_HEX.to_string(), hex(&last_state)),
+            (
+                split_key::PREVIOUS.to_string(),
+                previous
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            ),
+        ]);
+        let file = File::create(&path).map_err(|source| LogError::Create {
+            path: path.clone(),
+            source,
+        })?;
+        McapSink::with_split(
+            BufWriter::with_capacity(1 << 20, file),
+            &path,
+            &self.meta,
+            Some(entries),
+        )
+    }
+}
+
+/// Lower-case hex of `bytes`.
+fn hex(bytes: &[u8]) -> String {
+    const DIGITS: &[u8; 16] = b"0123456789abcdef";
+    let mut s = String::with_capacity(2 * bytes.len());
+    for b in bytes {
+        s.push(DIGITS[(b >> 4) as usize] as char);
+        s.push(DIGITS[(b & 15) as usize] as char);
+    }
+    s
+}
+
 fn writer_loop(
     mut w: McapSink,
     (free, full): (&Pool<Record>, &Pool<Record>),
@@ -383,8 +538,11 @@ fn writer_loop(
     stop: &AtomicBool,
     flushed: &AtomicU64,
     every: u64,
+    splits: Splits,
 ) -> Result<LogStats, LogError> {
     let mut since_flush = 0u64;
+    // The files already closed, and how many.
+    let mut done = LogStats::default();
     let result = loop {
         // Perception records are pushed right after their tick's record.
         if let Some(p) = pfull.pop() {
@@ -398,17 +556,39 @@ fn writer_loop(
             Some(rec) => {
                 let r = w.record(&rec);
                 let last_tick = rec.summary.tick.index;
+                let split_after = rec.split_after;
                 let _ = free.push(rec);
                 if let Err(e) = r {
                     break Err(e);
                 }
                 since_flush += 1;
-                if since_flush >= every {
+                let point = if split_after {
+                    splits.point.lock().ok().and_then(|mut p| p.take())
+                } else {
+                    None
+                };
+                if let Some(point) = point {
+                    // A new file that cannot be opened (a full disk) stops the log; the one open
+                    // is finished below with everything up to here.
+                    let next = match splits.open(done.files + 1, &point) {
+                        Ok(n) => n,
+                        Err(e) => break Err(e),
+                    };
+                    match std::mem::replace(&mut w, next).finish() {
+                        Ok(s) => done.add(&s),
+                        Err(e) => break Err(e),
+                    }
+                    since_flush = 0;
+                    flushed.store(last_tick + 1, Ordering::Release);
+                } else if since_flush >= every {
                     since_flush = 0;
                     if let Err(e) = w.flush() {
                         break Err(e);
                     }
                     flushed.store(last_tick + 1, Ordering::Release);
+                    if splits.bytes.is_some_and(|b| w.bytes_on_disk() >= b) {
+                        splits.wanted.store(true, Ordering::Release);
+                    }
                 }
             }
             None if stop.load(Ordering::Acquire) => {
@@ -422,10 +602,25 @@ fn writer_loop(
     };
     // The first error is the one that says why (ENOSPC); finishing a writer that already failed
     // only adds "attempted another write after a write method failed".
-    let finished = w.finish();
+    let finished = w.finish().map(|last| {
+        done.add(&last);
+        done
+    });
     match result {
         Err(e) => Err(e),
         Ok(()) => finished,
+    }
+}
+
+impl LogStats {
+    /// Adds another file's totals.
+    fn add(&mut self, other: &LogStats) {
+        self.records += other.records;
+        self.messages += other.messages;
+        self.dropped_records += other.dropped_records;
+        self.chunks_flushed += other.chunks_flushed;
+        self.bytes += other.bytes;
+        self.files += 1;
     }
 }
 
@@ -447,6 +642,16 @@ struct McapSink {
 
 impl McapSink {
     fn new(out: BufWriter<File>, path: &Path, meta: &RunMeta) -> Result<Self, LogError> {
+        Self::with_split(out, path, meta, None)
+    }
+
+    /// A file that continues a split log starts with `split` ([`SPLIT_METADATA`]) after the run's metadata.
+    fn with_split(
+        out: BufWriter<File>,
+        path: &Path,
+        meta: &RunMeta,
+        split: Option<BTreeMap<String, String>>,
+    ) -> Result<Self, LogError> {
         let mk = |source| LogError::Mcap {
             path: path.into(),
             source,
@@ -465,6 +670,13 @@ impl McapSink {
             metadata: meta.entries.clone(),
         })
         .map_err(mk)?;
+        if let Some(entries) = split {
+            w.write_metadata(&mcap::records::Metadata {
+                name: SPLIT_METADATA.into(),
+                metadata: entries,
+            })
+            .map_err(mk)?;
+        }
         let none = BTreeMap::new();
         let s = w
             .add_schema("g1fw/msg/LowStateFrame", "ros2msg", ch::LOW_STATE_MSG.as_bytes())
@@ -890,6 +1102,11 @@ impl McapSink {
         self.w.flush().map_err(|e| self.err(e))?;
         self.stats.chunks_flushed += 1;
         Ok(())
+    }
+
+    /// The file's size as the OS has it (after a flush: every closed chunk).
+    fn bytes_on_disk(&self) -> u64 {
+        std::fs::metadata(&self.path).map_or(0, |m| m.len())
     }
 
     fn finish(mut self) -> Result<LogStats, LogError> {
