@@ -450,6 +450,69 @@ pub fn robot_frame_inputs(est: &Estimate, fallback_height: f32) -> (f32, f32, f3
     )
 }
 
+impl snapshot::Snapshot for TerrainEstimatorKind {
+    fn save(&self, out: &mut Vec<u8>) {
+        out.push(match self {
+            TerrainEstimatorKind::Cnn => 0,
+            TerrainEstimatorKind::Geometric => 1,
+        });
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        *self = match snapshot::take::<1>(input, "terrain estimator")?[0] {
+            0 => TerrainEstimatorKind::Cnn,
+            1 => TerrainEstimatorKind::Geometric,
+            v => {
+                return Err(snapshot::SnapshotError::Invalid {
+                    what: "terrain estimator",
+                    value: v as u64,
+                })
+            }
+        };
+        Ok(())
+    }
+}
+
+snapshot::snapshot_fields!(PerceptionSummary {
+    fresh,
+    frame_timestamp_ns,
+    points,
+    bev,
+    memory_keyframes,
+    memory_points,
+    roll,
+    pitch,
+    base_height,
+    source,
+    estimate,
+    confidence,
+    geometric,
+    token,
+    held,
+    frames,
+    step_tick,
+    late,
+});
+
+snapshot::snapshot_fields!(PoseSample {
+    time_ns,
+    rot,
+    pos,
+    height,
+    waist
+});
+
+// The pose history, the BEV memory's keyframes and the last summary (the token held when a
+// frame is implausible, the step without a frame). Not the frame buffer: the HAL fills it before
+// every step that reads it.
+snapshot::snapshot_fields!(Perception {
+    history,
+    history_len,
+    history_next,
+    memory,
+    last
+});
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -539,66 +602,3 @@ mod tests {
         assert_eq!((s.memory_keyframes, s.memory_points), (0, 0));
     }
 }
-
-impl snapshot::Snapshot for TerrainEstimatorKind {
-    fn save(&self, out: &mut Vec<u8>) {
-        out.push(match self {
-            TerrainEstimatorKind::Cnn => 0,
-            TerrainEstimatorKind::Geometric => 1,
-        });
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        *self = match snapshot::take::<1>(input, "terrain estimator")?[0] {
-            0 => TerrainEstimatorKind::Cnn,
-            1 => TerrainEstimatorKind::Geometric,
-            v => {
-                return Err(snapshot::SnapshotError::Invalid {
-                    what: "terrain estimator",
-                    value: v as u64,
-                })
-            }
-        };
-        Ok(())
-    }
-}
-
-snapshot::snapshot_fields!(PerceptionSummary {
-    fresh,
-    frame_timestamp_ns,
-    points,
-    bev,
-    memory_keyframes,
-    memory_points,
-    roll,
-    pitch,
-    base_height,
-    source,
-    estimate,
-    confidence,
-    geometric,
-    token,
-    held,
-    frames,
-    step_tick,
-    late,
-});
-
-snapshot::snapshot_fields!(PoseSample {
-    time_ns,
-    rot,
-    pos,
-    height,
-    waist
-});
-
-// The pose history, the BEV memory's keyframes and the last summary (the token held when a
-// frame is implausible, the step without a frame). Not the frame buffer: the HAL fills it before
-// every step that reads it.
-snapshot::snapshot_fields!(Perception {
-    history,
-    history_len,
-    history_next,
-    memory,
-    last
-});

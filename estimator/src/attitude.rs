@@ -93,6 +93,22 @@ impl AttitudeFilter {
     }
 }
 
+/// The filter's quaternion (w, x, y, z), re-normalised on restore only by its construction.
+impl snapshot::Snapshot for AttitudeFilter {
+    fn save(&self, out: &mut Vec<u8>) {
+        let q = self.q.quaternion();
+        [q.w, q.i, q.j, q.k].save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        let mut c = [0.0f64; 4];
+        c.restore(input)?;
+        // The saved value was a unit quaternion: taken as is, so the restored filter is the saved one.
+        self.q = UnitQuaternion::new_unchecked(Quaternion::new(c[0], c[1], c[2], c[3]));
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 // Tests build their inputs with std's math on the host; they never run on the robot.
 #[allow(clippy::disallowed_methods)]
@@ -148,21 +164,5 @@ mod tests {
         assert!(valid_quaternion([f32::NAN, 0.0, 0.0, 0.0]).is_none());
         assert!(valid_quaternion([0.5, 0.0, 0.0, 0.0]).is_none());
         assert!(valid_quaternion([1.0, 0.0, 0.0, 0.0]).is_some());
-    }
-}
-
-/// The filter's quaternion (w, x, y, z), re-normalised on restore only by its construction.
-impl snapshot::Snapshot for AttitudeFilter {
-    fn save(&self, out: &mut Vec<u8>) {
-        let q = self.q.quaternion();
-        [q.w, q.i, q.j, q.k].save(out);
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        let mut c = [0.0f64; 4];
-        c.restore(input)?;
-        // The saved value was a unit quaternion: taken as is, so the restored filter is the saved one.
-        self.q = UnitQuaternion::new_unchecked(Quaternion::new(c[0], c[1], c[2], c[3]));
-        Ok(())
     }
 }

@@ -106,6 +106,8 @@ impl ContactDetector {
     }
 }
 
+snapshot::snapshot_fields!(ContactDetector { contact, loaded, force });
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -145,5 +147,3 @@ mod tests {
         );
     }
 }
-
-snapshot::snapshot_fields!(ContactDetector { contact, loaded, force });

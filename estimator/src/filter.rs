@@ -222,6 +222,21 @@ impl BaseFilter {
     }
 }
 
+/// The state and its covariance (and the rejections counted).
+impl snapshot::Snapshot for BaseFilter {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.x.as_slice().save(out);
+        self.p.as_slice().save(out);
+        self.rejected.save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        self.x.as_mut_slice().restore(input)?;
+        self.p.as_mut_slice().restore(input)?;
+        self.rejected.restore(input)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -274,20 +289,5 @@ mod tests {
         assert!((f.position().z - 0.7).abs() < 0.01, "{}", f.position());
         assert!(f.velocity().norm() < 0.05, "{}", f.velocity());
         assert!(f.is_finite());
-    }
-}
-
-/// The state and its covariance (and the rejections counted).
-impl snapshot::Snapshot for BaseFilter {
-    fn save(&self, out: &mut Vec<u8>) {
-        self.x.as_slice().save(out);
-        self.p.as_slice().save(out);
-        self.rejected.save(out);
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        self.x.as_mut_slice().restore(input)?;
-        self.p.as_mut_slice().restore(input)?;
-        self.rejected.restore(input)
     }
 }

@@ -289,6 +289,76 @@ impl StateEstimator {
     }
 }
 
+impl snapshot::Snapshot for AttitudeSource {
+    fn save(&self, out: &mut Vec<u8>) {
+        out.push(*self as u8);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        let v = snapshot::take::<1>(input, "attitude source")?[0];
+        *self = [AttitudeSource::None, AttitudeSource::Imu, AttitudeSource::Filter]
+            .get(v as usize)
+            .copied()
+            .ok_or(snapshot::SnapshotError::Invalid {
+                what: "attitude source",
+                value: v as u64,
+            })?;
+        Ok(())
+    }
+}
+
+snapshot::snapshot_fields!(BaseEstimate {
+    valid,
+    attitude_source,
+    quat,
+    rpy,
+    projected_gravity,
+    lin_vel_world,
+    lin_vel_body,
+    ang_vel_body,
+    lin_vel_std,
+    position,
+    height_std,
+    foot_pos,
+    contact,
+    contact_force,
+    sole_height,
+    waist,
+});
+
+/// Everything the estimator carries from tick to tick (the filter, once the first tick with legs
+/// has made it).
+impl snapshot::Snapshot for StateEstimator {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.attitude.save(out);
+        self.contact.save(out);
+        self.filter.is_some().save(out);
+        if let Some(f) = &self.filter {
+            f.save(out);
+        }
+        self.last_tick.save(out);
+        self.out.save(out);
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        self.attitude.restore(input)?;
+        self.contact.restore(input)?;
+        let mut has_filter = false;
+        has_filter.restore(input)?;
+        if has_filter {
+            // Made on the first tick with legs; its configuration is the spec's, its state the snapshot's.
+            let f = self
+                .filter
+                .get_or_insert_with(|| BaseFilter::new(self.cfg.filter, Vector3::zeros(), [Vector3::zeros(); 2]));
+            f.restore(input)?;
+        } else {
+            self.filter = None;
+        }
+        self.last_tick.restore(input)?;
+        self.out.restore(input)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -359,75 +429,5 @@ mod tests {
         let out = *e.update(0, &standing());
         assert!(!out.valid);
         assert_eq!(out.projected_gravity, [0.0, 0.0, -1.0]);
-    }
-}
-
-impl snapshot::Snapshot for AttitudeSource {
-    fn save(&self, out: &mut Vec<u8>) {
-        out.push(*self as u8);
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        let v = snapshot::take::<1>(input, "attitude source")?[0];
-        *self = [AttitudeSource::None, AttitudeSource::Imu, AttitudeSource::Filter]
-            .get(v as usize)
-            .copied()
-            .ok_or(snapshot::SnapshotError::Invalid {
-                what: "attitude source",
-                value: v as u64,
-            })?;
-        Ok(())
-    }
-}
-
-snapshot::snapshot_fields!(BaseEstimate {
-    valid,
-    attitude_source,
-    quat,
-    rpy,
-    projected_gravity,
-    lin_vel_world,
-    lin_vel_body,
-    ang_vel_body,
-    lin_vel_std,
-    position,
-    height_std,
-    foot_pos,
-    contact,
-    contact_force,
-    sole_height,
-    waist,
-});
-
-/// Everything the estimator carries from tick to tick (the filter, once the first tick with legs
-/// has made it).
-impl snapshot::Snapshot for StateEstimator {
-    fn save(&self, out: &mut Vec<u8>) {
-        self.attitude.save(out);
-        self.contact.save(out);
-        self.filter.is_some().save(out);
-        if let Some(f) = &self.filter {
-            f.save(out);
-        }
-        self.last_tick.save(out);
-        self.out.save(out);
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        self.attitude.restore(input)?;
-        self.contact.restore(input)?;
-        let mut has_filter = false;
-        has_filter.restore(input)?;
-        if has_filter {
-            // Made on the first tick with legs; its configuration is the spec's, its state the snapshot's.
-            let f = self
-                .filter
-                .get_or_insert_with(|| BaseFilter::new(self.cfg.filter, Vector3::zeros(), [Vector3::zeros(); 2]));
-            f.restore(input)?;
-        } else {
-            self.filter = None;
-        }
-        self.last_tick.restore(input)?;
-        self.out.restore(input)
     }
 }

@@ -746,7 +746,7 @@ fn unhex(text: &str) -> Result<Vec<u8>> {
         _ => Err(anyhow::anyhow!("'{}' is not a hex digit", c as char)),
     };
     let b = text.as_bytes();
-    if b.len() % 2 != 0 {
+    if !b.len().is_multiple_of(2) {
         bail!("an odd number of hex digits ({})", b.len());
     }
     b.chunks_exact(2)

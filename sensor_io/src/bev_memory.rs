@@ -296,6 +296,53 @@ impl BevMemory {
     }
 }
 
+snapshot::snapshot_fields!(OdomPose { pos, yaw, height });
+
+/// The keyframes held (each slot's points up to its count), not the merge buffers.
+impl snapshot::Snapshot for BevMemory {
+    fn save(&self, out: &mut Vec<u8>) {
+        self.counts.save(out);
+        self.poses.save(out);
+        self.newest.save(out);
+        self.len.save(out);
+        let per = self.cfg.points_per_keyframe;
+        for (slot, &n) in self.counts.iter().enumerate() {
+            for p in &self.points[slot * per..slot * per + n] {
+                p.save(out);
+            }
+        }
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        use snapshot::SnapshotError;
+        self.counts.restore(input)?;
+        self.poses.restore(input)?;
+        self.newest.restore(input)?;
+        self.len.restore(input)?;
+        let (per, k) = (self.cfg.points_per_keyframe, self.cfg.keyframes);
+        if self.len > k || (k > 0 && self.newest >= k) {
+            return Err(SnapshotError::Invalid {
+                what: "keyframe ring",
+                value: self.len as u64,
+            });
+        }
+        for slot in 0..self.counts.len() {
+            let n = self.counts[slot];
+            if n > per {
+                return Err(SnapshotError::Length {
+                    what: "keyframe points",
+                    expected: per,
+                    found: n as u64,
+                });
+            }
+            for p in &mut self.points[slot * per..slot * per + n] {
+                p.restore(input)?;
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -418,52 +465,5 @@ mod tests {
         b.build_robot_points(&pts, &mut g2);
         assert_eq!(g1.data, g2.data);
         assert!(m.is_empty());
-    }
-}
-
-snapshot::snapshot_fields!(OdomPose { pos, yaw, height });
-
-/// The keyframes held (each slot's points up to its count), not the merge buffers.
-impl snapshot::Snapshot for BevMemory {
-    fn save(&self, out: &mut Vec<u8>) {
-        self.counts.save(out);
-        self.poses.save(out);
-        self.newest.save(out);
-        self.len.save(out);
-        let per = self.cfg.points_per_keyframe;
-        for (slot, &n) in self.counts.iter().enumerate() {
-            for p in &self.points[slot * per..slot * per + n] {
-                p.save(out);
-            }
-        }
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        use snapshot::SnapshotError;
-        self.counts.restore(input)?;
-        self.poses.restore(input)?;
-        self.newest.restore(input)?;
-        self.len.restore(input)?;
-        let (per, k) = (self.cfg.points_per_keyframe, self.cfg.keyframes);
-        if self.len > k || (k > 0 && self.newest >= k) {
-            return Err(SnapshotError::Invalid {
-                what: "keyframe ring",
-                value: self.len as u64,
-            });
-        }
-        for slot in 0..self.counts.len() {
-            let n = self.counts[slot];
-            if n > per {
-                return Err(SnapshotError::Length {
-                    what: "keyframe points",
-                    expected: per,
-                    found: n as u64,
-                });
-            }
-            for p in &mut self.points[slot * per..slot * per + n] {
-                p.restore(input)?;
-            }
-        }
-        Ok(())
     }
 }

@@ -393,6 +393,26 @@ pub fn safetensors_in_words(e: &safetensors::SafeTensorError, bytes: &[u8]) -> S
     }
 }
 
+/// The recurrent state of every stateful layer, in order (nothing for a feed-forward network).
+impl snapshot::Snapshot for Network {
+    fn save(&self, out: &mut Vec<u8>) {
+        for l in &self.layers {
+            if let layers::Layer::Lstm(lstm) = l {
+                lstm.save(out);
+            }
+        }
+    }
+
+    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
+        for l in &mut self.layers {
+            if let layers::Layer::Lstm(lstm) = l {
+                lstm.restore(input)?;
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod safetensors_words {
     #[test]
@@ -416,25 +436,5 @@ mod safetensors_words {
         let s = say(&file);
         assert!(!s.contains("InvalidOffset") && !s.contains("MetadataIncomplete"), "{s}");
         assert!(s.contains("truncated"), "{s}");
-    }
-}
-
-/// The recurrent state of every stateful layer, in order (nothing for a feed-forward network).
-impl snapshot::Snapshot for Network {
-    fn save(&self, out: &mut Vec<u8>) {
-        for l in &self.layers {
-            if let layers::Layer::Lstm(lstm) = l {
-                lstm.save(out);
-            }
-        }
-    }
-
-    fn restore(&mut self, input: &mut &[u8]) -> Result<(), snapshot::SnapshotError> {
-        for l in &mut self.layers {
-            if let layers::Layer::Lstm(lstm) = l {
-                lstm.restore(input)?;
-            }
-        }
-        Ok(())
     }
 }
