@@ -289,6 +289,23 @@ pub fn transitions(report: &serde_json::Value) -> Vec<(String, String, f64)> {
         .collect()
 }
 
+/// The `/hal/low_state` ticks a log file holds, in file order, and how its scan ended if cut short
+/// (a crash-truncated tail).
+pub fn logged_ticks(path: &Path) -> (Vec<u64>, Option<String>) {
+    let log = runlog::log::LogFile::open(path).expect("opens");
+    let mut ticks = Vec::new();
+    let end = log.scan(|topic, _, data| {
+        if topic == runlog::log::channels::LOW_STATE {
+            ticks.push(
+                runlog::log::channels::decode_low_state_frame(data)
+                    .expect("decodes")
+                    .tick,
+            );
+        }
+    });
+    (ticks, end.truncated)
+}
+
 /// `g1fw replay LOG` succeeds and says the replay is identical.
 pub fn assert_replays_identical(log: &Path) {
     let out = g1fw(&["replay", log.to_str().unwrap()]);

@@ -6,23 +6,6 @@
 use std::path::{Path, PathBuf};
 
 use integration_tests::*;
-use runlog::log::LogFile;
-
-/// The LowState ticks a log file holds, in order.
-fn ticks(path: &Path) -> Vec<u64> {
-    let log = LogFile::open(path).expect("opens");
-    let mut ticks = Vec::new();
-    log.scan(|topic, _, data| {
-        if topic == runlog::log::channels::LOW_STATE {
-            ticks.push(
-                runlog::log::channels::decode_low_state_frame(data)
-                    .expect("decodes")
-                    .tick,
-            );
-        }
-    });
-    ticks
-}
 
 /// `g1fw replay FILE --json`-style summary: (identical, compared perception steps, stderr+stdout).
 fn replay(path: &Path) -> (bool, u64, String) {
@@ -75,7 +58,7 @@ fn a_stair_climb_split_into_files_replays_file_by_file_and_a_damaged_state_is_re
     let paths: Vec<PathBuf> = (0..files).map(|n| runlog::log::split_path(&log, n)).collect();
     assert!(!runlog::log::split_path(&log, files).exists());
     // Every tick once, in order, across the files.
-    let all: Vec<u64> = paths.iter().flat_map(|p| ticks(p)).collect();
+    let all: Vec<u64> = paths.iter().flat_map(|p| logged_ticks(p).0).collect();
     assert_eq!(all, (0..all.len() as u64).collect::<Vec<_>>());
     assert_eq!(all.len() as u64, r["log"]["records"].as_u64().unwrap());
     // Each file alone, bit for bit, perception included.

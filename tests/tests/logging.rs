@@ -11,21 +11,6 @@ use runlog::log::LogFile;
 /// Ticks per chunk the logger flushes (LogOptions::default).
 const FLUSH_EVERY: u64 = 250;
 
-fn rust_ticks(path: &Path) -> (Vec<u64>, Option<String>) {
-    let log = LogFile::open(path).expect("opens");
-    let mut ticks = Vec::new();
-    let end = log.scan(|topic, _, data| {
-        if topic == runlog::log::channels::LOW_STATE {
-            ticks.push(
-                runlog::log::channels::decode_low_state_frame(data)
-                    .expect("decodes")
-                    .tick,
-            );
-        }
-    });
-    (ticks, end.truncated)
-}
-
 fn python_read(py: &Path, log: &Path) -> serde_json::Value {
     python_json(py, "read_log.py", &[log])
 }
@@ -76,14 +61,14 @@ fn kill_9_mid_run_keeps_every_flushed_chunk() {
 
     // The prefix that existed before the kill: every chunk in it reads back, ticks 0.. contiguous,
     // ending on a chunk boundary.
-    let (ticks, truncated) = rust_ticks(&snapshot);
+    let (ticks, truncated) = logged_ticks(&snapshot);
     assert!(truncated.is_some(), "a prefix has no footer");
     assert!(ticks.len() as u64 >= FLUSH_EVERY, "{} ticks", ticks.len());
     assert!(contiguous_from_zero(&ticks));
     assert_eq!(ticks.len() as u64 % FLUSH_EVERY, 0, "reads end on a chunk boundary");
 
     // The file after the kill holds at least as much, and the same ticks first.
-    let (after, truncated_after) = rust_ticks(&log);
+    let (after, truncated_after) = logged_ticks(&log);
     assert!(truncated_after.is_some(), "no footer after kill -9");
     assert!(after.len() >= ticks.len() && after[..ticks.len()] == ticks[..]);
 
