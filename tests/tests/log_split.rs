@@ -28,7 +28,7 @@ fn a_stair_climb_split_into_files_replays_file_by_file_and_a_damaged_state_is_re
     let dir = scratch_dir("log-split");
     let log = dir.join("climb.mcap");
     let report = dir.join("report.json");
-    let out = g1fw(&[
+    let args = [
         "sim",
         "--spec",
         "specs/stairs/g1_stairs_lstm.toml",
@@ -47,7 +47,8 @@ fn a_stair_climb_split_into_files_replays_file_by_file_and_a_damaged_state_is_re
         "2",
         "--report",
         report.to_str().unwrap(),
-    ]);
+    ];
+    let out = g1fw(&args);
     assert!(ran(&out), "{}", String::from_utf8_lossy(&out.stderr));
     let r = read_json(&report);
     let files = r["log"]["files"].as_u64().expect("log.files");
@@ -67,6 +68,13 @@ fn a_stair_climb_split_into_files_replays_file_by_file_and_a_damaged_state_is_re
         assert!(identical, "{}: {text}", p.display());
         assert!(perception_steps > 0, "{}: perception compared: {text}", p.display());
     }
+    // The same run again onto the same name would leave the old parts mixed with the new: refused.
+    let out = g1fw(&args);
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && text.contains("climb_1.mcap") && text.contains("earlier split log"),
+        "{text}"
+    );
     // A later file whose starting state was altered (one hex digit of it) is refused, by name.
     let second = &paths[1];
     let mut bytes = std::fs::read(second).unwrap();

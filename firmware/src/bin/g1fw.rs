@@ -58,7 +58,8 @@ enum Cmd {
     /// Feed a recorded log's inputs through the same firmware code and compare every output bit for
     /// bit. Exit 0: identical; 1: diverged (the first divergent tick, channel and field are printed);
     /// 2: could not replay (missing or mismatched spec/weights, unreadable log) or the log is damaged
-    /// (the ticks before the damage are replayed; the damaged chunk is named).
+    /// (the ticks before the damage are replayed; the damaged chunk is named). A later file of a
+    /// split log (--log-split-mb) replays on its own, from the run's state at its first tick.
     Replay(ReplayArgs),
     /// Render commanded vs measured base velocity of a logged simulation run to a PNG.
     #[cfg(feature = "lab")]

@@ -87,6 +87,8 @@ pub enum LogError {
     TooLarge { obs: usize, act: usize },
     #[error("the log writer thread panicked")]
     WriterPanicked,
+    #[error("{} is there from an earlier split log: move or remove it (and the parts after it), or log to another name", path.display())]
+    StalePart { path: PathBuf },
 }
 
 /// One tick, as copied by the control thread. Fixed size: no allocation on the tick path.
@@ -310,6 +312,11 @@ impl Logger {
                 obs: obs_dim,
                 act: act_dim,
             });
+        }
+        // A part left by an earlier split log would read as this run's.
+        let part = split_path(path, 1);
+        if opts.split_bytes.is_some() && part.exists() {
+            return Err(LogError::StalePart { path: part });
         }
         let file = File::create(path).map_err(|source| LogError::Create {
             path: path.into(),
