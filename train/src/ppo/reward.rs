@@ -444,36 +444,17 @@ impl Terms {
         }
     }
 
+    /// The step's reward: Σ weight · value, times `dt`, summed left to right in [`Terms::named`]'s
+    /// order (the order the sum was once written out in, so the same bits).
     pub fn total(&self, w: &Weights, dt: f64) -> f64 {
-        dt * (w.track_lin_vel_xy * self.track_lin_vel_xy
-            + w.track_ang_vel_z * self.track_ang_vel_z
-            + w.feet_air_time * self.feet_air_time
-            + w.feet_slide * self.feet_slide
-            + w.flat_orientation * self.flat_orientation
-            + w.ang_vel_xy * self.ang_vel_xy
-            + w.action_rate * self.action_rate
-            + w.torques * self.torques
-            + w.joint_acc * self.joint_acc
-            + w.joint_deviation * self.joint_deviation
-            + w.joint_speed * self.joint_speed
-            + w.ankle_limits * self.ankle_limits
-            + w.foot_clearance * self.foot_clearance
-            + w.riser_clearance * self.riser_clearance
-            + w.token_clearance * self.token_clearance
-            + w.swing_apex * self.swing_apex
-            + w.swing_advance * self.swing_advance
-            + w.swing_overshoot * self.swing_overshoot
-            + w.base_height * self.base_height
-            + w.up_lean * self.up_lean
-            + w.stance_lead * self.stance_lead
-            + w.foothold_edge * self.foothold_edge
-            + w.stumble * self.stumble
-            + w.body_contact * self.body_contact
-            + w.termination * self.termination
-            + w.progress * self.progress
-            + w.drift * self.drift
-            + w.yaw_rate_error * self.yaw_rate_error
-            + w.success * self.success)
+        let sum = self
+            .named()
+            .iter()
+            .zip(w.named())
+            .map(|((_, v), (_, wv))| wv * v)
+            .reduce(|a, b| a + b)
+            .unwrap_or(0.0);
+        dt * sum
     }
 }
 
