@@ -306,11 +306,17 @@ pub fn logged_ticks(path: &Path) -> (Vec<u64>, Option<String>) {
     (ticks, end.truncated)
 }
 
-/// `g1fw replay LOG` succeeds and says the replay is identical.
-pub fn assert_replays_identical(log: &Path) {
+/// `g1fw replay LOG`: whether it succeeded and said the replay is identical, and what it printed.
+pub fn replays_identical(log: &Path) -> (bool, String) {
     let out = g1fw(&["replay", log.to_str().unwrap()]);
     let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && text.contains("replay identical"), "{text}");
+    (out.status.success() && text.contains("replay identical"), text)
+}
+
+/// `g1fw replay LOG` succeeds and says the replay is identical.
+pub fn assert_replays_identical(log: &Path) {
+    let (identical, text) = replays_identical(log);
+    assert!(identical, "{text}");
 }
 
 /// `g1-sim --dds lo,1 --model g1-12dof --quiet --dds-idle-exit 1 EXTRA…` in `ns`, its output piped.

@@ -282,9 +282,8 @@ pub fn soak(dir: &Path, plan: SoakPlan) -> Option<SoakFigures> {
     let t0 = Instant::now();
     let mut files_replayed_identical = 0;
     for f in &files {
-        let out = crate::g1fw(&["replay", f.to_str().unwrap()]);
-        let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-        if out.status.success() && text.contains("replay identical") {
+        let (identical, text) = crate::replays_identical(f);
+        if identical {
             files_replayed_identical += 1;
         } else {
             eprintln!("soak replay of {}: {text}", f.display());
